@@ -1,0 +1,160 @@
+/*
+ * nisflow/model.h - the model: configuration, life cycle, sampling and density evaluation.
+ *
+ * A model is a normalizing flow over directions, conditioned on a shading context. It maps a
+ * latent point drawn from a prior to a direction (nf_sample) and evaluates the density of any
+ * direction (nf_pdf). All densities that cross this API are solid-angle densities (per
+ * steradian), as in pbrt and Mitsuba. See docs/theory.md for the mathematics.
+ *
+ * Thread-safety: functions taking a `const nf_model *` may run concurrently on one model from
+ * any number of threads, provided no thread modifies it at the same time (training, set
+ * params, destroy). nf_sample and nf_pdf never allocate memory.
+ */
+#ifndef NISFLOW_MODEL_H
+#define NISFLOW_MODEL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "version.h"
+#include "status.h"
+
+NF_EXTERN_C_BEGIN
+
+/* Limits of the configuration, chosen so that all per-sample scratch fits on the stack. */
+#define NF_MAX_COUPLING_LAYERS 16u
+#define NF_MAX_SPLINE_BINS 64u
+#define NF_MAX_HIDDEN_LAYERS 8u
+#define NF_MAX_HIDDEN_WIDTH 128u
+#define NF_MAX_ONEBLOB_BINS 64u
+#define NF_MAX_SH_BANDS 6u
+
+/* An opaque model. Create with nf_model_create, nf_model_clone or nf_model_load; destroy with
+ * nf_model_destroy. */
+typedef struct nf_model nf_model;
+
+/* A shading context. `position` is in world units (normalized by the config's scene bounds
+ * and clamped to them). `normal` is the shading normal and `wo` the direction towards the
+ * previous vertex (pointing away from the surface). Both must be finite and non-zero; they
+ * are normalized by the library, so unit length is expected but not required. */
+typedef struct nf_context {
+    float position[3];
+    float normal[3];
+    float wo[3];
+} nf_context;
+
+/* The prior (latent density) of the flow. Values are explicit and never renumbered. */
+typedef enum nf_prior_kind {
+    NF_PRIOR_UNIFORM_DIRECTION = 0, /* 1/(4 pi) per steradian                                */
+    NF_PRIOR_UNIFORM_ANGLE = 1,     /* uniform on the (theta, phi) square                     */
+    NF_PRIOR_COSINE = 2,            /* max(0, n.w)/pi around the context's normal, eps-mixed  */
+    NF_PRIOR_CUSTOM = 3             /* user callbacks (for example a BSDF lobe), eps-mixed    */
+} nf_prior_kind;
+
+/* A user prior in solid-angle terms (SPEC section 2). The library mixes it with the uniform
+ * direction density: q = (1 - eps) q_custom + eps / (4 pi), eps = nf_config.prior_epsilon.
+ *
+ * sample: maps (u0, u1) in [0,1)^2 deterministically to a direction `dir` (unit length, world
+ *         space) and returns the solid-angle density of that direction, which must be finite
+ *         and > 0. A sampler that cannot produce a direction (a BSDF lobe below the surface,
+ *         say) must fall back to some valid direction of its own; the library refuses the
+ *         batch with NF_ERROR_NUMERIC when it returns a density <= 0 or a non-finite value.
+ * pdf:    the solid-angle density of `dir`, finite and >= 0.
+ * user:   passed back unchanged; the library never dereferences or frees it.
+ * Both callbacks are called from whichever threads call nf_sample / nf_pdf / training, and
+ * must therefore be thread-safe themselves. They must not call back into the same model's
+ * mutating functions. */
+typedef struct nf_prior_callbacks {
+    float (*sample)(void *user, const nf_context *ctx, float u0, float u1, float dir[3]);
+    float (*pdf)(void *user, const nf_context *ctx, const float dir[3]);
+    void *user;
+} nf_prior_callbacks;
+
+/* An optional allocator. With both functions NULL the library uses malloc and free. All of
+ * a model's memory is allocated when it is created, cloned or loaded; nothing is allocated
+ * afterwards. `free` receives only pointers that `alloc` returned, and never NULL. */
+typedef struct nf_allocator {
+    void *(*alloc)(void *user, size_t size);
+    void (*free)(void *user, void *ptr);
+    void *user;
+} nf_allocator;
+
+/* Model presets (SPEC section 7). Values are explicit and never renumbered. */
+typedef enum nf_preset {
+    NF_PRESET_SMALL = 0, /* the paper's model: 2 coupling layers, 8 bins, 1 hidden layer of 16 */
+    NF_PRESET_LARGE = 1  /* 4 coupling layers, 16 bins, 2 hidden layers of 16                  */
+} nf_preset;
+
+/* Everything needed to create a model. Fill it with nf_config_init, then change fields. */
+typedef struct nf_config {
+    uint32_t coupling_layers; /* L, 1..NF_MAX_COUPLING_LAYERS                                 */
+    uint32_t spline_bins;     /* K, 2..NF_MAX_SPLINE_BINS                                     */
+    uint32_t hidden_layers;   /* hidden layers per conditioner MLP, 1..NF_MAX_HIDDEN_LAYERS   */
+    uint32_t hidden_width;    /* neurons per hidden layer, 1..NF_MAX_HIDDEN_WIDTH             */
+    uint32_t oneblob_bins;    /* B, 2..NF_MAX_ONEBLOB_BINS (default 32)                       */
+    uint32_t sh_bands;        /* S, 0..NF_MAX_SH_BANDS, S*S values per direction (default 4)  */
+    nf_prior_kind prior;      /* default NF_PRIOR_COSINE                                      */
+    float prior_epsilon;      /* defensive mixture weight for cosine/custom, (0, 1]; 0.01     */
+    nf_prior_callbacks custom_prior; /* required when prior == NF_PRIOR_CUSTOM                 */
+    float bounds_min[3];      /* scene bounds for the position encoding, world units;        */
+    float bounds_max[3];      /* max > min on every axis (default the unit cube)              */
+    float learning_rate;      /* AdamW, > 0 (default 1e-3)                                    */
+    float beta1, beta2;       /* AdamW, in [0, 1) (defaults 0.9, 0.999)                       */
+    float adam_epsilon;       /* AdamW, > 0 (default 1e-8)                                    */
+    float weight_decay;       /* AdamW decoupled decay, >= 0 (default 0.01)                   */
+    uint64_t seed;            /* seed of the weight initialisation (default 1)                */
+    nf_allocator allocator;   /* optional; not saved with the model                          */
+} nf_config;
+
+/* Fills `cfg` with the preset's architecture and the defaults above. `cfg` NULL is ignored.
+ * Thread-safe. */
+NF_API void nf_config_init(nf_config *cfg, nf_preset preset);
+
+/* Validates `cfg` and creates a model whose flow is the identity, so that its density equals
+ * its prior's density. The hidden layers are initialised like PyTorch's nn.Linear from an RNG
+ * seeded with cfg->seed; the last layer of every conditioner is zero. On success *out owns the
+ * new model; on failure *out is NULL and the status says why (NF_ERROR_INVALID_ARGUMENT for a
+ * bad config, NF_ERROR_OUT_OF_MEMORY). Thread-safe. */
+NF_API nf_status nf_model_create(const nf_config *cfg, nf_model **out);
+
+/* Frees everything the model owns, with the allocator it was created with. NULL is a no-op.
+ * Not thread-safe with respect to other calls on the same model. */
+NF_API void nf_model_destroy(nf_model *model);
+
+/* A deep copy: configuration, parameters and optimizer state. *out is NULL on failure.
+ * Thread-safe with respect to other const calls on `model`. */
+NF_API nf_status nf_model_clone(const nf_model *model, nf_model **out);
+
+/* Copies the model's configuration (including its allocator and custom prior callbacks) to
+ * *out. Thread-safe. */
+NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
+
+/* Draws n directions. For sample i, u[2i], u[2i+1] are two numbers in [0,1) (values outside
+ * are clamped), ctx[i] its shading context; dir[3i..3i+2] receives a unit vector and, if pdf
+ * is not NULL, pdf[i] the solid-angle density of that direction, equal to what nf_pdf returns
+ * for it (relative difference below 1e-4 away from the poles). The map from u to dir is
+ * deterministic. n = 0 is a no-op (pointers may then be NULL). The whole batch is validated
+ * before anything is written: on error no output is written.
+ * Thread-safe on a const model; never allocates. */
+NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
+                           float *dir, float *pdf);
+
+/* Evaluates the solid-angle density of n directions: pdf[i] = p(dir[3i..3i+2] | ctx[i]).
+ * Directions must be finite and non-zero; they are normalized by the library. Near the poles
+ * sin(theta) is clamped to NF_SIN_THETA_MIN, so densities stay finite. n = 0 is a no-op. On
+ * error pdf is not written. Thread-safe on a const model; never allocates. */
+NF_API nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                        float *pdf);
+
+/* The solid-angle density of the model's prior (with its epsilon mixture) at `dir`: the
+ * density a fresh model has. Returns -1 when an argument is invalid (the message says why).
+ * Thread-safe; never allocates. */
+NF_API float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]);
+
+/* The smallest value of sin(theta) the library divides by when it converts a density on the
+ * (theta, phi) square to a solid-angle density. */
+#define NF_SIN_THETA_MIN 1e-6f
+
+NF_EXTERN_C_END
+
+#endif /* NISFLOW_MODEL_H */

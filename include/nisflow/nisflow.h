@@ -1,0 +1,22 @@
+/*
+ * nisflow/nisflow.h - the umbrella header of libnisflow, neural importance sampling of
+ * directions for path guiding. Include this one header to get the whole C API.
+ *
+ *   version.h  version macros and nf_version_string
+ *   status.h   nf_status codes and error messages
+ *   model.h    configuration, model life cycle, nf_sample / nf_pdf
+ *   train.h    loss, gradients, AdamW steps, parameter access
+ *   io.h       save / load / serialize
+ *   blocks.h   spline, encodings and direction <-> square maps
+ */
+#ifndef NISFLOW_NISFLOW_H
+#define NISFLOW_NISFLOW_H
+
+#include "version.h"
+#include "status.h"
+#include "model.h"
+#include "train.h"
+#include "io.h"
+#include "blocks.h"
+
+#endif /* NISFLOW_NISFLOW_H */

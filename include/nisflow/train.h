@@ -1,0 +1,73 @@
+/*
+ * nisflow/train.h - online training: the weighted negative log-likelihood, its gradient, and
+ * AdamW steps.
+ *
+ * A training sample is (context, direction w, weight f >= 0) where f is the renderer's
+ * estimate of f_s(wo, x, w) L_i(x, w) |cos| divided by the density it sampled w with. The
+ * loss of a batch is  - sum_i f_i log p(w_i | ctx_i) / sum_i f_i  (SPEC section 6).
+ *
+ * Sharded training (several threads or machines): each shard k calls nf_loss_gradient on a
+ * const model with its own gradient buffer g_k and knows its weight sum F_k = sum of its
+ * weights. The gradient of the whole batch is  g = sum_k F_k g_k / sum_k F_k , which one
+ * thread then passes to nf_apply_gradient. docs/integration.md shows the loop.
+ */
+#ifndef NISFLOW_TRAIN_H
+#define NISFLOW_TRAIN_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "version.h"
+#include "model.h"
+#include "status.h"
+
+NF_EXTERN_C_BEGIN
+
+/* One optimisation step on a batch: nf_loss_gradient into the model's own gradient buffer,
+ * then nf_apply_gradient. *loss (if not NULL) receives the batch's loss before the step.
+ * Weights must be finite and >= 0; a batch whose weights are all zero leaves the model
+ * unchanged (no step is counted) and reports a loss of 0. A refused batch (any invalid input)
+ * or a step that would make a parameter non-finite (NF_ERROR_NUMERIC) leaves the model
+ * exactly as it was. n = 0 is a no-op. Not thread-safe: no other call may use `m` meanwhile.
+ * Does not allocate. */
+NF_API nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                               const float *weight, float *loss);
+
+/* The number of trainable parameters (floats). 0 for NULL. Thread-safe. */
+NF_API size_t nf_param_count(const nf_model *m);
+
+/* Copies the parameters into `params` (nf_param_count floats). The layout: for each coupling
+ * layer, for each linear layer of its conditioner from input to output, the weight matrix
+ * stored input-major (W[in][out]) followed by the bias (out floats). Thread-safe. */
+NF_API nf_status nf_get_params(const nf_model *m, float *params);
+
+/* Replaces the parameters (nf_param_count floats, layout as above). Refuses non-finite values
+ * with NF_ERROR_INVALID_ARGUMENT and leaves the model unchanged. The optimizer state is kept.
+ * Not thread-safe. */
+NF_API nf_status nf_set_params(nf_model *m, const float *params);
+
+/* Computes the batch loss (if loss is not NULL) and its gradient with respect to the
+ * parameters into grad (nf_param_count floats, overwritten), by hand-written reverse mode.
+ * Validation as for nf_train_step; with all weights zero the loss and gradient are 0.
+ * Thread-safe on a const model (each thread passes its own grad); never allocates. */
+NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
+                                  const float *dir, const float *weight, float *loss,
+                                  float *grad);
+
+/* One AdamW step (decoupled weight decay, bias-corrected moments) with the given gradient
+ * (nf_param_count floats). Refuses a non-finite gradient with NF_ERROR_INVALID_ARGUMENT, and a
+ * step whose parameters or moments would be non-finite with NF_ERROR_NUMERIC; both leave the
+ * model unchanged. Not thread-safe. Does not allocate. */
+NF_API nf_status nf_apply_gradient(nf_model *m, const float *grad);
+
+/* The number of optimizer steps the model has taken (saved and restored with it). 0 for
+ * NULL. Thread-safe. */
+NF_API uint64_t nf_model_step_count(const nf_model *m);
+
+/* Changes the AdamW learning rate of an existing model (for schedules), > 0 and finite.
+ * Not thread-safe. */
+NF_API nf_status nf_set_learning_rate(nf_model *m, float learning_rate);
+
+NF_EXTERN_C_END
+
+#endif /* NISFLOW_TRAIN_H */

@@ -1,0 +1,177 @@
+/*
+ * train.c - the weighted negative log-likelihood (SPEC section 6), its gradient, AdamW, and
+ * parameter access.
+ */
+#include <math.h>
+#include <string.h>
+
+#include "internal.h"
+
+/* Validates a training batch and returns the sum of its weights in *total. */
+static nf_status nf_validate_training(const char *fn, const nf_model *m, size_t n,
+                                      const nf_context *ctx, const float *dir,
+                                      const float *weight, double *total)
+{
+    if (!m)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: model is NULL", fn);
+    *total = 0.0;
+    if (n == 0)
+        return NF_OK;
+    if (!ctx || !dir || !weight)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL ctx, dir or weight", fn);
+    nf_status st;
+    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+        (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
+        (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
+        return st;
+    double sum = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+        if (!(weight[i] >= 0.0f) || !isfinite(weight[i]))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: weight[%zu] = %g is negative or not finite", fn, i,
+                           (double)weight[i]);
+        sum += weight[i];
+    }
+    *total = sum;
+    return NF_OK;
+}
+
+/* Loss and gradient (into grad) of a validated batch with weight sum `total` > 0. */
+static nf_status nf_accumulate_gradient(const nf_model *m, size_t n, const nf_context *ctx,
+                                        const float *dir, const float *weight, double total,
+                                        double *loss, float *grad)
+{
+    double acc = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+        if (weight[i] == 0.0f)
+            continue; /* contributes nothing, and its context need not be evaluated */
+        nf_point pt;
+        nf_point_prepare(m, &ctx[i], &pt);
+        float s[2], log_p;
+        nf_direction_to_square(dir + 3 * i, s);
+        double share = (double)weight[i] / total;
+        nf_status st = nf_flow_log_density(m, &pt, s, (float)-share, grad, &log_p);
+        if (st != NF_OK)
+            return st;
+        /* log p_w = log p_s - log(2 pi^2 sin theta) */
+        double sin_theta = fmax((double)nf_sin_pi(s[0]), (double)NF_SIN_THETA_MIN);
+        acc -= share * ((double)log_p - log(19.7392088021787172 * sin_theta));
+    }
+    *loss = acc;
+    return NF_OK;
+}
+
+nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                           const float *weight, float *loss, float *grad)
+{
+    static const char fn[] = "nf_loss_gradient";
+    double total = 0.0, value = 0.0;
+    nf_status st = nf_validate_training(fn, m, n, ctx, dir, weight, &total);
+    if (st != NF_OK)
+        return st;
+    if (!grad)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: grad is NULL", fn);
+    memset(grad, 0, m->param_count * sizeof(float));
+    if (total > 0.0 && (st = nf_accumulate_gradient(m, n, ctx, dir, weight, total, &value,
+                                                    grad)) != NF_OK)
+        return st;
+    if (loss)
+        *loss = (float)value;
+    return NF_OK;
+}
+
+nf_status nf_apply_gradient(nf_model *m, const float *grad)
+{
+    static const char fn[] = "nf_apply_gradient";
+    if (!m || !grad)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model or gradient", fn);
+    size_t count = m->param_count;
+    if (!nf_all_finite(grad, count))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: gradient contains NaN or Inf", fn);
+    const nf_config *c = &m->cfg;
+    double t = (double)(m->step + 1);
+    float bias1 = (float)(1.0 - pow((double)c->beta1, t));
+    float bias2 = (float)(1.0 - pow((double)c->beta2, t));
+    float step_size = c->learning_rate / bias1, inv_sqrt_bias2 = 1.0f / sqrtf(bias2);
+    float decay = 1.0f - c->learning_rate * c->weight_decay;
+    float *p_new = m->staging, *m_new = m->staging + count, *v_new = m->staging + 2 * count;
+    /* The step is computed into staging and committed only if every value is finite, so a
+     * refused step leaves the model exactly as it was. */
+    for (size_t i = 0; i < count; ++i) {
+        float g = grad[i];
+        float mi = c->beta1 * m->adam_m[i] + (1.0f - c->beta1) * g;
+        float vi = c->beta2 * m->adam_v[i] + (1.0f - c->beta2) * g * g;
+        float denom = sqrtf(vi) * inv_sqrt_bias2 + c->adam_epsilon;
+        p_new[i] = m->params[i] * decay - step_size * mi / denom;
+        m_new[i] = mi;
+        v_new[i] = vi;
+    }
+    if (!nf_all_finite(m->staging, 3 * count))
+        return nf_fail(NF_ERROR_NUMERIC, "%s: the step would make a parameter non-finite", fn);
+    memcpy(m->params, p_new, count * sizeof(float));
+    memcpy(m->adam_m, m_new, count * sizeof(float));
+    memcpy(m->adam_v, v_new, count * sizeof(float));
+    m->step += 1;
+    return NF_OK;
+}
+
+nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                        const float *weight, float *loss)
+{
+    static const char fn[] = "nf_train_step";
+    double total = 0.0, value = 0.0;
+    nf_status st = nf_validate_training(fn, m, n, ctx, dir, weight, &total);
+    if (st != NF_OK)
+        return st;
+    if (total > 0.0) {
+        memset(m->grad, 0, m->param_count * sizeof(float));
+        if ((st = nf_accumulate_gradient(m, n, ctx, dir, weight, total, &value, m->grad)) !=
+                NF_OK ||
+            (st = nf_apply_gradient(m, m->grad)) != NF_OK)
+            return st;
+    }
+    if (loss)
+        *loss = (float)value;
+    return NF_OK;
+}
+
+size_t nf_param_count(const nf_model *m)
+{
+    return m ? m->param_count : 0;
+}
+
+nf_status nf_get_params(const nf_model *m, float *params)
+{
+    if (!m || !params)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_get_params: NULL model or params");
+    memcpy(params, m->params, m->param_count * sizeof(float));
+    return NF_OK;
+}
+
+nf_status nf_set_params(nf_model *m, const float *params)
+{
+    if (!m || !params)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: NULL model or params");
+    if (!nf_all_finite(params, m->param_count))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: params contain NaN or Inf");
+    memcpy(m->params, params, m->param_count * sizeof(float));
+    return NF_OK;
+}
+
+uint64_t nf_model_step_count(const nf_model *m)
+{
+    return m ? m->step : 0;
+}
+
+nf_status nf_set_learning_rate(nf_model *m, float learning_rate)
+{
+    if (!m)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_learning_rate: model is NULL");
+    if (!(learning_rate > 0.0f) || !isfinite(learning_rate) ||
+        !(learning_rate * m->cfg.weight_decay < 1.0f))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "nf_set_learning_rate: %g must be finite, > 0 and < 1 / weight_decay",
+                       (double)learning_rate);
+    m->cfg.learning_rate = learning_rate;
+    return NF_OK;
+}

@@ -1,0 +1,61 @@
+/*
+ * validate.c - checks of batch inputs shared by every entry point, so that each refusal
+ * names the argument and the index at fault.
+ */
+#include <math.h>
+#include <stdint.h>
+
+#include "internal.h"
+
+int nf_all_finite(const float *v, size_t n)
+{
+    /* Accumulating v*0 turns any NaN or Inf into NaN without a branch per element. */
+    float acc = 0.0f;
+    for (size_t i = 0; i < n; ++i)
+        acc += v[i] * 0.0f;
+    return acc == 0.0f;
+}
+
+nf_status nf_validate_batch_size(const char *fn, size_t n)
+{
+    /* The largest per-sample array is 3 floats (directions); the caller's byte counts must
+     * be representable. */
+    if (n > SIZE_MAX / (3u * sizeof(float)))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: n = %zu is too large", fn, n);
+    return NF_OK;
+}
+
+static int nf_vector_usable(const float v[3])
+{
+    if (!nf_all_finite(v, 3))
+        return 0;
+    double len2 = (double)v[0] * v[0] + (double)v[1] * v[1] + (double)v[2] * v[2];
+    /* Directions are normalized in float: a squared length below FLT_MIN-ish would
+     * underflow to a zero vector. */
+    return len2 > 1e-30;
+}
+
+nf_status nf_validate_contexts(const char *fn, size_t n, const nf_context *ctx)
+{
+    for (size_t i = 0; i < n; ++i) {
+        if (!nf_all_finite(ctx[i].position, 3))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: ctx[%zu].position is not finite",
+                           fn, i);
+        if (!nf_vector_usable(ctx[i].normal))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: ctx[%zu].normal is zero-length or not finite", fn, i);
+        if (!nf_vector_usable(ctx[i].wo))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: ctx[%zu].wo is zero-length or not finite", fn, i);
+    }
+    return NF_OK;
+}
+
+nf_status nf_validate_directions(const char *fn, const char *name, size_t n, const float *dir)
+{
+    for (size_t i = 0; i < n; ++i)
+        if (!nf_vector_usable(dir + 3 * i))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: %s[%zu] is zero-length or not finite", fn, name, i);
+    return NF_OK;
+}
