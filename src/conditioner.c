@@ -28,7 +28,7 @@ void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf_point *pt)
     for (int a = 0; a < 3; ++a) {
         float t = (ctx->position[a] - cfg->bounds_min[a]) /
                   (cfg->bounds_max[a] - cfg->bounds_min[a]);
-        nf_oneblob_sparse(fminf(fmaxf(t, 0.0f), 1.0f), cfg->oneblob_bins, &pt->position[a]);
+        nf_oneblob_sparse(nf_clampf(t, 0.0f, 1.0f), cfg->oneblob_bins, &pt->position[a]);
     }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {
@@ -68,7 +68,7 @@ void nf_conditioner_forward(const nf_model *m, uint32_t layer, const nf_point *p
     for (uint32_t k = 0; k < sh; ++k)
         nf_add_row(h, w + (size_t)(4u * bins + k) * width, pt->sh[k], width);
     for (uint32_t j = 0; j < width; ++j)
-        h[j] = fmaxf(h[j], 0.0f);
+        h[j] = nf_maxf(h[j], 0.0f);
 
     for (uint32_t l = 1; l < m->cfg.hidden_layers; ++l) {
         lin = nf_model_linear(m, layer, l);
@@ -78,7 +78,7 @@ void nf_conditioner_forward(const nf_model *m, uint32_t layer, const nf_point *p
         for (uint32_t i = 0; i < width; ++i)
             nf_add_row(h, params + lin.weight + (size_t)i * width, prev[i], width);
         for (uint32_t j = 0; j < width; ++j)
-            h[j] = fmaxf(h[j], 0.0f);
+            h[j] = nf_maxf(h[j], 0.0f);
     }
 
     lin = nf_model_linear(m, layer, m->cfg.hidden_layers);

@@ -11,15 +11,15 @@
  * tb = t * B. Its derivative d Q / d tb is 15/16 (1 - u^2)^2 inside the kernel. */
 static float nf_quartic_cdf(float tb)
 {
-    float u = fminf(fmaxf(tb, -1.0f), 1.0f);
+    float u = nf_clampf(tb, -1.0f, 1.0f);
     float u2 = u * u;
     float q = (15.0f / 16.0f) * u * (1.0f - (2.0f / 3.0f) * u2 + 0.2f * u2 * u2) + 0.5f;
-    return fminf(fmaxf(q, 0.0f), 1.0f);
+    return nf_clampf(q, 0.0f, 1.0f);
 }
 
 static float nf_quartic_kernel(float tb)
 {
-    float u = fminf(fmaxf(tb, -1.0f), 1.0f);
+    float u = nf_clampf(tb, -1.0f, 1.0f);
     float w = 1.0f - u * u;
     return (15.0f / 16.0f) * w * w;
 }
@@ -28,7 +28,7 @@ void nf_encode_oneblob(float v, uint32_t bins, float *out)
 {
     if (!out || bins == 0)
         return;
-    float vb = fminf(fmaxf(v, 0.0f), 1.0f) * (float)bins;
+    float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
     for (uint32_t j = 0; j < bins; ++j)
         out[j] = nf_quartic_cdf((float)(j + 1) - vb) - nf_quartic_cdf((float)j - vb);
 }
@@ -38,7 +38,7 @@ void nf_oneblob_sparse(float v, uint32_t bins, nf_blob *out)
     /* Bin j is non-zero only when j - vB lies in (-2, 1): at most three bins around floor(vB).
      * Evaluating exactly those with the same Q as the dense encoding gives identical values;
      * every other bin is exactly zero because both of its Q terms clamp to the same end. */
-    float vb = fminf(fmaxf(v, 0.0f), 1.0f) * (float)bins;
+    float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
     int first = (int)floorf(vb) - 1;
     out->count = 0;
     for (int j = first; j < first + 3; ++j) {

@@ -110,7 +110,7 @@ nf_status nf_flow_log_density(const nf_model *m, const nf_point *pt, const float
 /* Density on the square -> solid-angle density at s (SPEC section 1). */
 static float nf_solid_angle_pdf(float log_p, float s0)
 {
-    return expf(log_p) / (NF_TWO_PI_SQUARED * fmaxf(nf_sin_pi(s0), NF_SIN_THETA_MIN));
+    return expf(log_p) / (NF_TWO_PI_SQUARED * nf_maxf(nf_sin_pi(s0), NF_SIN_THETA_MIN));
 }
 
 nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u,

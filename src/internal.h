@@ -75,6 +75,12 @@ nf_status nf_validate_batch_size(const char *fn, size_t n);
 
 /* ---- math helpers (square.c) --------------------------------------------------------------- */
 
+/* fminf/fmaxf are libm calls unless -ffinite-math-only; these compile to minss/maxss. For NaN
+ * they return the second argument, which callers never rely on (inputs are validated). */
+static inline float nf_minf(float a, float b) { return a < b ? a : b; }
+static inline float nf_maxf(float a, float b) { return a > b ? a : b; }
+static inline float nf_clampf(float v, float lo, float hi) { return nf_minf(nf_maxf(v, lo), hi); }
+
 /* sin(pi x) for x in [0,1], accurate near both ends. */
 float nf_sin_pi(float x);
 
@@ -85,10 +91,10 @@ typedef struct nf_spline {
     uint32_t bins;
     float x[NF_MAX_SPLINE_BINS + 1];  /* knot abscissae, x[0] = 0, x[K] = 1          */
     float y[NF_MAX_SPLINE_BINS + 1];  /* knot ordinates, y[0] = 0, y[K] = 1          */
-    float d[NF_MAX_SPLINE_BINS + 1];  /* derivatives at the knots                     */
     float sw[NF_MAX_SPLINE_BINS];     /* softmax of the raw widths (for gradients)    */
     float sh[NF_MAX_SPLINE_BINS];     /* softmax of the raw heights                   */
-    float sd[NF_MAX_SPLINE_BINS + 1]; /* sigmoid(raw_d + c) = d(softplus)/d(raw)      */
+    const float *raw_d;               /* K+1 raw derivatives, borrowed: only the two
+                                         of the bin in use are ever transformed       */
 } nf_spline;
 
 /* Partial derivatives of y and log(dy/dx) at a point of bin k with respect to the bin's
@@ -96,8 +102,10 @@ typedef struct nf_spline {
 typedef struct nf_spline_partials {
     float dy_dx, dy_dxk, dy_dwk, dy_dyk, dy_dhk, dy_dd0, dy_dd1;
     float dl_dx, dl_dxk, dl_dwk, dl_dhk, dl_dd0, dl_dd1; /* l = log(dy/dx); dl/dyk = 0 */
+    float dd0_draw, dd1_draw; /* d d_k / d raw_k and d d_{k+1} / d raw_{k+1} */
 } nf_spline_partials;
 
+/* `raw` must outlive `s`: the knot derivatives are computed from it on demand. */
 void nf_spline_build(nf_spline *s, uint32_t bins, const float *raw);
 uint32_t nf_spline_bin_of_x(const nf_spline *s, float x);
 uint32_t nf_spline_bin_of_y(const nf_spline *s, float y);
@@ -151,8 +159,7 @@ nf_status nf_prior_log_density(const nf_model *m, const nf_point *pt, const floa
 void nf_conditioner_forward(const nf_model *m, uint32_t layer, const nf_point *pt, float v,
                             float *act, float *raw);
 /* Reverse mode: given the gradient of the loss w.r.t. raw (g_raw), adds parameter gradients
- * into grad (the whole model's gradient array) and returns d loss / d v. `g_raw` is used as
- * scratch. */
+ * into grad (the whole model's gradient array) and returns d loss / d v. */
 float nf_conditioner_backward(const nf_model *m, uint32_t layer, const nf_point *pt, float v,
                               const float *act, const float *g_raw, float *grad);
 

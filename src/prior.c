@@ -12,7 +12,7 @@
 /* Below 1 by one ulp: u = 1 would map to the far edge of the square. */
 static float nf_clamp_unit(float u)
 {
-    return fminf(fmaxf(u, 0.0f), 0x1.fffffep-1f);
+    return nf_clampf(u, 0.0f, 0x1.fffffep-1f);
 }
 
 /* An orthonormal frame (t, b, n) around a unit normal, branch-free except for the sign
@@ -33,8 +33,8 @@ static void nf_frame(const float n[3], float t[3], float b[3])
 static void nf_uniform_sphere_square(float u0, float u1, float z[2])
 {
     float cos_theta = 1.0f - 2.0f * u0;
-    float sin_theta = 2.0f * sqrtf(fmaxf(u0 * (1.0f - u0), 0.0f));
-    z[0] = fminf(atan2f(sin_theta, cos_theta) / NF_PI, 1.0f);
+    float sin_theta = 2.0f * sqrtf(nf_maxf(u0 * (1.0f - u0), 0.0f));
+    z[0] = nf_minf(atan2f(sin_theta, cos_theta) / NF_PI, 1.0f);
     z[1] = u1;
 }
 
@@ -43,7 +43,7 @@ static void nf_cosine_direction(const float n[3], float u0, float u1, float w[3]
     float t[3], b[3];
     nf_frame(n, t, b);
     float r = sqrtf(u0), phi = NF_TWO_PI * u1;
-    float lx = r * cosf(phi), ly = r * sinf(phi), lz = sqrtf(fmaxf(1.0f - u0, 0.0f));
+    float lx = r * cosf(phi), ly = r * sinf(phi), lz = sqrtf(nf_maxf(1.0f - u0, 0.0f));
     for (int a = 0; a < 3; ++a)
         w[a] = lx * t[a] + ly * b[a] + lz * n[a];
 }
@@ -111,7 +111,7 @@ nf_status nf_prior_log_density(const nf_model *m, const nf_point *pt, const floa
         const float *n = pt->ctx.normal;
         nf_square_to_direction(z, w);
         float c = n[0] * w[0] + n[1] * w[1] + n[2] * w[2];
-        float g = (1.0f - eps) * NF_TWO_PI * fmaxf(c, 0.0f) + eps * NF_HALF_PI;
+        float g = (1.0f - eps) * NF_TWO_PI * nf_maxf(c, 0.0f) + eps * NF_HALF_PI;
         *log_q = logf(g) + nf_log_sin(z[0], grad ? &dsin : NULL);
         if (grad) {
             grad[0] = dsin;
@@ -138,8 +138,8 @@ nf_status nf_prior_log_density(const nf_model *m, const nf_point *pt, const floa
         const float h = 1e-3f;
         for (int a = 0; a < 2; ++a) {
             float lo[2] = {z[0], z[1]}, hi[2] = {z[0], z[1]};
-            lo[a] = fmaxf(z[a] - h, 0.0f);
-            hi[a] = fminf(z[a] + h, 1.0f);
+            lo[a] = nf_maxf(z[a] - h, 0.0f);
+            hi[a] = nf_minf(z[a] + h, 1.0f);
             float l_lo, l_hi;
             if ((st = nf_custom_log_density(m, pt, lo, &l_lo)) != NF_OK ||
                 (st = nf_custom_log_density(m, pt, hi, &l_hi)) != NF_OK)
@@ -220,10 +220,10 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
     case NF_PRIOR_UNIFORM_DIRECTION:
         return NF_INV_FOUR_PI;
     case NF_PRIOR_UNIFORM_ANGLE:
-        return 1.0f / (NF_TWO_PI_SQUARED * fmaxf(hypotf(w[0], w[1]), NF_SIN_THETA_MIN));
+        return 1.0f / (NF_TWO_PI_SQUARED * nf_maxf(hypotf(w[0], w[1]), NF_SIN_THETA_MIN));
     case NF_PRIOR_COSINE: {
         const float *n = pt.ctx.normal;
-        float c = fmaxf(n[0] * w[0] + n[1] * w[1] + n[2] * w[2], 0.0f);
+        float c = nf_maxf(n[0] * w[0] + n[1] * w[1] + n[2] * w[2], 0.0f);
         return (1.0f - eps) * c / NF_PI + eps * NF_INV_FOUR_PI;
     }
     case NF_PRIOR_CUSTOM: {

@@ -24,7 +24,7 @@ static void nf_spline_knots(uint32_t bins, const float *raw, float *knots, float
 {
     float top = raw[0];
     for (uint32_t i = 1; i < bins; ++i)
-        top = fmaxf(top, raw[i]);
+        top = nf_maxf(top, raw[i]);
     float sum = 0.0f;
     for (uint32_t i = 0; i < bins; ++i) {
         soft[i] = expf(raw[i] - top);
@@ -43,15 +43,24 @@ static void nf_spline_knots(uint32_t bins, const float *raw, float *knots, float
 
 void nf_spline_build(nf_spline *s, uint32_t bins, const float *raw)
 {
-    /* c = log(exp(1 - m) - 1) makes softplus(0 + c) = 1 - m, so zero raw derivatives give 1. */
-    const float shift = 0.53974242f;
     s->bins = bins;
     nf_spline_knots(bins, raw, s->x, s->sw);
     nf_spline_knots(bins, raw + bins, s->y, s->sh);
-    for (uint32_t i = 0; i <= bins; ++i) {
-        float a = raw[2 * bins + i] + shift;
-        s->d[i] = NF_SPLINE_MIN + nf_softplus(a);
-        s->sd[i] = nf_sigmoid(a);
+    s->raw_d = raw + 2 * bins;
+}
+
+/* The derivatives d_k, d_{k+1} at the ends of bin k, and (if sd != NULL) their derivatives
+ * with respect to the raw values, sigmoid(raw + c). Computing two instead of K+1 saves most
+ * of the spline's transcendental functions. */
+static void nf_bin_derivatives(const nf_spline *s, uint32_t k, float d[2], float sd[2])
+{
+    /* c = log(exp(1 - m) - 1) makes softplus(0 + c) = 1 - m, so zero raw derivatives give 1. */
+    const float shift = 0.53974242f;
+    for (int j = 0; j < 2; ++j) {
+        float a = s->raw_d[k + (uint32_t)j] + shift;
+        d[j] = NF_SPLINE_MIN + nf_softplus(a);
+        if (sd)
+            sd[j] = nf_sigmoid(a);
     }
 }
 
@@ -76,12 +85,14 @@ void nf_spline_eval(const nf_spline *s, uint32_t k, float x, float *y, float *lo
 {
     float xk = s->x[k], wk = s->x[k + 1] - xk;
     float yk = s->y[k], hk = s->y[k + 1] - yk;
-    float d0 = s->d[k], d1 = s->d[k + 1];
-    float xi = fminf(fmaxf((x - xk) / wk, 0.0f), 1.0f);
+    float d[2];
+    nf_bin_derivatives(s, k, d, NULL);
+    float d0 = d[0], d1 = d[1];
+    float xi = nf_clampf((x - xk) / wk, 0.0f, 1.0f);
     float sk = hk / wk, e = xi * (1.0f - xi), om = 1.0f - xi;
     float den = sk + (d1 + d0 - 2.0f * sk) * e;
     float num = hk * (sk * xi * xi + d0 * e);
-    *y = fminf(fmaxf(yk + num / den, 0.0f), 1.0f);
+    *y = nf_clampf(yk + num / den, 0.0f, 1.0f);
     float p = d1 * xi * xi + 2.0f * sk * e + d0 * om * om;
     *log_dydx = 2.0f * logf(sk) + logf(p) - 2.0f * logf(den);
 }
@@ -90,25 +101,29 @@ float nf_spline_solve(const nf_spline *s, uint32_t k, float y)
 {
     float xk = s->x[k], wk = s->x[k + 1] - xk;
     float yk = s->y[k], hk = s->y[k + 1] - yk;
-    float d0 = s->d[k], d1 = s->d[k + 1];
+    float d[2];
+    nf_bin_derivatives(s, k, d, NULL);
+    float d0 = d[0], d1 = d[1];
     float sk = hk / wk, t = y - yk, sum = d1 + d0 - 2.0f * sk;
     float a = hk * (sk - d0) + t * sum;
     float b = hk * d0 - t * sum;
     float c = -sk * t;
-    float disc = fmaxf(b * b - 4.0f * a * c, 0.0f);
+    float disc = nf_maxf(b * b - 4.0f * a * c, 0.0f);
     /* The root 2c / (-b - sqrt(disc)) avoids the cancellation of the textbook formula. */
     float denom = -b - sqrtf(disc);
     float xi = denom != 0.0f ? 2.0f * c / denom : 0.0f;
-    xi = fminf(fmaxf(xi, 0.0f), 1.0f);
-    return fminf(fmaxf(xk + xi * wk, 0.0f), 1.0f);
+    xi = nf_clampf(xi, 0.0f, 1.0f);
+    return nf_clampf(xk + xi * wk, 0.0f, 1.0f);
 }
 
 void nf_spline_partials_at(const nf_spline *s, uint32_t k, float x, nf_spline_partials *p)
 {
     float xk = s->x[k], wk = s->x[k + 1] - xk;
     float hk = s->y[k + 1] - s->y[k];
-    float d0 = s->d[k], d1 = s->d[k + 1];
-    float xi = fminf(fmaxf((x - xk) / wk, 0.0f), 1.0f);
+    float d[2], sd[2];
+    nf_bin_derivatives(s, k, d, sd);
+    float d0 = d[0], d1 = d[1];
+    float xi = nf_clampf((x - xk) / wk, 0.0f, 1.0f);
     float sk = hk / wk, e = xi * (1.0f - xi), ep = 1.0f - 2.0f * xi, om = 1.0f - xi;
     float sum = d1 + d0 - 2.0f * sk;
     float den = sk + sum * e;
@@ -143,6 +158,8 @@ void nf_spline_partials_at(const nf_spline *s, uint32_t k, float x, nf_spline_pa
     p->dl_dhk = l_s * inv_w;
     p->dl_dd0 = l_d0;
     p->dl_dd1 = l_d1;
+    p->dd0_draw = sd[0];
+    p->dd1_draw = sd[1];
 }
 
 /* Gradient of the knots x_k (as position) and x_{k+1} - x_k (as width) back to the raw
@@ -174,8 +191,8 @@ void nf_spline_raw_backward(const nf_spline *s, uint32_t k, const nf_spline_part
     float g_hk = a * p->dy_dhk + b * p->dl_dhk;
     nf_knots_backward(bins, k, s->sw, g_xk, g_wk, raw_grad);
     nf_knots_backward(bins, k, s->sh, g_yk, g_hk, raw_grad + bins);
-    raw_grad[2 * bins + k] += (a * p->dy_dd0 + b * p->dl_dd0) * s->sd[k];
-    raw_grad[2 * bins + k + 1] += (a * p->dy_dd1 + b * p->dl_dd1) * s->sd[k + 1];
+    raw_grad[2 * bins + k] += (a * p->dy_dd0 + b * p->dl_dd0) * p->dd0_draw;
+    raw_grad[2 * bins + k + 1] += (a * p->dy_dd1 + b * p->dl_dd1) * p->dd1_draw;
 }
 
 static nf_status nf_spline_check(const char *fn, uint32_t bins, const float *raw, float v,
@@ -198,7 +215,7 @@ nf_status nf_spline_forward(uint32_t bins, const float *raw, float x, float *y, 
         return st;
     nf_spline s;
     nf_spline_build(&s, bins, raw);
-    x = fminf(fmaxf(x, 0.0f), 1.0f);
+    x = nf_clampf(x, 0.0f, 1.0f);
     float log_d;
     nf_spline_eval(&s, nf_spline_bin_of_x(&s, x), x, y, &log_d);
     if (dydx)
@@ -213,7 +230,7 @@ nf_status nf_spline_inverse(uint32_t bins, const float *raw, float y, float *x, 
         return st;
     nf_spline s;
     nf_spline_build(&s, bins, raw);
-    y = fminf(fmaxf(y, 0.0f), 1.0f);
+    y = nf_clampf(y, 0.0f, 1.0f);
     uint32_t k = nf_spline_bin_of_y(&s, y);
     *x = nf_spline_solve(&s, k, y);
     if (dydx) {

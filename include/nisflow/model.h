@@ -134,7 +134,9 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * is not NULL, pdf[i] the solid-angle density of that direction, equal to what nf_pdf returns
  * for it (relative difference below 1e-4 away from the poles). The map from u to dir is
  * deterministic. n = 0 is a no-op (pointers may then be NULL). The whole batch is validated
- * before anything is written: on error no output is written.
+ * before anything is written: on NF_ERROR_INVALID_ARGUMENT no output is written. The one
+ * error that can arise mid-batch is NF_ERROR_NUMERIC from a custom prior callback returning
+ * an invalid value; outputs of earlier samples are then written, later ones are not.
  * Thread-safe on a const model; never allocates. */
 NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
                            float *dir, float *pdf);
@@ -142,7 +144,9 @@ NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, c
 /* Evaluates the solid-angle density of n directions: pdf[i] = p(dir[3i..3i+2] | ctx[i]).
  * Directions must be finite and non-zero; they are normalized by the library. Near the poles
  * sin(theta) is clamped to NF_SIN_THETA_MIN, so densities stay finite. n = 0 is a no-op. On
- * error pdf is not written. Thread-safe on a const model; never allocates. */
+ * NF_ERROR_INVALID_ARGUMENT pdf is not written; NF_ERROR_NUMERIC (a custom prior callback
+ * returned an invalid value) may come after earlier entries were written.
+ * Thread-safe on a const model; never allocates. */
 NF_API nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                         float *pdf);
 
