@@ -1,6 +1,10 @@
 /*
  * internal.h - the model's memory layout and the interfaces between the library's modules.
  * Nothing here is installed; users see only include/nisflow/.
+ *
+ * The hot path (encodings, conditioners, splines, priors, the flow) is inline code in
+ * encoding.h, conditioner.h, spline_eval.h, prior_eval.h and flow_eval.h, compiled once per
+ * instruction set by kernel.c; dispatch.c picks the variant the CPU supports.
  */
 #ifndef NISFLOW_INTERNAL_H
 #define NISFLOW_INTERNAL_H
@@ -12,7 +16,9 @@
 
 #define NF_PI 3.14159265358979323846f
 #define NF_TWO_PI 6.28318530717958647692f
+#define NF_HALF_PI 1.57079632679489661923f
 #define NF_INV_FOUR_PI 0.0795774715459476679f
+#define NF_TWO_PI_SQUARED 19.7392088021787172f
 #define NF_SPLINE_MIN 1e-3f /* m in SPEC section 3: smallest bin width, height, derivative */
 
 #define NF_MAX_RAW (3u * NF_MAX_SPLINE_BINS + 1u)
@@ -20,7 +26,22 @@
 #define NF_MAX_INPUT (4u * NF_MAX_ONEBLOB_BINS + 2u * NF_MAX_SH)
 #define NF_MAX_ACTIVATIONS (NF_MAX_HIDDEN_LAYERS * NF_MAX_HIDDEN_WIDTH)
 
+/* The kernels accumulate 16 outputs at a time (one AVX-512 register, two AVX2 ones), so the
+ * packed weights pad every output dimension to a multiple of it. */
+#define NF_CHUNK 16u
+#define NF_PAD(n) (((n) + NF_CHUNK - 1u) / NF_CHUNK * NF_CHUNK)
+#define NF_MAX_RAW_PADDED NF_PAD(NF_MAX_RAW)
+
 /* ---- the model ------------------------------------------------------------------------ */
+
+/* One linear layer inside a parameter array: W[in][stride] (input-major, columns >= out are
+ * zero padding) followed by b[stride]. In the public layout stride = out. */
+typedef struct nf_linear {
+    size_t weight, bias;
+    uint32_t in, out, stride;
+} nf_linear;
+
+typedef struct nf_kernels nf_kernels;
 
 struct nf_model {
     nf_config cfg;          /* validated; cfg.allocator resolved to real functions         */
@@ -28,24 +49,19 @@ struct nf_model {
     uint32_t raw_dim;       /* conditioner output: 3 K + 1                                  */
     size_t layer_params;    /* parameters of one coupling layer's conditioner               */
     size_t param_count;     /* coupling_layers * layer_params                               */
+    size_t packed_count;    /* floats in `packed`                                           */
     uint64_t step;          /* AdamW steps taken                                            */
+    const nf_kernels *kernels;
+    /* [layer][j]: j = 0 input layer, j = hidden_layers output layer */
+    nf_linear linear[NF_MAX_COUPLING_LAYERS][NF_MAX_HIDDEN_LAYERS + 1]; /* public layout */
+    nf_linear packed_linear[NF_MAX_COUPLING_LAYERS][NF_MAX_HIDDEN_LAYERS + 1];
     float *params;          /* param_count; layout documented in train.h                    */
+    float *packed;          /* the same weights, padded for the kernels; see nf_model_pack  */
     float *adam_m;          /* param_count, first moments                                   */
     float *adam_v;          /* param_count, second moments                                  */
     float *grad;            /* param_count, scratch of nf_train_step                        */
     float *staging;         /* 3 * param_count, scratch of nf_apply_gradient (p, m, v)      */
 };
-
-/* Offsets of one linear layer inside a coupling layer's parameter block. */
-typedef struct nf_linear {
-    size_t weight;  /* offset of W[in][out] (input-major) */
-    size_t bias;    /* offset of b[out]                   */
-    uint32_t in, out;
-} nf_linear;
-
-/* The j-th linear layer (0 = input layer, hidden_layers = output layer) of coupling layer
- * `layer`, with offsets from the start of the model's parameter array. */
-nf_linear nf_model_linear(const nf_model *m, uint32_t layer, uint32_t j);
 
 /* Size of a coupling layer's parameters for a config (assumed valid). */
 size_t nf_layer_param_count(const nf_config *cfg);
@@ -56,6 +72,34 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn);
 
 /* Allocates a model for a validated config with zeroed parameters and optimizer state. */
 nf_status nf_model_allocate(const nf_config *cfg, nf_model **out);
+
+/* Rebuilds the packed weights from params; every change of params must call it. */
+void nf_model_pack(nf_model *m);
+
+/* ---- kernels (kernel.c, one copy per instruction set; dispatch.c) ------------------------ */
+
+struct nf_kernels {
+    const char *name;
+    /* Inputs already validated by the public entry points. */
+    nf_status (*sample)(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
+                        float *dir, float *pdf);
+    nf_status (*pdf)(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                     float *pdf);
+    /* Adds the gradient of the loss (weights normalized by `total` > 0) into grad and returns
+     * the loss in *loss. */
+    nf_status (*gradient)(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                          const float *weight, double total, double *loss, float *grad);
+};
+
+extern const nf_kernels nf_kernels_generic;
+#if defined(NF_HAVE_X86_KERNELS)
+extern const nf_kernels nf_kernels_avx2;
+extern const nf_kernels nf_kernels_avx512;
+#endif
+
+/* The kernels for a requested instruction set, or NULL (with a message) if this CPU or build
+ * lacks it. */
+const nf_kernels *nf_select_kernels(nf_isa isa, const char *fn);
 
 /* ---- errors ----------------------------------------------------------------------------- */
 
@@ -73,53 +117,13 @@ nf_status nf_validate_contexts(const char *fn, size_t n, const nf_context *ctx);
 nf_status nf_validate_directions(const char *fn, const char *name, size_t n, const float *dir);
 nf_status nf_validate_batch_size(const char *fn, size_t n);
 
-/* ---- math helpers (square.c) --------------------------------------------------------------- */
+/* ---- small helpers ------------------------------------------------------------------------ */
 
 /* fminf/fmaxf are libm calls unless -ffinite-math-only; these compile to minss/maxss. For NaN
  * they return the second argument, which callers never rely on (inputs are validated). */
 static inline float nf_minf(float a, float b) { return a < b ? a : b; }
 static inline float nf_maxf(float a, float b) { return a > b ? a : b; }
 static inline float nf_clampf(float v, float lo, float hi) { return nf_minf(nf_maxf(v, lo), hi); }
-
-/* sin(pi x) for x in [0,1], accurate near both ends. */
-float nf_sin_pi(float x);
-
-/* ---- the spline (spline.c) ------------------------------------------------------------------ */
-
-/* The knots of one spline, computed from its raw parameters. */
-typedef struct nf_spline {
-    uint32_t bins;
-    float x[NF_MAX_SPLINE_BINS + 1];  /* knot abscissae, x[0] = 0, x[K] = 1          */
-    float y[NF_MAX_SPLINE_BINS + 1];  /* knot ordinates, y[0] = 0, y[K] = 1          */
-    float sw[NF_MAX_SPLINE_BINS];     /* softmax of the raw widths (for gradients)    */
-    float sh[NF_MAX_SPLINE_BINS];     /* softmax of the raw heights                   */
-    const float *raw_d;               /* K+1 raw derivatives, borrowed: only the two
-                                         of the bin in use are ever transformed       */
-} nf_spline;
-
-/* Partial derivatives of y and log(dy/dx) at a point of bin k with respect to the bin's
- * local quantities. */
-typedef struct nf_spline_partials {
-    float dy_dx, dy_dxk, dy_dwk, dy_dyk, dy_dhk, dy_dd0, dy_dd1;
-    float dl_dx, dl_dxk, dl_dwk, dl_dhk, dl_dd0, dl_dd1; /* l = log(dy/dx); dl/dyk = 0 */
-    float dd0_draw, dd1_draw; /* d d_k / d raw_k and d d_{k+1} / d raw_{k+1} */
-} nf_spline_partials;
-
-/* `raw` must outlive `s`: the knot derivatives are computed from it on demand. */
-void nf_spline_build(nf_spline *s, uint32_t bins, const float *raw);
-uint32_t nf_spline_bin_of_x(const nf_spline *s, float x);
-uint32_t nf_spline_bin_of_y(const nf_spline *s, float y);
-/* y and log(dy/dx) at x in bin k. */
-void nf_spline_eval(const nf_spline *s, uint32_t k, float x, float *y, float *log_dydx);
-/* x in bin k with forward(x) = y. */
-float nf_spline_solve(const nf_spline *s, uint32_t k, float y);
-void nf_spline_partials_at(const nf_spline *s, uint32_t k, float x, nf_spline_partials *p);
-/* Adds to raw_grad (3K+1) the gradient of  a*y + b*log(dy/dx)  (evaluated at x in bin k)
- * with respect to the raw parameters, given p from nf_spline_partials_at. */
-void nf_spline_raw_backward(const nf_spline *s, uint32_t k, const nf_spline_partials *p,
-                            float a, float b, float *raw_grad);
-
-/* ---- encodings (encode.c) ------------------------------------------------------------------- */
 
 /* The non-zero bins of a one-blob encoding: up to 3 (bin, value, d value / dv). */
 typedef struct nf_blob {
@@ -129,49 +133,14 @@ typedef struct nf_blob {
     float dvalue[3];
 } nf_blob;
 
-void nf_oneblob_sparse(float v, uint32_t bins, nf_blob *out);
-/* SH of a unit vector (no normalization). */
-void nf_sh_unit(const float d[3], uint32_t bands, float *out);
-
-/* ---- priors and shading-point features (prior.c, conditioner.c) --------------------------- */
-
 /* A validated, normalized shading context and everything the conditioners share. */
 typedef struct nf_point {
-    nf_context ctx;            /* normal and wo normalized; position as given              */
-    nf_blob position[3];       /* one-blob of each normalized position coordinate          */
-    float sh[2 * NF_MAX_SH];   /* SH of normal, then of wo                                 */
+    const nf_context *user;  /* the caller's context, passed on to custom prior callbacks */
+    nf_context ctx;          /* normal and wo normalized; position as given              */
+    uint32_t rows[9];        /* input rows of the position one-blobs (<= 3 per axis)     */
+    float values[9];
+    uint32_t row_count;
+    float sh[2 * NF_MAX_SH]; /* SH of normal, then of wo                                 */
 } nf_point;
-
-void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf_point *pt);
-
-/* Draws a latent point z on the square from the prior. Returns NF_ERROR_NUMERIC only for a
- * custom prior whose callback misbehaves. */
-nf_status nf_prior_sample(const nf_model *m, const nf_point *pt, float u0, float u1, float z[2],
-                          float *log_q);
-/* log of the prior's density on the square at z, and (if grad != NULL) its gradient in z.
- * For custom priors NF_ERROR_NUMERIC if the callback returns a bad value. */
-nf_status nf_prior_log_density(const nf_model *m, const nf_point *pt, const float z[2],
-                               float *log_q, float grad[2]);
-
-/* Conditioner MLP of coupling layer `layer`: raw spline parameters from the pass-through
- * coordinate v and the shading point. `act` receives the hidden activations
- * (hidden_layers * hidden_width) for a later backward pass. */
-void nf_conditioner_forward(const nf_model *m, uint32_t layer, const nf_point *pt, float v,
-                            float *act, float *raw);
-/* Reverse mode: given the gradient of the loss w.r.t. raw (g_raw), adds parameter gradients
- * into grad (the whole model's gradient array) and returns d loss / d v. */
-float nf_conditioner_backward(const nf_model *m, uint32_t layer, const nf_point *pt, float v,
-                              const float *act, const float *g_raw, float *grad);
-
-/* ---- the flow (flow.c) ---------------------------------------------------------------------- */
-
-/* Forward map z -> s; returns log |det J_F(z)|. */
-float nf_flow_forward(const nf_model *m, const nf_point *pt, const float z[2], float s[2]);
-/* Inverse map s -> z; returns log |det J_{F^-1}(s)|. */
-float nf_flow_inverse(const nf_model *m, const nf_point *pt, const float s[2], float z[2]);
-/* log of the flow's density on the square at s; with grad != NULL, also adds
- * coef * d(log p_s)/d(params) into grad. */
-nf_status nf_flow_log_density(const nf_model *m, const nf_point *pt, const float s[2],
-                              float coef, float *grad, float *log_p);
 
 #endif /* NISFLOW_INTERNAL_H */

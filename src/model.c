@@ -26,56 +26,85 @@ static size_t nf_header_bytes(void)
     return (sizeof(nf_model) + 63u) & ~(size_t)63u;
 }
 
+/* Fills the offset tables of both layouts: the public one (stride = out) and the packed one
+ * (stride = out rounded up to NF_CHUNK). Returns the floats each layout needs. */
+static void nf_model_layout(nf_model *m, size_t *public_count, size_t *packed_count)
+{
+    const nf_config *cfg = &m->cfg;
+    size_t pub = 0, pk = 0;
+    for (uint32_t layer = 0; layer < cfg->coupling_layers; ++layer) {
+        uint32_t in = m->input_dim;
+        for (uint32_t j = 0; j <= cfg->hidden_layers; ++j) {
+            uint32_t out = j == cfg->hidden_layers ? m->raw_dim : cfg->hidden_width;
+            nf_linear a = {pub, pub + (size_t)in * out, in, out, out};
+            nf_linear b = {pk, pk + (size_t)in * NF_PAD(out), in, out, NF_PAD(out)};
+            m->linear[layer][j] = a;
+            m->packed_linear[layer][j] = b;
+            pub += ((size_t)in + 1) * out;
+            pk += ((size_t)in + 1) * NF_PAD(out);
+            in = cfg->hidden_width;
+        }
+    }
+    *public_count = pub;
+    *packed_count = pk;
+}
+
 nf_status nf_model_allocate(const nf_config *cfg, nf_model **out)
 {
-    size_t p = (size_t)cfg->coupling_layers * nf_layer_param_count(cfg);
-    size_t bytes = nf_header_bytes() + 7u * p * sizeof(float);
+    const nf_kernels *kernels = nf_select_kernels(cfg->isa, "nf_model_create");
+    if (!kernels)
+        return NF_ERROR_INVALID_ARGUMENT;
     nf_allocator alloc = cfg->allocator;
     if (!alloc.alloc) {
         alloc.alloc = nf_default_alloc;
         alloc.free = nf_default_free;
         alloc.user = NULL;
     }
+    /* The layout is computed on a stack copy first: the block's size depends on it. */
+    nf_model probe;
+    memset(&probe, 0, sizeof probe);
+    probe.cfg = *cfg;
+    probe.input_dim = 4u * cfg->oneblob_bins + 2u * cfg->sh_bands * cfg->sh_bands;
+    probe.raw_dim = 3u * cfg->spline_bins + 1u;
+    size_t p, packed;
+    nf_model_layout(&probe, &p, &packed);
+    size_t bytes = nf_header_bytes() + (7u * p + packed) * sizeof(float);
     unsigned char *block = (unsigned char *)alloc.alloc(alloc.user, bytes);
     if (!block)
         return nf_fail(NF_ERROR_OUT_OF_MEMORY, "could not allocate %zu bytes for a model",
                        bytes);
     memset(block, 0, bytes);
     nf_model *m = (nf_model *)block;
-    m->cfg = *cfg;
+    *m = probe;
     m->cfg.allocator = alloc;
-    m->input_dim = 4u * cfg->oneblob_bins + 2u * cfg->sh_bands * cfg->sh_bands;
-    m->raw_dim = 3u * cfg->spline_bins + 1u;
     m->layer_params = nf_layer_param_count(cfg);
     m->param_count = p;
+    m->packed_count = packed;
     m->step = 0;
+    m->kernels = kernels;
     float *arrays = (float *)(block + nf_header_bytes());
     m->params = arrays;
     m->adam_m = arrays + p;
     m->adam_v = arrays + 2 * p;
     m->grad = arrays + 3 * p;
     m->staging = arrays + 4 * p;
+    m->packed = arrays + 7 * p;
     *out = m;
     return NF_OK;
 }
 
-nf_linear nf_model_linear(const nf_model *m, uint32_t layer, uint32_t j)
+void nf_model_pack(nf_model *m)
 {
-    uint32_t h = m->cfg.hidden_width;
-    size_t offset = (size_t)layer * m->layer_params;
-    nf_linear lin;
-    lin.in = m->input_dim;
-    lin.out = h;
-    for (uint32_t k = 0; k < j; ++k) {
-        offset += ((size_t)lin.in + 1) * lin.out;
-        lin.in = h;
-        lin.out = h;
+    /* Padding columns stay zero from allocation; only the real columns are copied. */
+    for (uint32_t layer = 0; layer < m->cfg.coupling_layers; ++layer) {
+        for (uint32_t j = 0; j <= m->cfg.hidden_layers; ++j) {
+            const nf_linear *a = &m->linear[layer][j], *b = &m->packed_linear[layer][j];
+            for (uint32_t i = 0; i < a->in; ++i)
+                memcpy(m->packed + b->weight + (size_t)i * b->stride,
+                       m->params + a->weight + (size_t)i * a->stride, a->out * sizeof(float));
+            memcpy(m->packed + b->bias, m->params + a->bias, a->out * sizeof(float));
+        }
     }
-    if (j == m->cfg.hidden_layers)
-        lin.out = m->raw_dim;
-    lin.weight = offset;
-    lin.bias = offset + (size_t)lin.in * lin.out;
-    return lin;
 }
 
 /* splitmix64: a tiny, well-mixed generator; the initialisation only needs reproducibility. */
@@ -98,7 +127,7 @@ static void nf_initialise_params(nf_model *m)
     uint64_t state = m->cfg.seed;
     for (uint32_t layer = 0; layer < m->cfg.coupling_layers; ++layer) {
         for (uint32_t j = 0; j <= m->cfg.hidden_layers; ++j) {
-            nf_linear lin = nf_model_linear(m, layer, j);
+            nf_linear lin = m->linear[layer][j];
             size_t count = ((size_t)lin.in + 1) * lin.out;
             if (j == m->cfg.hidden_layers) {
                 /* Zero output layer: raw parameters 0, every spline the identity. */
@@ -126,6 +155,7 @@ nf_status nf_model_create(const nf_config *cfg, nf_model **out)
     if ((st = nf_model_allocate(cfg, &m)) != NF_OK)
         return st;
     nf_initialise_params(m);
+    nf_model_pack(m);
     *out = m;
     return NF_OK;
 }
@@ -153,6 +183,7 @@ nf_status nf_model_clone(const nf_model *model, nf_model **out)
     memcpy(copy->params, model->params, p * sizeof(float));
     memcpy(copy->adam_m, model->adam_m, p * sizeof(float));
     memcpy(copy->adam_v, model->adam_v, p * sizeof(float));
+    memcpy(copy->packed, model->packed, model->packed_count * sizeof(float));
     copy->step = model->step;
     *out = copy;
     return NF_OK;

@@ -201,6 +201,7 @@ nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_call
         for (size_t i = 0; i < expected; ++i)
             arrays[k][i] = nf_get_f32(data + 4 * ((size_t)k * expected + i));
     m->step = step;
+    nf_model_pack(m);
     *out = m;
     return NF_OK;
 }

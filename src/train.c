@@ -36,31 +36,6 @@ static nf_status nf_validate_training(const char *fn, const nf_model *m, size_t 
     return NF_OK;
 }
 
-/* Loss and gradient (into grad) of a validated batch with weight sum `total` > 0. */
-static nf_status nf_accumulate_gradient(const nf_model *m, size_t n, const nf_context *ctx,
-                                        const float *dir, const float *weight, double total,
-                                        double *loss, float *grad)
-{
-    double acc = 0.0;
-    for (size_t i = 0; i < n; ++i) {
-        if (weight[i] == 0.0f)
-            continue; /* contributes nothing, and its context need not be evaluated */
-        nf_point pt;
-        nf_point_prepare(m, &ctx[i], &pt);
-        float s[2], log_p;
-        nf_direction_to_square(dir + 3 * i, s);
-        double share = (double)weight[i] / total;
-        nf_status st = nf_flow_log_density(m, &pt, s, (float)-share, grad, &log_p);
-        if (st != NF_OK)
-            return st;
-        /* log p_w = log p_s - log(2 pi^2 sin theta) */
-        double sin_theta = fmax((double)nf_sin_pi(s[0]), (double)NF_SIN_THETA_MIN);
-        acc -= share * ((double)log_p - log(19.7392088021787172 * sin_theta));
-    }
-    *loss = acc;
-    return NF_OK;
-}
-
 nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                            const float *weight, float *loss, float *grad)
 {
@@ -72,8 +47,8 @@ nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx, c
     if (!grad)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: grad is NULL", fn);
     memset(grad, 0, m->param_count * sizeof(float));
-    if (total > 0.0 && (st = nf_accumulate_gradient(m, n, ctx, dir, weight, total, &value,
-                                                    grad)) != NF_OK)
+    if (total > 0.0 &&
+        (st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, grad)) != NF_OK)
         return st;
     if (loss)
         *loss = (float)value;
@@ -111,6 +86,7 @@ nf_status nf_apply_gradient(nf_model *m, const float *grad)
     memcpy(m->params, p_new, count * sizeof(float));
     memcpy(m->adam_m, m_new, count * sizeof(float));
     memcpy(m->adam_v, v_new, count * sizeof(float));
+    nf_model_pack(m);
     m->step += 1;
     return NF_OK;
 }
@@ -125,7 +101,7 @@ nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const floa
         return st;
     if (total > 0.0) {
         memset(m->grad, 0, m->param_count * sizeof(float));
-        if ((st = nf_accumulate_gradient(m, n, ctx, dir, weight, total, &value, m->grad)) !=
+        if ((st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, m->grad)) !=
                 NF_OK ||
             (st = nf_apply_gradient(m, m->grad)) != NF_OK)
             return st;
@@ -155,6 +131,7 @@ nf_status nf_set_params(nf_model *m, const float *params)
     if (!nf_all_finite(params, m->param_count))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: params contain NaN or Inf");
     memcpy(m->params, params, m->param_count * sizeof(float));
+    nf_model_pack(m);
     return NF_OK;
 }
 

@@ -85,6 +85,16 @@ typedef enum nf_preset {
     NF_PRESET_LARGE = 1  /* 4 coupling layers, 16 bins, 2 hidden layers of 16                  */
 } nf_preset;
 
+/* The instruction set of the sample / pdf / gradient kernels. The library ships one copy of
+ * the kernels per set and picks the best the CPU supports (NF_ISA_AUTO); naming one is for
+ * tests and benchmarks. Values are explicit and never renumbered. */
+typedef enum nf_isa {
+    NF_ISA_AUTO = 0,    /* the best available (default)                                   */
+    NF_ISA_GENERIC = 1, /* portable C, the compiler's baseline for the target             */
+    NF_ISA_AVX2 = 2,    /* x86-64 with AVX2 and FMA                                       */
+    NF_ISA_AVX512 = 3   /* x86-64 with AVX-512 F/VL/DQ/BW                                 */
+} nf_isa;
+
 /* Everything needed to create a model. Fill it with nf_config_init, then change fields. */
 typedef struct nf_config {
     uint32_t coupling_layers; /* L, 1..NF_MAX_COUPLING_LAYERS                                 */
@@ -104,6 +114,7 @@ typedef struct nf_config {
     float weight_decay;       /* AdamW decoupled decay, >= 0 (default 0.01)                   */
     uint64_t seed;            /* seed of the weight initialisation (default 1)                */
     nf_allocator allocator;   /* optional; not saved with the model                          */
+    nf_isa isa;               /* kernels to use (default NF_ISA_AUTO); not saved             */
 } nf_config;
 
 /* Fills `cfg` with the preset's architecture and the defaults above. `cfg` NULL is ignored.
@@ -154,6 +165,10 @@ NF_API nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, cons
  * density a fresh model has. Returns -1 when an argument is invalid (the message says why).
  * Thread-safe; never allocates. */
 NF_API float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]);
+
+/* The name of the kernels the model runs ("generic", "avx2", "avx512"). Static string;
+ * "" for NULL. Thread-safe. */
+NF_API const char *nf_model_isa_name(const nf_model *m);
 
 /* The smallest value of sin(theta) the library divides by when it converts a density on the
  * (theta, phi) square to a solid-angle density. */

@@ -1,0 +1,121 @@
+/*
+ * flow_eval.h - the coupling flow F = G_{L-1} o ... o G_0 (SPEC section 4) as inline code for
+ * the kernels. Layer i transforms s1 conditioned on s0 when i is even, s0 conditioned on s1
+ * when i is odd. All scratch is on the stack: no allocation, no shared state.
+ */
+#ifndef NISFLOW_FLOW_EVAL_H
+#define NISFLOW_FLOW_EVAL_H
+
+#include <math.h>
+
+#include "conditioner.h"
+#include "internal.h"
+#include "prior_eval.h"
+#include "spline_eval.h"
+
+/* The coordinate that layer i transforms; the other one passes through. */
+static inline uint32_t nf_transformed(uint32_t layer)
+{
+    return (layer & 1u) ? 0u : 1u;
+}
+
+/* Per-sample scratch, kept in one struct so the kernels declare it once. */
+typedef struct nf_scratch {
+    float act[NF_MAX_HIDDEN_LAYERS * NF_PAD(NF_MAX_HIDDEN_WIDTH)];
+    float raw[NF_MAX_RAW_PADDED];
+    float g_raw[NF_MAX_RAW_PADDED];
+    nf_spline spline;
+} nf_scratch;
+
+/* Forward map z -> s; returns |det J_F(z)| (a product of slopes, in double so that deep flows
+ * cannot overflow it). */
+static inline double nf_flow_forward(const nf_model *m, const nf_point *pt, const float z[2],
+                                     float s[2], nf_scratch *sc)
+{
+    float x[2] = {z[0], z[1]};
+    double det = 1.0;
+    for (uint32_t i = 0; i < m->cfg.coupling_layers; ++i) {
+        uint32_t t = nf_transformed(i);
+        nf_conditioner_forward(m, i, pt, x[1 - t], sc->act, sc->raw);
+        nf_spline_build(&sc->spline, m->cfg.spline_bins, sc->raw);
+        nf_spline_bin bin;
+        nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.x, m->cfg.spline_bins, x[t]),
+                         &bin);
+        float slope;
+        x[t] = nf_spline_bin_eval(&bin, x[t], &slope);
+        det *= slope;
+    }
+    s[0] = x[0];
+    s[1] = x[1];
+    return det;
+}
+
+/* One inverse layer: x[t] <- S^-1(x[t]); returns dy/dx at the solution and leaves the bin in
+ * *bin (and the spline and activations in sc) for reverse mode. */
+static inline float nf_layer_inverse(const nf_model *m, const nf_point *pt, uint32_t i, float x[2],
+                                     nf_scratch *sc, nf_spline_bin *bin)
+{
+    uint32_t t = nf_transformed(i);
+    nf_conditioner_forward(m, i, pt, x[1 - t], sc->act, sc->raw);
+    nf_spline_build(&sc->spline, m->cfg.spline_bins, sc->raw);
+    nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.y, m->cfg.spline_bins, x[t]), bin);
+    float solved = nf_spline_bin_solve(bin, x[t]), slope;
+    nf_spline_bin_eval(bin, solved, &slope);
+    x[t] = solved;
+    return slope;
+}
+
+/* The flow's density on the square at s. With grad != NULL, also adds
+ * coef * d(log p_s)/d(params) into grad (public layout) and returns log p_s in *log_p. */
+static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, const float s[2],
+                                        float coef, float *grad, double *p_s, double *log_p,
+                                        nf_scratch *sc)
+{
+    const uint32_t layers = m->cfg.coupling_layers;
+    float inputs[NF_MAX_COUPLING_LAYERS][2]; /* what each inverse layer received */
+    nf_spline_bin bin;
+    float x[2] = {s[0], s[1]};
+    double inv_det = 1.0;
+    for (uint32_t i = layers; i-- > 0;) {
+        inputs[i][0] = x[0];
+        inputs[i][1] = x[1];
+        inv_det /= nf_layer_inverse(m, pt, i, x, sc, &bin);
+    }
+    float q, g[2] = {0.0f, 0.0f};
+    nf_status st = nf_prior_density(m, pt, x, &q, grad ? g : NULL);
+    if (st != NF_OK)
+        return st;
+    *p_s = (double)q * inv_det;
+    if (!grad)
+        return NF_OK;
+    *log_p = log(*p_s);
+
+    /* Reverse mode of J = coef * (log q(z) + sum_i log dx/dy of layer i), from layer 0 (the
+     * last inverse applied) upwards. The conditioner activations are recomputed per layer
+     * rather than stored, which bounds the stack to one layer's worth. */
+    g[0] *= coef;
+    g[1] *= coef;
+    for (uint32_t i = 0; i < layers; ++i) {
+        uint32_t t = nf_transformed(i);
+        float xi[2] = {inputs[i][0], inputs[i][1]};
+        float slope = nf_layer_inverse(m, pt, i, xi, sc, &bin);
+        nf_spline_partials p;
+        nf_spline_partials_at(&bin, xi[t], &p);
+        /* x = S^-1(y): dx/dy = 1/S'; the layer's term is -log S'(x). */
+        float g_y = (g[t] - coef * p.dl_dx) / slope;
+        for (uint32_t r = 0; r < NF_MAX_RAW_PADDED; ++r)
+            sc->g_raw[r] = 0.0f;
+        nf_spline_raw_backward(&sc->spline, &bin, &p, -g_y, -coef, sc->g_raw);
+        g[1 - t] += nf_conditioner_backward(m, i, pt, xi[1 - t], sc->act, sc->g_raw, grad);
+        g[t] = g_y;
+    }
+    return NF_OK;
+}
+
+/* Density on the square -> solid-angle density at s (SPEC section 1). */
+static inline float nf_solid_angle_pdf(double p_s, float s0)
+{
+    return (float)(p_s / (double)(NF_TWO_PI_SQUARED * nf_maxf(nf_sin_pi(s0), NF_SIN_THETA_MIN)));
+}
+
+#endif /* NISFLOW_FLOW_EVAL_H */

@@ -1,0 +1,47 @@
+/*
+ * sphere.h - the map between unit directions and the unit square (SPEC section 1) as inline
+ * code on the fast trigonometry of fastmath.h. square.c wraps it for the public API, so the
+ * library has exactly one definition of the parameterization.
+ */
+#ifndef NISFLOW_SPHERE_H
+#define NISFLOW_SPHERE_H
+
+#include <math.h>
+
+#include "fastmath.h"
+#include "internal.h"
+
+/* sin(pi x) for x in [0,1]. In turns the argument is x/2, and the reduction subtracts a
+ * quarter or half turn exactly, so relative precision holds near both poles. */
+static inline float nf_sin_pi(float x)
+{
+    float s, c;
+    nf_fast_sincos_turns(0.5f * nf_clampf(x, 0.0f, 1.0f), &s, &c);
+    return nf_maxf(s, 0.0f);
+}
+
+static inline void nf_to_square(const float dir[3], float s[2])
+{
+    float theta = nf_fast_atan2(sqrtf(dir[0] * dir[0] + dir[1] * dir[1]), dir[2]);
+    float phi = nf_fast_atan2(dir[1], dir[0]);
+    phi = phi < 0.0f ? phi + NF_TWO_PI : phi;
+    s[0] = nf_clampf(theta * (1.0f / NF_PI), 0.0f, 1.0f);
+    /* phi just below 2 pi can round up to 2 pi; keep s1 below 1 so the seam stays on the side
+     * it was approached from. */
+    s[1] = nf_clampf(phi * (1.0f / NF_TWO_PI), 0.0f, 0x1.fffffep-1f);
+}
+
+/* The unit direction of s; also returns sin(theta), which callers need for the Jacobian. */
+static inline float nf_from_square(const float s[2], float dir[3])
+{
+    float sin_theta, cos_theta, sin_phi, cos_phi;
+    nf_fast_sincos_turns(0.5f * s[0], &sin_theta, &cos_theta);
+    nf_fast_sincos_turns(s[1], &sin_phi, &cos_phi);
+    sin_theta = nf_maxf(sin_theta, 0.0f);
+    dir[0] = sin_theta * cos_phi;
+    dir[1] = sin_theta * sin_phi;
+    dir[2] = cos_theta;
+    return sin_theta;
+}
+
+#endif /* NISFLOW_SPHERE_H */
