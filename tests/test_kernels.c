@@ -1,0 +1,152 @@
+/*
+ * test_kernels.c - every instruction-set variant of the kernels this CPU can run computes the
+ * same samples, densities and gradients as the portable one, and a variant the CPU or build
+ * lacks is refused with a clear error.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <nisflow/nisflow.h>
+
+#include "nf_test_support.h"
+
+enum { N = 512 };
+
+/* A model with moderately randomized parameters, identical for every ISA. */
+static nf_model *make_model(nf_preset preset, nf_prior_kind prior, nf_isa isa)
+{
+    nf_config cfg;
+    nf_config_init(&cfg, preset);
+    cfg.prior = prior;
+    cfg.isa = isa;
+    nf_model *m = NULL;
+    if (nf_model_create(&cfg, &m) != NF_OK)
+        return NULL;
+    assert_int_equal(nft_randomize_params(m, 0.3f, 17u), NF_OK);
+    return m;
+}
+
+static double rel_diff(double a, double b)
+{
+    return fabs(a - b) / fmax(fabs(a), fabs(b));
+}
+
+static void compare_with_generic(nf_isa isa)
+{
+    static nf_context ctx[N];
+    static float u[2 * N], dir_g[3 * N], dir_v[3 * N], pdf_g[N], pdf_v[N], w[N];
+    nft_rng rng;
+    nft_rng_seed(&rng, 99u, 1u);
+    for (int i = 0; i < N; ++i) {
+        nft_random_context(&rng, &ctx[i]);
+        u[2 * i] = nft_rng_float(&rng);
+        u[2 * i + 1] = nft_rng_float(&rng);
+        w[i] = nft_rng_float(&rng);
+    }
+    for (int preset = 0; preset < 2; ++preset) {
+        for (int prior = 0; prior < 3; ++prior) {
+            nf_model *g = make_model((nf_preset)preset, (nf_prior_kind)prior, NF_ISA_GENERIC);
+            nf_model *v = make_model((nf_preset)preset, (nf_prior_kind)prior, isa);
+            assert_non_null(g);
+            assert_non_null(v);
+            assert_int_equal(nf_sample(g, N, ctx, u, dir_g, pdf_g), NF_OK);
+            assert_int_equal(nf_sample(v, N, ctx, u, dir_v, pdf_v), NF_OK);
+            /* The variants differ only by fused multiply-adds (one rounding instead of two)
+             * and summation order in the 16-lane loops: ~1e-6 relative through the MLP,
+             * amplified by the spline slopes of a randomized model; 1e-4 leaves margin yet
+             * catches any real divergence (a wrong lane or padding is O(1)). */
+            double worst_dir = 0.0, worst_pdf = 0.0;
+            for (int i = 0; i < N; ++i) {
+                for (int a = 0; a < 3; ++a)
+                    worst_dir = fmax(worst_dir, fabs(dir_g[3 * i + a] - dir_v[3 * i + a]));
+                worst_pdf = fmax(worst_pdf, rel_diff(pdf_g[i], pdf_v[i]));
+            }
+            assert_true(worst_dir < 1e-4);
+            assert_true(worst_pdf < 1e-4);
+            assert_int_equal(nf_pdf(v, N, ctx, dir_g, pdf_v), NF_OK);
+            assert_int_equal(nf_pdf(g, N, ctx, dir_g, pdf_g), NF_OK);
+            for (int i = 0; i < N; ++i)
+                assert_true(rel_diff(pdf_g[i], pdf_v[i]) < 1e-4);
+
+            size_t count = nf_param_count(g);
+            float *grad_g = malloc(count * sizeof(float)), *grad_v = malloc(count * sizeof(float));
+            float loss_g, loss_v;
+            assert_int_equal(nf_loss_gradient(g, N, ctx, dir_g, w, &loss_g, grad_g), NF_OK);
+            assert_int_equal(nf_loss_gradient(v, N, ctx, dir_g, w, &loss_v, grad_v), NF_OK);
+            /* The loss is an average of logs: rounding differences stay ~1e-6 relative. The
+             * gradient is compared as a whole vector, 1e-4 of its norm, for the same reason
+             * as the densities. */
+            assert_true(rel_diff(loss_g, loss_v) < 1e-5);
+            double num = 0.0, den = 0.0;
+            for (size_t i = 0; i < count; ++i) {
+                num += ((double)grad_g[i] - grad_v[i]) * ((double)grad_g[i] - grad_v[i]);
+                den += (double)grad_g[i] * grad_g[i];
+            }
+            print_message("%s preset %d prior %d: dir %.2g, pdf %.2g, gradient %.2g\n",
+                          nf_model_isa_name(v), preset, prior, worst_dir, worst_pdf,
+                          sqrt(num / den));
+            assert_true(sqrt(num / den) < 1e-4);
+            free(grad_g);
+            free(grad_v);
+            nf_model_destroy(g);
+            nf_model_destroy(v);
+        }
+    }
+}
+
+static void test_variants_agree(void **state)
+{
+    (void)state;
+    int compared = 0;
+    for (int isa = NF_ISA_AVX2; isa <= NF_ISA_AVX512; ++isa) {
+        nf_config cfg;
+        nf_config_init(&cfg, NF_PRESET_SMALL);
+        cfg.isa = (nf_isa)isa;
+        nf_model *m = NULL;
+        nf_status st = nf_model_create(&cfg, &m);
+        if (st != NF_OK) {
+            /* a CPU without the extension: refused, with a message, and nothing leaked */
+            assert_int_equal(st, NF_ERROR_INVALID_ARGUMENT);
+            assert_null(m);
+            assert_true(strlen(nf_last_error_message()) > 0);
+            continue;
+        }
+        assert_string_equal(nf_model_isa_name(m), isa == NF_ISA_AVX2 ? "avx2" : "avx512");
+        nf_model_destroy(m);
+        compare_with_generic((nf_isa)isa);
+        ++compared;
+    }
+    print_message("compared %d instruction-set variants with the generic kernels\n", compared);
+}
+
+static void test_auto_and_invalid(void **state)
+{
+    (void)state;
+    nf_config cfg;
+    nf_config_init(&cfg, NF_PRESET_SMALL);
+    nf_model *m = NULL;
+    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    assert_true(strlen(nf_model_isa_name(m)) > 0);
+    nf_model_destroy(m);
+    memset(&cfg.isa, 0x7f, sizeof cfg.isa); /* not an nf_isa value */
+    m = (nf_model *)&cfg;                   /* must be overwritten with NULL */
+    assert_int_equal(nf_model_create(&cfg, &m), NF_ERROR_INVALID_ARGUMENT);
+    assert_null(m);
+    assert_string_equal(nf_model_isa_name(NULL), "");
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_variants_agree),
+        cmocka_unit_test(test_auto_and_invalid),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
