@@ -3,8 +3,9 @@
  *
  * The format is versioned, little-endian on every host, and carries the configuration (less
  * the allocator and callbacks), the parameters, the AdamW state (so training resumes exactly)
- * and a CRC-32 checksum. Loading validates everything and refuses any inconsistency with
- * NF_ERROR_FORMAT; it never crashes on hostile input. docs/format.md describes the layout.
+ * and a CRC-32 checksum. Loading validates everything and refuses any inconsistency in the
+ * data with NF_ERROR_FORMAT; it never crashes on hostile input. docs/format.md describes the
+ * layout.
  */
 #ifndef NISFLOW_IO_H
 #define NISFLOW_IO_H
@@ -18,12 +19,15 @@
 NF_EXTERN_C_BEGIN
 
 /* Writes the model to a file (created or truncated). NF_ERROR_IO if the file cannot be
- * written completely. Thread-safe on a const model. */
+ * written completely. Allocates one temporary buffer of the file's size through the model's
+ * allocator. Thread-safe on a const model. */
 NF_API nf_status nf_model_save(const nf_model *m, const char *path);
 
 /* Reads a model written by nf_model_save. `custom` supplies the callbacks of a model saved
- * with NF_PRIOR_CUSTOM (required then, ignored otherwise); it is copied. The model uses the
- * default allocator. *out is NULL on failure. Thread-safe. */
+ * with NF_PRIOR_CUSTOM (required then, ignored otherwise); it is copied. A custom-prior model
+ * without callbacks is refused with NF_ERROR_INVALID_ARGUMENT (the file is fine, the call is
+ * not). NF_ERROR_IO when the file cannot be opened or read. The model uses the default
+ * allocator and NF_ISA_AUTO. *out is NULL on failure. Thread-safe. */
 NF_API nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom,
                                nf_model **out);
 

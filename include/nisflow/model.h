@@ -59,7 +59,13 @@ typedef enum nf_prior_kind {
  *         and > 0. A sampler that cannot produce a direction (a BSDF lobe below the surface,
  *         say) must fall back to some valid direction of its own; the library refuses the
  *         batch with NF_ERROR_NUMERIC when it returns a density <= 0 or a non-finite value.
- * pdf:    the solid-angle density of `dir`, finite and >= 0.
+ * pdf:    the solid-angle density of `dir`, finite and >= 0. It must agree with what `sample`
+ *         returns for the directions it draws: nf_sample reports the sample callback's value,
+ *         nf_pdf and training the pdf callback's.
+ * ctx:    the caller's own context, a pointer into the array passed to nf_sample, nf_pdf or
+ *         training (or the one given to nf_prior_pdf), with normal and wo as the caller gave
+ *         them. `ctx - base` is therefore the sample's index, through which a renderer can
+ *         reach per-sample data such as the shading point's BSDF.
  * user:   passed back unchanged; the library never dereferences or frees it.
  * Both callbacks are called from whichever threads call nf_sample / nf_pdf / training, and
  * must therefore be thread-safe themselves. They must not call back into the same model's
@@ -70,9 +76,12 @@ typedef struct nf_prior_callbacks {
     void *user;
 } nf_prior_callbacks;
 
-/* An optional allocator. With both functions NULL the library uses malloc and free. All of
- * a model's memory is allocated when it is created, cloned or loaded; nothing is allocated
- * afterwards. `free` receives only pointers that `alloc` returned, and never NULL. */
+/* An optional allocator. With both functions NULL the library uses malloc and free. A model's
+ * memory is allocated when it is created, cloned or loaded; afterwards only nf_model_save
+ * allocates (a temporary buffer the size of the file, freed before it returns), so an
+ * allocator shared by models saved from several threads must be thread-safe. nf_model_load
+ * reads through malloc whatever the allocator. `free` receives only pointers that `alloc`
+ * returned, and never NULL. */
 typedef struct nf_allocator {
     void *(*alloc)(void *user, size_t size);
     void (*free)(void *user, void *ptr);
@@ -111,7 +120,8 @@ typedef struct nf_config {
     float learning_rate;      /* AdamW, > 0 (default 1e-3)                                    */
     float beta1, beta2;       /* AdamW, in [0, 1) (defaults 0.9, 0.999)                       */
     float adam_epsilon;       /* AdamW, > 0 (default 1e-8)                                    */
-    float weight_decay;       /* AdamW decoupled decay, >= 0 (default 0.01)                   */
+    float weight_decay;       /* AdamW decoupled decay, >= 0 with learning_rate * weight_decay
+                                 < 1, so the decay factor stays positive (default 0.01)      */
     uint64_t seed;            /* seed of the weight initialisation (default 1)                */
     nf_allocator allocator;   /* optional; not saved with the model                          */
     nf_isa isa;               /* kernels to use (default NF_ISA_AUTO); not saved             */

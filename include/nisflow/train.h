@@ -57,15 +57,17 @@ NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context 
 /* One AdamW step (decoupled weight decay, bias-corrected moments) with the given gradient
  * (nf_param_count floats). Refuses a non-finite gradient with NF_ERROR_INVALID_ARGUMENT, and a
  * step whose parameters or moments would be non-finite with NF_ERROR_NUMERIC; both leave the
- * model unchanged. Not thread-safe. Does not allocate. */
+ * model unchanged. An all-zero gradient is still a step (weight decay and moment decay apply
+ * and the step count grows): sharded training should skip batches whose weights are all
+ * zero, as nf_train_step does. Not thread-safe. Does not allocate. */
 NF_API nf_status nf_apply_gradient(nf_model *m, const float *grad);
 
 /* The number of optimizer steps the model has taken (saved and restored with it). 0 for
  * NULL. Thread-safe. */
 NF_API uint64_t nf_model_step_count(const nf_model *m);
 
-/* Changes the AdamW learning rate of an existing model (for schedules), > 0 and finite.
- * Not thread-safe. */
+/* Changes the AdamW learning rate of an existing model (for schedules): finite, > 0 and
+ * below 1 / weight_decay. Not thread-safe. */
 NF_API nf_status nf_set_learning_rate(nf_model *m, float learning_rate);
 
 NF_EXTERN_C_END
