@@ -156,12 +156,17 @@ static void phong_axis(const nf_context *ctx, double axis[3])
         axis[k] /= len;
 }
 
-static double phong_density(double e, const nf_context *ctx, const float dir[3])
+double nft_phong_cosine(const nf_context *ctx, const float dir[3])
 {
     double axis[3], w[3];
     phong_axis(ctx, axis);
     to_unit_double(dir, w);
-    double c = nft_dot3(axis, w);
+    return nft_dot3(axis, w);
+}
+
+static double phong_density(double e, const nf_context *ctx, const float dir[3])
+{
+    double c = nft_phong_cosine(ctx, dir);
     if (!(c > 0.0))
         return 0.0;
     return (e + 1.0) / (2.0 * NFT_PI) * pow(c, e);
@@ -446,13 +451,13 @@ static int compare_cells(const void *a, const void *b)
 }
 
 static void dump_table(FILE *f, const char *title, const double *v, uint32_t rows,
-                       uint32_t cols)
+                       uint32_t cols, int decimals)
 {
     fprintf(f, "%s (rows: theta cells 0..%u, columns: phi cells 0..%u)\n", title, rows - 1u,
             cols - 1u);
     for (uint32_t i = 0; i < rows; ++i) {
         for (uint32_t j = 0; j < cols; ++j)
-            fprintf(f, "%s%.2f", j ? " " : "", v[(size_t)i * cols + j]);
+            fprintf(f, "%s%.*f", j ? " " : "", decimals, v[(size_t)i * cols + j]);
         fputc('\n', f);
     }
     fputc('\n', f);
@@ -480,8 +485,8 @@ static void dump_tables(const nft_chi2_params *p, const double *obs, const doubl
     fprintf(f, "samples %zu, seed %llu, grid %u x %u, %u x %u quadrature points per cell\n\n",
             p->sample_count, (unsigned long long)p->seed, p->theta_res, p->phi_res, p->subdiv,
             p->subdiv);
-    dump_table(f, "observed", obs, p->theta_res, p->phi_res);
-    dump_table(f, "expected", expv, p->theta_res, p->phi_res);
+    dump_table(f, "observed", obs, p->theta_res, p->phi_res, 0);
+    dump_table(f, "expected", expv, p->theta_res, p->phi_res, 2);
     fclose(f);
 }
 

@@ -67,6 +67,8 @@ void nft_frame(const double axis[3], double t[3], double b[3], double n[3]);
  * azimuth 2 pi u1. Pure functions, so thread-safe. */
 float nft_phong_sample(void *user, const nf_context *ctx, float u0, float u1, float dir[3]);
 float nft_phong_pdf(void *user, const nf_context *ctx, const float dir[3]);
+/* The cosine between dir and the Phong lobe's axis (the mirror of wo about the normal). */
+double nft_phong_cosine(const nf_context *ctx, const float dir[3]);
 /* The exponent the helpers below use for NF_PRIOR_CUSTOM. */
 #define NFT_PHONG_EXPONENT 8.0f
 /* Callbacks for the Phong prior with exponent NFT_PHONG_EXPONENT. */
