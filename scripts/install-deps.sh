@@ -3,14 +3,18 @@
 # Runs apt-get directly as root and through sudo otherwise. Safe to run repeatedly.
 set -euo pipefail
 
-# Add packages here as the project grows (later: libembree-dev libopenexr-dev libstb-dev
-# libexpat1-dev gnuplot).
+# Add packages here as the project grows.
 NF_DEB_PACKAGES=(
     build-essential # gcc, g++, make
     cmake
     pkg-config
     libcmocka-dev   # unit tests
     clang           # second compiler in CI
+    # The example path tracer (examples/tracer/); without them it is skipped at configure time.
+    libembree-dev   # Embree 3: ray intersection
+    libopenexr-dev  # OpenEXR 3: the OpenEXRCore C API for HDR images
+    libstb-dev      # stb_image, stb_image_write: JPEG textures, PNG previews
+    libexpat1-dev   # expat: the scene XML
 )
 
 if [ "$(id -u)" -eq 0 ]; then

@@ -1,0 +1,90 @@
+/*
+ * bsdf.h - the materials of the scene format: diffuse, conductor, roughconductor,
+ * dielectric, plastic and roughplastic, each optionally two-sided.
+ *
+ * All directions are local to the shading frame (normal = +z) and point away from the
+ * surface: wo towards the previous path vertex (the camera side), wi towards the light.
+ *
+ * Conventions (Mitsuba's):
+ *   bsdf_eval returns f(wo, wi) |cos theta_i|, the "cosine-weighted BSDF", of the
+ *     non-delta part only (a delta lobe is never hit by a direction chosen elsewhere);
+ *   bsdf_pdf returns the solid-angle density with which bsdf_sample produces wi through a
+ *     non-delta lobe, lobe-selection probability included, and 0 where the sampler never
+ *     succeeds (for example below the surface of a reflector);
+ *   bsdf_sample may fail (returns 0): the path then ends, and the failure probability is
+ *     exactly the mass missing from bsdf_pdf, which keeps every estimator unbiased.
+ * One-sided materials are black when seen from below (wo.z <= 0), as in Mitsuba; the
+ * caller flips the frame of two-sided materials so that wo.z > 0.
+ */
+#ifndef TRACER_BSDF_H
+#define TRACER_BSDF_H
+
+#include "microfacet.h"
+#include "texture.h"
+#include "vecmath.h"
+
+typedef enum bsdf_type {
+    BSDF_DIFFUSE,
+    BSDF_CONDUCTOR,      /* smooth: a delta reflection                         */
+    BSDF_ROUGHCONDUCTOR,
+    BSDF_DIELECTRIC,     /* smooth: delta reflection and refraction            */
+    BSDF_PLASTIC,        /* delta coating over a diffuse base                  */
+    BSDF_ROUGHPLASTIC    /* microfacet coating over a diffuse base             */
+} bsdf_type;
+
+typedef struct bsdf {
+    bsdf_type type;
+    int twosided;
+    const texture *diffuse;      /* diffuse: reflectance; plastics: diffuse_reflectance */
+    const texture *specular;     /* specular_reflectance (conductors, dielectric, plastics) */
+    const texture *transmission; /* dielectric: specular_transmittance                  */
+    rgb eta, k;                  /* conductors: complex index relative to the outside   */
+    float ior;                   /* dielectric, plastics: int_ior / ext_ior             */
+    mf_type distribution;        /* rough types                                         */
+    float alpha;                 /* rough types: roughness (Mitsuba's alpha)            */
+    int nonlinear;               /* plastics                                            */
+    float fdr_int;               /* plastics: diffuse Fresnel reflectance inside        */
+    float specular_weight;       /* plastics: s / (s + d) with the textures' means      */
+} bsdf;
+
+/* Fills the derived fields (fdr_int, specular_weight) once the parameters are set. */
+void bsdf_prepare(bsdf *b);
+
+/* A material at one surface point: its textures evaluated at the hit's (u, v). */
+typedef struct bsdf_point {
+    const bsdf *b;
+    rgb diffuse, specular, transmission;
+} bsdf_point;
+
+void bsdf_point_init(bsdf_point *bp, const bsdf *b, float u, float v);
+
+/* Whether the material has a non-delta part (what light sampling and guiding can use), and
+ * whether it has a delta part. */
+int bsdf_has_smooth_part(const bsdf *b);
+int bsdf_has_delta_part(const bsdf *b);
+/* Whether light may pass through (then wi may lie below the surface). */
+int bsdf_transmits(const bsdf *b);
+
+typedef struct bsdf_sample {
+    vec3 wi;
+    rgb weight; /* f |cos| / pdf (for delta lobes: the lobe's value / its probability)     */
+    float pdf;  /* non-delta: bsdf_pdf(wo, wi); delta: the probability of choosing the lobe */
+    int delta;
+} bsdf_sample;
+
+rgb bsdf_eval(const bsdf_point *bp, vec3 wo, vec3 wi);
+float bsdf_pdf(const bsdf_point *bp, vec3 wo, vec3 wi);
+/* u_lobe picks a lobe, (u0, u1) the direction inside it; all in [0, 1). */
+int bsdf_sample_dir(const bsdf_point *bp, vec3 wo, float u_lobe, float u0, float u1,
+                    bsdf_sample *s);
+
+/* The material's non-delta lobes as a proper density over the whole sphere that never
+ * fails to produce a direction: the prior of the flow for --prior bsdf (see guide.c).
+ * Where the microfacet lobe yields no direction (a back-facing microfacet, a reflection
+ * below the surface), the same random numbers drive a cosine lobe, and the density includes
+ * that fallback exactly. Pure delta materials get a cosine lobe. wo.z should be > 0 (it is
+ * clamped to a grazing angle otherwise). */
+vec3 bsdf_lobe_sample(const bsdf_point *bp, vec3 wo, float u0, float u1, float *pdf);
+float bsdf_lobe_pdf(const bsdf_point *bp, vec3 wo, vec3 wi);
+
+#endif /* TRACER_BSDF_H */

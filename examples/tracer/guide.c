@@ -1,0 +1,171 @@
+/*
+ * guide.c - model creation and the BSDF prior for libnisflow (see guide.h for the design).
+ */
+#include "guide.h"
+
+#include <math.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* The shading points the callbacks of this thread may be asked about: one while rendering,
+ * a whole batch (sorted, searched by bisection) while training. */
+static _Thread_local const guide_point *tls_points;
+static _Thread_local size_t tls_count;
+
+void guide_begin_point(const guide_point *p)
+{
+    tls_points = p;
+    tls_count = 1;
+}
+
+static int compare_position(const float a[3], const float b[3])
+{
+    /* Compare the bit patterns: exact identity is what we look for, and it gives a total
+     * order even for -0.0 and 0.0. */
+    uint32_t ua[3], ub[3];
+    memcpy(ua, a, sizeof ua);
+    memcpy(ub, b, sizeof ub);
+    for (int i = 0; i < 3; ++i)
+        if (ua[i] != ub[i])
+            return ua[i] < ub[i] ? -1 : 1;
+    return 0;
+}
+
+static int compare_points(const void *a, const void *b)
+{
+    return compare_position(((const guide_point *)a)->position, ((const guide_point *)b)->position);
+}
+
+void guide_begin_batch(guide_point *points, size_t n)
+{
+    qsort(points, n, sizeof *points, compare_points);
+    tls_points = points;
+    tls_count = n;
+}
+
+void guide_end(void)
+{
+    tls_points = NULL;
+    tls_count = 0;
+}
+
+/* Lookups that found no shading point (and fell back to a cosine lobe). */
+static atomic_ullong lookup_failures;
+
+unsigned long long guide_lookup_failures(void)
+{
+    return atomic_load(&lookup_failures);
+}
+
+static const guide_point *find_point(const float position[3])
+{
+    const guide_point *p = NULL;
+    size_t lo = 0, hi = tls_count;
+    while (lo < hi) {
+        size_t mid = lo + (hi - lo) / 2;
+        int c = compare_position(tls_points[mid].position, position);
+        if (c == 0) {
+            p = &tls_points[mid];
+            break;
+        }
+        if (c < 0)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    if (!p)
+        atomic_fetch_add(&lookup_failures, 1);
+    return p;
+}
+
+/* ---- The BSDF prior ------------------------------------------------------------------------ */
+
+static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
+                               float dir[3])
+{
+    (void)user;
+    vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
+    frame f = frame_from_normal(n);
+    vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
+    const guide_point *p = find_point(ctx->position);
+    vec3 wi;
+    float pdf;
+    if (p) {
+        wi = bsdf_lobe_sample(&p->bp, wo, u0, u1, &pdf);
+    } else { /* not published: a cosine lobe keeps the callbacks total */
+        wi = sample_cosine_hemisphere(u0, u1);
+        pdf = pdf_cosine_hemisphere(wi);
+    }
+    vec3 w = frame_to_world(&f, wi);
+    dir[0] = w.x;
+    dir[1] = w.y;
+    dir[2] = w.z;
+    return pdf;
+}
+
+static float bsdf_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
+{
+    (void)user;
+    vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
+    frame f = frame_from_normal(n);
+    vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
+    vec3 wi = v3_normalize(frame_to_local(&f, v3(dir[0], dir[1], dir[2])));
+    const guide_point *p = find_point(ctx->position);
+    return p ? bsdf_lobe_pdf(&p->bp, wo, wi) : pdf_cosine_hemisphere(wi);
+}
+
+nf_prior_callbacks guide_bsdf_callbacks(void)
+{
+    nf_prior_callbacks cb;
+    cb.sample = bsdf_prior_sample;
+    cb.pdf = bsdf_prior_pdf;
+    cb.user = NULL;
+    return cb;
+}
+
+/* ---- Models ---------------------------------------------------------------------------------- */
+
+const char *guide_prior_name(guide_prior p)
+{
+    static const char *const names[] = {"uniform-direction", "uniform-angle", "cosine", "bsdf"};
+    return names[p];
+}
+
+int guide_create(const scene *s, guide_prior prior, int large, float learning_rate,
+                 uint64_t seed, nf_model **out, tr_error *err)
+{
+    nf_config cfg;
+    nf_config_init(&cfg, large ? NF_PRESET_LARGE : NF_PRESET_SMALL);
+    static const nf_prior_kind kinds[] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR_UNIFORM_ANGLE,
+                                          NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};
+    cfg.prior = kinds[prior];
+    if (prior == GUIDE_PRIOR_BSDF)
+        cfg.custom_prior = guide_bsdf_callbacks();
+    /* Pad the bounds by 1% so that no position sits exactly on the clamp, and give flat
+     * scenes a non-zero extent on every axis. */
+    vec3 lo = s->bounds_min, hi = s->bounds_max;
+    float pad = 0.01f * fmaxf(v3_max_abs(v3_sub(hi, lo)), 1e-3f);
+    float l[3] = {lo.x, lo.y, lo.z}, h[3] = {hi.x, hi.y, hi.z};
+    for (int a = 0; a < 3; ++a) {
+        cfg.bounds_min[a] = l[a] - pad;
+        cfg.bounds_max[a] = h[a] + pad;
+    }
+    cfg.learning_rate = learning_rate;
+    cfg.seed = seed;
+    nf_status st = nf_model_create(&cfg, out);
+    if (st != NF_OK)
+        return tr_fail(err, "nf_model_create: %s: %s", nf_status_string(st),
+                       nf_last_error_message());
+    return 1;
+}
+
+int guide_load(const char *path, nf_model **out, tr_error *err)
+{
+    nf_prior_callbacks cb = guide_bsdf_callbacks();
+    nf_status st = nf_model_load(path, &cb, out);
+    if (st != NF_OK)
+        return tr_fail(err, "%s: nf_model_load: %s: %s", path, nf_status_string(st),
+                       nf_last_error_message());
+    return 1;
+}

@@ -1,0 +1,70 @@
+/*
+ * guide.h - the tracer's use of libnisflow: creating the model for a scene and a prior,
+ * the BSDF prior (--prior bsdf) and the table that lets its callbacks find the material of
+ * a shading context.
+ *
+ * Why a table: nf_prior_callbacks receive only an nf_context (position, normal, wo) and one
+ * model-wide user pointer, but the BSDF prior needs the material at that point. The library
+ * passes the context's position through unchanged (it normalizes only normal and wo), so the
+ * callbacks look the material up by the exact bits of the position in a thread-local table:
+ *
+ *   - while rendering, each thread publishes the one shading point it is about to call
+ *     nf_sample / nf_pdf for (guide_begin_point);
+ *   - while training, the single training thread publishes the whole batch
+ *     (guide_begin_batch) before nf_train_step, which calls the prior for every record.
+ *
+ * The table is thread-local, so render threads never see each other's points, and it is
+ * only read inside the library calls it was published for. A lookup that fails (which no
+ * caller here allows to happen) falls back to a cosine lobe: the callbacks never fail.
+ */
+#ifndef TRACER_GUIDE_H
+#define TRACER_GUIDE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <nisflow/nisflow.h>
+
+#include "bsdf.h"
+#include "error.h"
+#include "scene.h"
+
+typedef enum guide_prior {
+    GUIDE_PRIOR_UNIFORM_DIRECTION,
+    GUIDE_PRIOR_UNIFORM_ANGLE,
+    GUIDE_PRIOR_COSINE,
+    GUIDE_PRIOR_BSDF
+} guide_prior;
+
+/* What the BSDF prior needs to know about a shading point: the material with its textures
+ * evaluated. The frame is rebuilt from the context's normal. */
+typedef struct guide_point {
+    float position[3];
+    bsdf_point bp;
+} guide_point;
+
+/* The callbacks of the BSDF prior (for nf_config.custom_prior and nf_model_load). */
+nf_prior_callbacks guide_bsdf_callbacks(void);
+
+/* Creates a model for the scene: positions are normalized by the scene's bounds (padded a
+ * little), the preset is NF_PRESET_SMALL or NF_PRESET_LARGE. */
+int guide_create(const scene *s, guide_prior prior, int large, float learning_rate,
+                 uint64_t seed, nf_model **out, tr_error *err);
+
+/* Loads a model saved with --save-model; the BSDF prior's callbacks are supplied. */
+int guide_load(const char *path, nf_model **out, tr_error *err);
+
+/* Publishes the shading point for the next nf_sample / nf_pdf calls of this thread. */
+void guide_begin_point(const guide_point *p);
+/* Publishes a batch of n points (sorted in place by position) for nf_train_step; the
+ * array must stay alive until guide_end(). */
+void guide_begin_batch(guide_point *points, size_t n);
+void guide_end(void);
+
+const char *guide_prior_name(guide_prior p);
+
+/* How many times the BSDF prior's callbacks found no published shading point and fell back
+ * to a cosine lobe (process-wide). Always 0 in this program; tests check it. */
+unsigned long long guide_lookup_failures(void);
+
+#endif /* TRACER_GUIDE_H */

@@ -1,0 +1,62 @@
+/*
+ * integrator.h - unidirectional path tracing with next-event estimation, multiple
+ * importance sampling (power heuristic) and Russian roulette, guided at non-specular
+ * vertices by a one-sample mixture of BSDF sampling and the normalizing flow.
+ *
+ * One call traces one camera path. Optionally it records the training samples of the
+ * path's guided vertices (see trace_path).
+ */
+#ifndef TRACER_INTEGRATOR_H
+#define TRACER_INTEGRATOR_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <nisflow/nisflow.h>
+
+#include "bsdf.h"
+#include "rng.h"
+#include "scene.h"
+
+typedef struct tracer {
+    const scene *s;
+    const nf_model *model; /* NULL: no guiding (pure BSDF sampling + NEE)                  */
+    float guide_prob;      /* probability of sampling the flow at a guided vertex, [0, 1)  */
+    int bsdf_prior;        /* the model uses the BSDF prior: publish shading points        */
+} tracer;
+
+/* A training sample (SPEC section 6): at a guided vertex, the context, the sampled direction
+ * and weight = mean over RGB of f_s L_i |cos| / p_mix, with L_i the radiance the rest of
+ * the path brought back along the direction. The material is kept for the BSDF prior. */
+typedef struct train_record {
+    nf_context ctx;
+    float dir[3];
+    float weight;
+    bsdf_point bp;
+} train_record;
+
+typedef struct record_buffer {
+    train_record *data;
+    size_t count, capacity;
+    int out_of_memory;
+} record_buffer;
+
+void record_buffer_free(record_buffer *b);
+/* Appends src to dst (in order). Returns 0 when out of memory. */
+int record_buffer_append(record_buffer *dst, const record_buffer *src);
+
+/* Counters for throughput figures; each thread keeps its own and they are summed. */
+typedef struct path_stats {
+    uint64_t paths, rays, guided_vertices, nf_errors;
+    uint64_t camera_backfaces; /* camera rays that hit the black back of a one-sided material */
+} path_stats;
+
+void path_stats_add(path_stats *a, const path_stats *b);
+
+/* Traces the path through film position (px, py) and returns its radiance estimate.
+ * With records != NULL, appends a record for every guided vertex whose weight is positive
+ * (zero-weight samples carry no information for the loss). */
+rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
+               path_stats *stats);
+
+#endif /* TRACER_INTEGRATOR_H */

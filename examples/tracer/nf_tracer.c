@@ -1,0 +1,314 @@
+/*
+ * nf_tracer.c - the example path tracer's main program: load a scene, train a
+ * libnisflow model online while path tracing it, render the final image, write EXR and PNG,
+ * report the error against a reference. docs/tracer.md explains what it does and why.
+ *
+ *   nf_tracer --scene examples/scenes/cornell-box/scene.xml --width 256 --height 256
+ */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include <nisflow/nisflow.h>
+
+#include "guide.h"
+#include "image.h"
+#include "integrator.h"
+#include "metrics.h"
+#include "options.h"
+#include "progress.h"
+#include "render.h"
+#include "scene.h"
+#include "training.h"
+
+/* ---- Output names ------------------------------------------------------------------------ */
+
+/* Copies at most size - 1 characters of src (always terminated). */
+static void copy_string(char *dst, size_t size, const char *src)
+{
+    size_t n = strlen(src);
+    if (n >= size)
+        n = size - 1;
+    memcpy(dst, src, n);
+    dst[n] = '\0';
+}
+
+/* "cornell-box" for ".../cornell-box/scene.xml", else the file name without extension. */
+static void scene_name(const char *path, char *out, size_t size)
+{
+    char buf[4096];
+    copy_string(buf, sizeof buf, path);
+    char *slash = strrchr(buf, '/');
+    const char *base = slash ? slash + 1 : buf;
+    if (!strcmp(base, "scene.xml") && slash) {
+        *slash = '\0';
+        char *parent = strrchr(buf, '/');
+        copy_string(out, size, parent ? parent + 1 : buf);
+        return;
+    }
+    copy_string(out, size, base);
+    char *dot = strrchr(out, '.');
+    if (dot && dot != out)
+        *dot = '\0';
+}
+
+static int is_directory(const char *path)
+{
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISDIR(st.st_mode);
+}
+
+/* Creates every missing directory of `path`'s parent (like mkdir -p). */
+static int make_parent_dirs(const char *path)
+{
+    char buf[4096];
+    copy_string(buf, sizeof buf, path);
+    for (char *p = buf + 1; *p; ++p) {
+        if (*p != '/')
+            continue;
+        *p = '\0';
+        if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+            return 0;
+        *p = '/';
+    }
+    return 1;
+}
+
+static void output_prefix(const options *o, char *out, size_t size)
+{
+    char name[512];
+    scene_name(o->scene, name, sizeof name);
+    const char *suffix = o->reference_mode ? "-reference" : "";
+    if (!o->out) {
+        snprintf(out, size, "out/%s%s", name, suffix);
+        return;
+    }
+    size_t len = strlen(o->out);
+    if (len > 0 && (o->out[len - 1] == '/' || is_directory(o->out))) {
+        snprintf(out, size, "%s%s%s%s", o->out, o->out[len - 1] == '/' ? "" : "/", name, suffix);
+        return;
+    }
+    copy_string(out, size, o->out);
+    len = strlen(out);
+    if (len > 4 && !strcmp(out + len - 4, ".exr"))
+        out[len - 4] = '\0'; /* "--out x.exr" means the prefix "x" */
+}
+
+/* ---- Main ------------------------------------------------------------------------------------- */
+
+static int fail(const char *what, const tr_error *e)
+{
+    fprintf(stderr, "nf_tracer: %s%s%s\n", what ? what : "", what ? ": " : "", e->msg);
+    return 1;
+}
+
+int main(int argc, char **argv)
+{
+    options o;
+    tr_error err;
+    if (!options_parse(argc, argv, &o, &err)) {
+        fprintf(stderr, "nf_tracer: %s (try --help)\n", err.msg);
+        return 2;
+    }
+    if (o.help) {
+        options_print_help(argv[0]);
+        return 0;
+    }
+
+    double t_start = now_seconds();
+    scene s;
+    if (!scene_load(o.scene, &s, &err))
+        return fail(NULL, &err);
+    if (o.width || o.height)
+        scene_set_resolution(&s, o.width ? o.width : s.width, o.height ? o.height : s.height);
+    if (o.max_depth != -2)
+        s.max_depth = o.max_depth;
+    uint64_t triangles = 0;
+    for (int i = 0; i < s.nshapes; ++i)
+        triangles += s.shapes[i].m.ntris;
+    printf("scene      %s: %d shapes, %llu triangles, %u light entries, loaded in %.2f s\n",
+           o.scene, s.nshapes, (unsigned long long)triangles, s.nlights, now_seconds() - t_start);
+    printf("image      %d x %d, max depth %d, %d threads, seed %llu\n", s.width, s.height,
+           s.max_depth, o.threads, (unsigned long long)o.seed);
+
+    int status = 1;
+    image reference = {0}, img = {0};
+    nf_model *model = NULL;
+    FILE *csv = NULL;
+
+    /* The reference, at the render's size (box-downsampled if it is a multiple of it). */
+    if (o.reference) {
+        image full;
+        if (!image_read_exr(o.reference, &full, &err)) {
+            fail("reference", &err);
+            goto done;
+        }
+        if (full.width == s.width && full.height == s.height) {
+            reference = full;
+        } else {
+            int ok = image_downsample(&full, s.width, s.height, &reference, &err);
+            image_free(&full);
+            if (!ok) {
+                fail("reference", &err);
+                goto done;
+            }
+            printf("reference  %s, box-downsampled to %d x %d\n", o.reference, s.width, s.height);
+        }
+    }
+
+    char prefix[4096], path[4200];
+    output_prefix(&o, prefix, sizeof prefix);
+    if (!make_parent_dirs(prefix)) {
+        fprintf(stderr, "nf_tracer: cannot create the directory of '%s': %s\n", prefix,
+                strerror(errno));
+        goto done;
+    }
+
+    tracer t;
+    t.s = &s;
+    t.model = NULL;
+    t.guide_prob = o.guiding ? o.guide_prob : 0.0f;
+    t.bsdf_prior = 0;
+    if (o.guiding) {
+        int ok = o.load_model ? guide_load(o.load_model, &model, &err)
+                              : guide_create(&s, o.prior, o.large_model, o.learning_rate, o.seed,
+                                             &model, &err);
+        if (!ok) {
+            fail(NULL, &err);
+            goto done;
+        }
+        if (o.load_model && o.learning_rate_given &&
+            nf_set_learning_rate(model, o.learning_rate) != NF_OK) {
+            fprintf(stderr, "nf_tracer: --lr: %s\n", nf_last_error_message());
+            goto done;
+        }
+        nf_config cfg;
+        nf_model_config(model, &cfg);
+        t.bsdf_prior = cfg.prior == NF_PRIOR_CUSTOM;
+        if (o.load_model) {
+            static const char *const kinds[] = {"uniform-direction", "uniform-angle", "cosine",
+                                                "bsdf"};
+            printf("model      %s (prior %s, %llu steps taken)\n", o.load_model,
+                   kinds[cfg.prior], (unsigned long long)nf_model_step_count(model));
+            if (o.prior_given && (int)cfg.prior != (int)o.prior)
+                fprintf(stderr, "nf_tracer: note: the loaded model's prior (%s) replaces --prior "
+                        "%s\n", kinds[cfg.prior], guide_prior_name(o.prior));
+        }
+        printf("guiding    prior %s, %s model (%zu parameters), lr %g, guide probability %g\n",
+               t.bsdf_prior ? "bsdf" : guide_prior_name((guide_prior)cfg.prior),
+               cfg.coupling_layers > 2 ? "large" : "small", nf_param_count(model),
+               (double)cfg.learning_rate, (double)o.guide_prob);
+        t.model = model;
+    } else {
+        printf("guiding    off%s\n", o.reference_mode ? " (reference mode)" : "");
+    }
+
+    /* Training. */
+    training_report rep;
+    memset(&rep, 0, sizeof rep);
+    if (o.guiding && o.iterations > 0) {
+        snprintf(path, sizeof path, "%s.csv", prefix);
+        csv = fopen(path, "w");
+        if (!csv) {
+            fprintf(stderr, "nf_tracer: cannot write '%s': %s\n", path, strerror(errno));
+            goto done;
+        }
+        training_settings ts;
+        ts.iterations = o.iterations;
+        ts.batch = o.batch;
+        ts.eval_every = o.eval_every;
+        ts.eval_spp = o.eval_spp;
+        ts.threads = o.threads;
+        ts.seed = o.seed;
+        ts.reference = o.reference ? &reference : NULL;
+        ts.csv = csv;
+        printf("training   %d iterations of %d paths\n", o.iterations, o.batch);
+        if (!train_guide(&t, model, &ts, &rep, &err)) {
+            fail("training", &err);
+            goto done;
+        }
+        double it_s = (rep.trace_seconds + rep.step_seconds) / o.iterations;
+        printf("trained    %llu samples (%.0f per iteration) in %.2f s: %.1f ms per iteration "
+               "(tracing %.1f ms, nf_train_step %.1f ms)%s\n",
+               (unsigned long long)rep.samples, (double)rep.samples / o.iterations,
+               rep.trace_seconds + rep.step_seconds, 1e3 * it_s,
+               1e3 * rep.trace_seconds / o.iterations, 1e3 * rep.step_seconds / o.iterations,
+               rep.refused ? " (some batches were refused)" : "");
+        printf("throughput nf_train_step %.0f samples/s (%.0f per CPU second), tracing %.0f "
+               "training paths/s (%.0f per CPU second), last loss %.4f\n",
+               rep.step_seconds > 0.0 ? (double)rep.samples / rep.step_seconds : 0.0,
+               rep.step_cpu_seconds > 0.0 ? (double)rep.samples / rep.step_cpu_seconds : 0.0,
+               rep.trace_seconds > 0.0 ? (double)rep.paths / rep.trace_seconds : 0.0,
+               rep.trace_cpu_seconds > 0.0 ? (double)rep.paths / rep.trace_cpu_seconds : 0.0,
+               (double)rep.last_loss);
+        printf("csv        %s\n", path);
+    }
+
+    /* The final image. */
+    if (!image_alloc(&img, s.width, s.height, &err)) {
+        fail(NULL, &err);
+        goto done;
+    }
+    path_stats stats;
+    memset(&stats, 0, sizeof stats);
+    double t0 = now_seconds(), c0 = cpu_seconds();
+    if (!render_image(&t, o.spp, o.seed, 0u, o.threads, &img, &stats, "render", &err)) {
+        fail("render", &err);
+        goto done;
+    }
+    double render_s = now_seconds() - t0, render_cpu = cpu_seconds() - c0;
+    printf("rendered   %d spp in %.2f s (%.2f CPU s): %.2f M rays/s (%.2f M per CPU second), "
+           "%.3f M paths/s, %.2f rays per path%s\n",
+           o.spp, render_s, render_cpu, 1e-6 * (double)stats.rays / render_s,
+           1e-6 * (double)stats.rays / render_cpu, 1e-6 * (double)stats.paths / render_s,
+           (double)stats.rays / (double)stats.paths,
+           stats.nf_errors ? " (libnisflow reported errors: paths were cut short)" : "");
+
+    if (stats.camera_backfaces > stats.paths / 100)
+        fprintf(stderr, "nf_tracer: note: %.0f%% of the camera rays hit the back of a one-sided "
+                "material, which is black (Mitsuba's convention). If that is not intended (scenes "
+                "from pbrt or Tungsten shade both sides), wrap the material in <bsdf "
+                "type=\"twosided\">.\n", 100.0 * (double)stats.camera_backfaces / (double)stats.paths);
+
+    snprintf(path, sizeof path, "%s.exr", prefix);
+    if (!image_write_exr(&img, path, &err)) {
+        fail(NULL, &err);
+        goto done;
+    }
+    printf("wrote      %s\n", path);
+    snprintf(path, sizeof path, "%s.png", prefix);
+    if (!image_write_png(&img, path, o.exposure, &err)) {
+        fail(NULL, &err);
+        goto done;
+    }
+    printf("wrote      %s\n", path);
+    if (o.reference)
+        printf("error      MAPE %.4f, relMSE %.4f (against %s)\n", image_mape(&reference, &img),
+               image_relmse(&reference, &img), o.reference);
+    if (o.save_model) {
+        nf_status st = nf_model_save(model, o.save_model);
+        if (st != NF_OK) {
+            fprintf(stderr, "nf_tracer: nf_model_save: %s: %s\n", nf_status_string(st),
+                    nf_last_error_message());
+            goto done;
+        }
+        printf("wrote      %s\n", o.save_model);
+    }
+    if (guide_lookup_failures())
+        fprintf(stderr, "nf_tracer: warning: the BSDF prior fell back to a cosine lobe %llu times "
+                "(a shading point was not published; please report this)\n",
+                guide_lookup_failures());
+    printf("total      %.2f s\n", now_seconds() - t_start);
+    status = 0;
+
+done:
+    if (csv)
+        fclose(csv);
+    nf_model_destroy(model);
+    image_free(&img);
+    image_free(&reference);
+    scene_free(&s);
+    return status;
+}

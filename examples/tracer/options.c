@@ -1,0 +1,204 @@
+/*
+ * options.c - parsing and help text of the command line. Every number is range-checked
+ * here, so the rest of the program can trust the options.
+ */
+#include "options.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "parallel.h"
+
+void options_print_help(const char *program)
+{
+    printf(
+        "Usage: %s --scene FILE [options]\n"
+        "\n"
+        "Renders a Mitsuba 3 scene with a path tracer guided by a normalizing flow (libnisflow),\n"
+        "trained online: each iteration traces a batch of paths with the current model and\n"
+        "takes one training step on the samples they recorded. Then it renders the final\n"
+        "image and writes PREFIX.exr (float RGB), PREFIX.png (sRGB preview) and, when it\n"
+        "trained, PREFIX.csv (iteration, training samples, seconds, MAPE).\n"
+        "\n"
+        "Scene and output:\n"
+        "  --scene FILE          the scene (Mitsuba 3 XML subset, see docs/tracer.md)\n"
+        "  --out PREFIX          output prefix; a directory (existing, or ending in /) gets\n"
+        "                        files named after the scene (default out/<scene name>)\n"
+        "  --width N, --height N film size (default: the scene's film)\n"
+        "  --max-depth N         longest path in segments, -1 unlimited (default: the scene's)\n"
+        "  --exposure X          PNG preview brightness in stops (default 0)\n"
+        "\n"
+        "Guiding and training:\n"
+        "  --prior NAME          uniform-direction, uniform-angle, cosine (default) or bsdf\n"
+        "  --model NAME          small (default, the paper's) or large\n"
+        "  --lr X                AdamW learning rate (default 5e-3)\n"
+        "  --iterations N        training iterations (default 200)\n"
+        "  --batch N             training paths per iteration, each through a random film\n"
+        "                        position (default 4096)\n"
+        "  --guide-prob P        probability of sampling the flow at a guided vertex (default 0.5)\n"
+        "  --no-guiding          plain path tracing (BSDF sampling and next-event estimation)\n"
+        "  --save-model FILE     save the trained model\n"
+        "  --load-model FILE     start from a saved model (its prior and architecture replace\n"
+        "                        --prior and --model; --lr, if given, replaces its rate)\n"
+        "\n"
+        "Rendering and evaluation:\n"
+        "  --spp N               samples per pixel of the final image (default 32)\n"
+        "  --eval-every N        evaluate every N iterations, 0 never (default 50)\n"
+        "  --eval-spp N          samples per pixel of evaluation renders (default 4)\n"
+        "  --reference FILE      reference EXR for MAPE and relMSE (same size as the render,\n"
+        "                        or an integer multiple of it: then it is box-downsampled)\n"
+        "  --reference-mode      render an unguided reference: no training, --spp default 1024,\n"
+        "                        default output out/<scene name>-reference\n"
+        "\n"
+        "Execution:\n"
+        "  --threads N           worker threads (default: the number of processors)\n"
+        "  --seed N              random seed (default 1); results are identical for the same\n"
+        "                        seed, whatever the number of threads\n"
+        "  --help                this text\n",
+        program);
+}
+
+static int parse_int(const char *name, const char *text, long lo, long hi, int *out,
+                     tr_error *err)
+{
+    char *end;
+    errno = 0;
+    long v = strtol(text, &end, 10);
+    if (errno || end == text || *end || v < lo || v > hi)
+        return tr_fail(err, "%s: '%s' is not an integer in [%ld, %ld]", name, text, lo, hi);
+    *out = (int)v;
+    return 1;
+}
+
+static int parse_float(const char *name, const char *text, double lo, double hi, float *out,
+                       tr_error *err)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (errno || end == text || *end || !isfinite(v) || v < lo || v > hi)
+        return tr_fail(err, "%s: '%s' is not a number in [%g, %g]", name, text, lo, hi);
+    *out = (float)v;
+    return 1;
+}
+
+int options_parse(int argc, char **argv, options *o, tr_error *err)
+{
+    memset(o, 0, sizeof *o);
+    o->prior = GUIDE_PRIOR_COSINE;
+    o->learning_rate = 5e-3f;
+    o->iterations = 200;
+    o->batch = 4096;
+    o->eval_every = 50;
+    o->eval_spp = 4;
+    o->spp = 32;
+    o->max_depth = -2;
+    o->threads = processor_count();
+    o->seed = 1;
+    o->guide_prob = 0.5f;
+    o->guiding = 1;
+
+    for (int i = 1; i < argc; ++i) {
+        const char *a = argv[i];
+        /* Options without a value. */
+        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+            o->help = 1;
+            continue;
+        }
+        if (!strcmp(a, "--no-guiding")) {
+            o->guiding = 0;
+            continue;
+        }
+        if (!strcmp(a, "--reference-mode")) {
+            o->reference_mode = 1;
+            continue;
+        }
+        if (strncmp(a, "--", 2) != 0)
+            return tr_fail(err, "unexpected argument '%s'", a);
+        if (i + 1 >= argc)
+            return tr_fail(err, "%s needs a value", a);
+        const char *v = argv[++i];
+        int ok = 1;
+        if (!strcmp(a, "--scene"))
+            o->scene = v;
+        else if (!strcmp(a, "--out"))
+            o->out = v;
+        else if (!strcmp(a, "--reference"))
+            o->reference = v;
+        else if (!strcmp(a, "--save-model"))
+            o->save_model = v;
+        else if (!strcmp(a, "--load-model"))
+            o->load_model = v;
+        else if (!strcmp(a, "--prior")) {
+            static const char *const names[] = {"uniform-direction", "uniform-angle", "cosine",
+                                                "bsdf"};
+            int found = -1;
+            for (int k = 0; k < 4; ++k)
+                if (!strcmp(v, names[k]))
+                    found = k;
+            if (found < 0)
+                return tr_fail(err, "--prior: '%s' is not one of uniform-direction, "
+                               "uniform-angle, cosine, bsdf", v);
+            o->prior = (guide_prior)found;
+            o->prior_given = 1;
+        } else if (!strcmp(a, "--model")) {
+            if (strcmp(v, "small") && strcmp(v, "large"))
+                return tr_fail(err, "--model: '%s' is not small or large", v);
+            o->large_model = !strcmp(v, "large");
+        } else if (!strcmp(a, "--lr")) {
+            ok = parse_float(a, v, 1e-8, 1.0, &o->learning_rate, err);
+            o->learning_rate_given = 1;
+        } else if (!strcmp(a, "--iterations"))
+            ok = parse_int(a, v, 0, 10000000, &o->iterations, err);
+        else if (!strcmp(a, "--batch"))
+            ok = parse_int(a, v, 1, 1 << 24, &o->batch, err);
+        else if (!strcmp(a, "--eval-every"))
+            ok = parse_int(a, v, 0, 10000000, &o->eval_every, err);
+        else if (!strcmp(a, "--eval-spp"))
+            ok = parse_int(a, v, 1, 1 << 20, &o->eval_spp, err);
+        else if (!strcmp(a, "--spp")) {
+            ok = parse_int(a, v, 1, 1 << 24, &o->spp, err);
+            o->spp_given = 1;
+        } else if (!strcmp(a, "--width"))
+            ok = parse_int(a, v, 1, 65536, &o->width, err);
+        else if (!strcmp(a, "--height"))
+            ok = parse_int(a, v, 1, 65536, &o->height, err);
+        else if (!strcmp(a, "--max-depth")) {
+            ok = parse_int(a, v, -1, 100000, &o->max_depth, err) &&
+                 (o->max_depth != 0 || tr_fail(err, "--max-depth must be -1 or >= 1"));
+        } else if (!strcmp(a, "--threads"))
+            ok = parse_int(a, v, 1, 4096, &o->threads, err);
+        else if (!strcmp(a, "--seed")) {
+            char *end;
+            errno = 0;
+            unsigned long long s = strtoull(v, &end, 10);
+            if (errno || end == v || *end || v[0] == '-')
+                return tr_fail(err, "--seed: '%s' is not a non-negative integer", v);
+            o->seed = (uint64_t)s;
+        } else if (!strcmp(a, "--guide-prob"))
+            ok = parse_float(a, v, 0.0, 0.99, &o->guide_prob, err);
+        else if (!strcmp(a, "--exposure"))
+            ok = parse_float(a, v, -64.0, 64.0, &o->exposure, err);
+        else
+            return tr_fail(err, "unknown option '%s'", a);
+        if (!ok)
+            return 0;
+    }
+    if (o->help)
+        return 1;
+    if (!o->scene)
+        return tr_fail(err, "--scene is required");
+    if (o->reference_mode) {
+        o->guiding = 0;
+        if (!o->spp_given)
+            o->spp = 1024;
+    }
+    if (o->guide_prob == 0.0f)
+        o->guiding = 0;
+    if (!o->guiding && (o->load_model || o->save_model))
+        return tr_fail(err, "--save-model and --load-model need guiding (drop --no-guiding)");
+    return 1;
+}

@@ -1,0 +1,40 @@
+/*
+ * options.h - the command line of nf_tracer (nf_tracer --help prints it).
+ */
+#ifndef TRACER_OPTIONS_H
+#define TRACER_OPTIONS_H
+
+#include <stdint.h>
+
+#include "error.h"
+#include "guide.h"
+
+typedef struct options {
+    const char *scene;
+    const char *out;          /* as given; NULL: out/<scene name>                             */
+    const char *reference;
+    const char *save_model, *load_model;
+    guide_prior prior;
+    int prior_given;
+    int large_model;
+    float learning_rate;
+    int learning_rate_given;
+    int iterations;
+    int batch;                /* training paths per iteration                                 */
+    int eval_every, eval_spp, spp, spp_given;
+    int width, height;        /* 0: the scene's film                                          */
+    int max_depth;            /* -2: the scene's                                              */
+    int threads;
+    uint64_t seed;
+    float guide_prob;
+    int guiding;
+    int reference_mode;
+    float exposure;
+    int help;
+} options;
+
+/* Fills the defaults, then parses argv. Returns 0 with a message on a bad command line. */
+int options_parse(int argc, char **argv, options *o, tr_error *err);
+void options_print_help(const char *program);
+
+#endif /* TRACER_OPTIONS_H */

@@ -1,0 +1,121 @@
+/*
+ * render.c - tiles, chunks and per-thread statistics around trace_path.
+ */
+#include "render.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "parallel.h"
+
+#define TILE 16
+#define TRAIN_CHUNK 64
+
+typedef struct image_job {
+    const tracer *t;
+    image *img;
+    int spp, tiles_x;
+    uint64_t seed;
+    uint32_t pass;
+    path_stats *stats; /* one per thread */
+} image_job;
+
+static void render_tile(void *user, size_t item, int thread)
+{
+    image_job *job = user;
+    const scene *s = job->t->s;
+    int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
+    for (int y = y0; y < y0 + TILE && y < s->height; ++y)
+        for (int x = x0; x < x0 + TILE && x < s->width; ++x) {
+            uint64_t pixel = (uint64_t)y * (uint64_t)s->width + (uint64_t)x;
+            rng r = rng_seed(job->seed, RNG_RENDER, job->pass, pixel);
+            rgb sum = rgb_gray(0.0f);
+            for (int i = 0; i < job->spp; ++i) {
+                float jx = rng_next(&r), jy = rng_next(&r);
+                rgb c = trace_path(job->t, &r, (float)x + jx, (float)y + jy, NULL,
+                                   &job->stats[thread]);
+                /* One bad sample (a NaN from a numerical corner case) must not poison the
+                 * pixel; such samples are dropped and would show up as darkening. */
+                if (rgb_is_finite(c))
+                    sum = rgb_add(sum, c);
+            }
+            float *p = image_pixel(job->img, x, y);
+            p[0] = sum.r / (float)job->spp;
+            p[1] = sum.g / (float)job->spp;
+            p[2] = sum.b / (float)job->spp;
+        }
+}
+
+int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int threads,
+                 image *img, path_stats *stats, const char *progress_label, tr_error *err)
+{
+    image_job job;
+    job.t = t;
+    job.img = img;
+    job.spp = spp;
+    job.seed = seed;
+    job.pass = pass;
+    job.tiles_x = (t->s->width + TILE - 1) / TILE;
+    int tiles_y = (t->s->height + TILE - 1) / TILE;
+    job.stats = calloc((size_t)(threads > 0 ? threads : 1), sizeof *job.stats);
+    if (!job.stats)
+        return tr_fail(err, "out of memory");
+    int ok = parallel_for((size_t)job.tiles_x * (size_t)tiles_y, threads, render_tile, &job,
+                          progress_label, err);
+    for (int i = 0; stats && i < (threads > 0 ? threads : 1); ++i)
+        path_stats_add(stats, &job.stats[i]);
+    free(job.stats);
+    return ok;
+}
+
+typedef struct train_job {
+    const tracer *t;
+    size_t paths;
+    uint64_t seed;
+    uint32_t iteration;
+    record_buffer *chunks;
+    path_stats *stats;
+} train_job;
+
+static void train_chunk(void *user, size_t item, int thread)
+{
+    train_job *job = user;
+    const scene *s = job->t->s;
+    record_buffer *out = &job->chunks[item];
+    out->count = 0;
+    for (size_t j = item * TRAIN_CHUNK; j < (item + 1) * TRAIN_CHUNK && j < job->paths; ++j) {
+        rng r = rng_seed(job->seed, RNG_TRAIN, job->iteration, j);
+        float px = rng_next(&r) * (float)s->width, py = rng_next(&r) * (float)s->height;
+        trace_path(job->t, &r, px, py, out, &job->stats[thread]);
+    }
+}
+
+int trace_training_batch(const tracer *t, size_t paths, uint64_t seed, uint32_t iteration,
+                         int threads, record_buffer *out, path_stats *stats, tr_error *err)
+{
+    train_job job;
+    size_t nchunks = (paths + TRAIN_CHUNK - 1) / TRAIN_CHUNK;
+    job.t = t;
+    job.paths = paths;
+    job.seed = seed;
+    job.iteration = iteration;
+    job.chunks = calloc(nchunks ? nchunks : 1, sizeof *job.chunks);
+    job.stats = calloc((size_t)(threads > 0 ? threads : 1), sizeof *job.stats);
+    if (!job.chunks || !job.stats) {
+        free(job.chunks);
+        free(job.stats);
+        return tr_fail(err, "out of memory");
+    }
+    int ok = parallel_for(nchunks, threads, train_chunk, &job, NULL, err);
+    out->count = 0;
+    for (size_t c = 0; c < nchunks; ++c) {
+        if (job.chunks[c].out_of_memory || !record_buffer_append(out, &job.chunks[c]))
+            ok = ok && tr_fail(err, "out of memory for training records");
+        record_buffer_free(&job.chunks[c]);
+    }
+    for (int i = 0; stats && i < (threads > 0 ? threads : 1); ++i)
+        path_stats_add(stats, &job.stats[i]);
+    free(job.chunks);
+    free(job.stats);
+    return ok;
+}

@@ -1,0 +1,28 @@
+/*
+ * render.h - the two parallel jobs of the tracer: rendering an image (tiles of pixels) and
+ * tracing a batch of training paths. Both are deterministic for a given seed whatever the
+ * number of threads: every pixel and every training path has its own random stream, and
+ * training records are gathered per chunk of paths and concatenated in chunk order.
+ */
+#ifndef TRACER_RENDER_H
+#define TRACER_RENDER_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "error.h"
+#include "image.h"
+#include "integrator.h"
+
+/* Renders spp paths per pixel (uniformly jittered in the pixel: a box filter) into img,
+ * which must be allocated at the scene's resolution, and stores the mean. `pass` selects
+ * independent random streams (evaluation renders and the final render use different ones). */
+int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int threads,
+                 image *img, path_stats *stats, const char *progress_label, tr_error *err);
+
+/* Traces `paths` training paths for iteration `iteration`, each through a uniformly random
+ * film position, and replaces the contents of `out` with their records in path order. */
+int trace_training_batch(const tracer *t, size_t paths, uint64_t seed, uint32_t iteration,
+                         int threads, record_buffer *out, path_stats *stats, tr_error *err);
+
+#endif /* TRACER_RENDER_H */

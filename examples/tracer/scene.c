@@ -1,0 +1,413 @@
+/*
+ * scene.c - the parts of a scene that exist at render time: the Embree scene, hit geometry,
+ * the camera, the environment and light sampling. Loading lives in scene_load.c.
+ */
+#include "scene.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ---- Life cycle ------------------------------------------------------------------------- */
+
+void scene_free(scene *s)
+{
+    if (s->rtc)
+        rtcReleaseScene(s->rtc);
+    if (s->device)
+        rtcReleaseDevice(s->device);
+    for (int i = 0; i < s->nshapes; ++i) {
+        mesh_free(&s->shapes[i].m);
+        free(s->shapes[i].tri_area);
+    }
+    free(s->shapes);
+    free(s->bsdfs);
+    for (int i = 0; i < s->ntextures; ++i) {
+        texture_free(s->textures[i]);
+        free(s->textures[i]);
+    }
+    free(s->textures);
+    image_free(&s->env.map);
+    distrib2d_free(&s->env.dist);
+    distrib1d_free(&s->lights);
+    free(s->light_shape);
+    free(s->path);
+    memset(s, 0, sizeof *s);
+}
+
+void scene_set_resolution(scene *s, int width, int height)
+{
+    s->width = width;
+    s->height = height;
+    float t = tanf(0.5f * s->fov_degrees * PI_F / 180.0f);
+    float w = (float)width, h = (float)height, diag = sqrtf(w * w + h * h);
+    int axis = s->fov_axis;
+    if (axis == 3)
+        axis = width <= height ? 0 : 1; /* "smaller": the fov spans the shorter side */
+    else if (axis == 4)
+        axis = width >= height ? 0 : 1; /* "larger" */
+    switch (axis) {
+    case 1:
+        s->cam.tan_half_y = t;
+        s->cam.tan_half_x = t * w / h;
+        break;
+    case 2:
+        s->cam.tan_half_x = t * w / diag;
+        s->cam.tan_half_y = t * h / diag;
+        break;
+    default:
+        s->cam.tan_half_x = t;
+        s->cam.tan_half_y = t * h / w;
+        break;
+    }
+    s->cam.to_world = s->camera_to_world;
+    s->cam.origin = mat4_point(&s->camera_to_world, v3(0.0f, 0.0f, 0.0f));
+}
+
+/* ---- Finalization: lights, bounds, Embree ------------------------------------------------ */
+
+static void embree_error(void *user, enum RTCError code, const char *msg)
+{
+    char *buf = user;
+    snprintf(buf, 256, "Embree error %d: %s", (int)code, msg ? msg : "");
+}
+
+static char embree_message[256];
+
+static int build_environment_distribution(environment *env, tr_error *err)
+{
+    size_t w = (size_t)env->map.width, h = (size_t)env->map.height;
+    double *weights = malloc(w * h * sizeof *weights);
+    if (!weights)
+        return tr_fail(err, "out of memory");
+    for (size_t y = 0; y < h; ++y) {
+        double sin_theta = sin(3.14159265358979 * ((double)y + 0.5) / (double)h);
+        for (size_t x = 0; x < w; ++x) {
+            const float *p = image_pixel(&env->map, (int)x, (int)y);
+            weights[y * w + x] = rgb_luminance(rgb_make(p[0], p[1], p[2])) * sin_theta;
+        }
+    }
+    int ok = distrib2d_init(&env->dist, weights, w, h);
+    free(weights);
+    if (!ok)
+        return tr_fail(err, "the environment map is black everywhere");
+    return 1;
+}
+
+/* Mean radiance luminance of the environment over the sphere of directions. */
+static double environment_mean_luminance(const environment *env)
+{
+    if (env->kind == ENV_CONSTANT)
+        return rgb_luminance(env->radiance);
+    double sum = 0.0, wsum = 0.0;
+    for (int y = 0; y < env->map.height; ++y) {
+        double sin_theta = sin(3.14159265358979 * ((double)y + 0.5) / env->map.height);
+        for (int x = 0; x < env->map.width; ++x) {
+            const float *p = image_pixel(&env->map, x, y);
+            sum += rgb_luminance(rgb_make(p[0], p[1], p[2])) * sin_theta;
+            wsum += sin_theta;
+        }
+    }
+    return wsum > 0.0 ? env->scale * sum / wsum : 0.0;
+}
+
+int scene_finalize(scene *s, tr_error *err)
+{
+    /* Bounds. */
+    vec3 lo = v3(INFINITY, INFINITY, INFINITY), hi = v3(-INFINITY, -INFINITY, -INFINITY);
+    for (int i = 0; i < s->nshapes; ++i)
+        for (uint32_t v = 0; v < s->shapes[i].m.nverts; ++v) {
+            lo = v3_min(lo, s->shapes[i].m.p[v]);
+            hi = v3_max(hi, s->shapes[i].m.p[v]);
+        }
+    if (s->nshapes == 0) {
+        lo = v3(-1.0f, -1.0f, -1.0f);
+        hi = v3(1.0f, 1.0f, 1.0f);
+    }
+    s->bounds_min = lo;
+    s->bounds_max = hi;
+    s->radius = fmaxf(0.5f * v3_length(v3_sub(hi, lo)), 1e-3f);
+
+    if (s->env.kind == ENV_ENVMAP && !build_environment_distribution(&s->env, err))
+        return 0;
+
+    /* Light selection. */
+    uint32_t n = 0;
+    for (int i = 0; i < s->nshapes; ++i)
+        if (s->shapes[i].emissive)
+            n += s->shapes[i].m.ntris;
+    int with_env = s->env.kind != ENV_NONE;
+    double *weights = malloc(((size_t)n + 1) * sizeof *weights);
+    s->light_shape = malloc(((size_t)n + 1) * sizeof *s->light_shape);
+    if (!weights || !s->light_shape) {
+        free(weights);
+        return tr_fail(err, "out of memory");
+    }
+    uint32_t k = 0;
+    for (int i = 0; i < s->nshapes; ++i) {
+        shape *sh = &s->shapes[i];
+        if (!sh->emissive)
+            continue;
+        sh->first_light = k;
+        sh->tri_area = malloc(sh->m.ntris * sizeof *sh->tri_area + 1);
+        if (!sh->tri_area) {
+            free(weights);
+            return tr_fail(err, "out of memory");
+        }
+        for (uint32_t t = 0; t < sh->m.ntris; ++t) {
+            const uint32_t *id = sh->m.idx + 3 * t;
+            vec3 c = v3_cross(v3_sub(sh->m.p[id[1]], sh->m.p[id[0]]),
+                              v3_sub(sh->m.p[id[2]], sh->m.p[id[0]]));
+            sh->tri_area[t] = 0.5f * v3_length(c);
+            s->light_shape[k] = i;
+            weights[k++] = (double)rgb_luminance(sh->radiance) * sh->tri_area[t];
+        }
+    }
+    if (with_env)
+        weights[k++] = environment_mean_luminance(&s->env) * 3.14159265358979 *
+                       3.14159265358979 * (double)s->radius * (double)s->radius;
+    s->nlights = k;
+    s->has_lights = k > 0 && distrib1d_init(&s->lights, weights, k);
+    free(weights);
+
+    /* Embree: one triangle geometry per shape, its ID equal to the shape's index. The
+     * buffers are shared, not copied: the meshes outlive the Embree scene. */
+    embree_message[0] = '\0';
+    s->device = rtcNewDevice(NULL);
+    if (!s->device)
+        return tr_fail(err, "cannot create an Embree device");
+    rtcSetDeviceErrorFunction(s->device, embree_error, embree_message);
+    s->rtc = rtcNewScene(s->device);
+    rtcSetSceneBuildQuality(s->rtc, RTC_BUILD_QUALITY_HIGH);
+    for (int i = 0; i < s->nshapes; ++i) {
+        const mesh *m = &s->shapes[i].m;
+        RTCGeometry g = rtcNewGeometry(s->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, m->p, 0,
+                                   sizeof(vec3), m->nverts);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->idx, 0,
+                                   3 * sizeof(uint32_t), m->ntris);
+        rtcCommitGeometry(g);
+        rtcAttachGeometryByID(s->rtc, g, (unsigned)i);
+        rtcReleaseGeometry(g);
+    }
+    rtcCommitScene(s->rtc);
+    if (embree_message[0] || rtcGetDeviceError(s->device) != RTC_ERROR_NONE)
+        return tr_fail(err, "building the Embree scene failed: %s", embree_message);
+    return 1;
+}
+
+/* ---- Rays --------------------------------------------------------------------------------- */
+
+ray camera_ray(const scene *s, float px, float py)
+{
+    /* Camera space: +x is the image's left, +y its top. */
+    float x = (1.0f - 2.0f * px / (float)s->width) * s->cam.tan_half_x;
+    float y = (1.0f - 2.0f * py / (float)s->height) * s->cam.tan_half_y;
+    ray r;
+    r.o = s->cam.origin;
+    r.d = v3_normalize(mat4_vector(&s->cam.to_world, v3(x, y, 1.0f)));
+    r.tmax = INFINITY;
+    return r;
+}
+
+int scene_intersect(const scene *s, const ray *r, hit *h)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRayHit rh;
+    memset(&rh, 0, sizeof rh);
+    rh.ray.org_x = r->o.x;
+    rh.ray.org_y = r->o.y;
+    rh.ray.org_z = r->o.z;
+    rh.ray.dir_x = r->d.x;
+    rh.ray.dir_y = r->d.y;
+    rh.ray.dir_z = r->d.z;
+    rh.ray.tnear = 0.0f;
+    rh.ray.tfar = r->tmax;
+    rh.ray.mask = 0xffffffffu;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(s->rtc, &ctx, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
+        return 0;
+    h->t = rh.ray.tfar;
+    h->shape = (int)rh.hit.geomID;
+    h->prim = rh.hit.primID;
+    h->b1 = rh.hit.u;
+    h->b2 = rh.hit.v;
+    return 1;
+}
+
+int scene_occluded(const scene *s, const ray *r)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRay ry;
+    memset(&ry, 0, sizeof ry);
+    ry.org_x = r->o.x;
+    ry.org_y = r->o.y;
+    ry.org_z = r->o.z;
+    ry.dir_x = r->d.x;
+    ry.dir_y = r->d.y;
+    ry.dir_z = r->d.z;
+    ry.tnear = 0.0f;
+    ry.tfar = r->tmax;
+    ry.mask = 0xffffffffu;
+    rtcOccluded1(s->rtc, &ctx, &ry);
+    return ry.tfar < 0.0f; /* Embree sets tfar to -inf when something is in the way */
+}
+
+void scene_surface(const scene *s, const hit *h, const ray *r, surface *out)
+{
+    const mesh *m = &s->shapes[h->shape].m;
+    const uint32_t *id = m->idx + 3 * h->prim;
+    float b0 = 1.0f - h->b1 - h->b2;
+    vec3 p0 = m->p[id[0]], p1 = m->p[id[1]], p2 = m->p[id[2]];
+    /* From the barycentrics rather than o + t d: more accurate far from the origin. */
+    out->p = v3_add(v3_add(v3_scale(p0, b0), v3_scale(p1, h->b1)), v3_scale(p2, h->b2));
+    (void)r;
+    out->ng = v3_normalize(v3_cross(v3_sub(p1, p0), v3_sub(p2, p0)));
+    if (m->n) {
+        vec3 n = v3_add(v3_add(v3_scale(m->n[id[0]], b0), v3_scale(m->n[id[1]], h->b1)),
+                        v3_scale(m->n[id[2]], h->b2));
+        out->ns = v3_dot(n, n) > 0.0f ? v3_normalize(n) : out->ng;
+        /* The winding decides the front side (emitters and one-sided materials depend on
+         * it); a vertex normal pointing the other way is turned to that side. */
+        if (v3_dot(out->ns, out->ng) < 0.0f)
+            out->ns = v3_neg(out->ns);
+    } else {
+        out->ns = out->ng;
+    }
+    if (m->uv) {
+        out->u = b0 * m->uv[2 * id[0]] + h->b1 * m->uv[2 * id[1]] + h->b2 * m->uv[2 * id[2]];
+        out->v = b0 * m->uv[2 * id[0] + 1] + h->b1 * m->uv[2 * id[1] + 1] +
+                 h->b2 * m->uv[2 * id[2] + 1];
+    } else {
+        out->u = h->b1; /* Mitsuba's texture coordinates for meshes without any */
+        out->v = h->b2;
+    }
+}
+
+/* ---- Environment ---------------------------------------------------------------------------- */
+
+/* Mitsuba's lat-long mapping: in the map's frame +y is up, u turns about it starting at -z. */
+static void env_direction_to_uv(const environment *env, vec3 d, float *u, float *v)
+{
+    vec3 l = v3_normalize(mat4_vector(&env->to_local, d));
+    float uu = atan2f(l.x, -l.z) * (0.5f * INV_PI_F);
+    float vv = acosf(clampf(l.y, -1.0f, 1.0f)) * INV_PI_F;
+    *u = uu - floorf(uu);
+    *v = vv;
+}
+
+static vec3 env_uv_to_direction(const environment *env, float u, float v)
+{
+    float phi = 2.0f * PI_F * u, theta = PI_F * v;
+    vec3 l = v3(sinf(theta) * sinf(phi), cosf(theta), -sinf(theta) * cosf(phi));
+    return v3_normalize(mat4_vector(&env->to_world, l));
+}
+
+static rgb env_lookup(const environment *env, float u, float v)
+{
+    /* Nearest pixel: the map is piecewise constant, exactly what its sampling assumes. */
+    int x = (int)fminf(u * (float)env->map.width, (float)env->map.width - 1.0f);
+    int y = (int)fminf(v * (float)env->map.height, (float)env->map.height - 1.0f);
+    const float *p = image_pixel(&env->map, x < 0 ? 0 : x, y < 0 ? 0 : y);
+    return rgb_scale(rgb_make(p[0], p[1], p[2]), env->scale);
+}
+
+rgb env_eval(const scene *s, vec3 d)
+{
+    const environment *env = &s->env;
+    if (env->kind == ENV_CONSTANT)
+        return env->radiance;
+    if (env->kind == ENV_NONE)
+        return rgb_gray(0.0f);
+    float u, v;
+    env_direction_to_uv(env, d, &u, &v);
+    return env_lookup(env, u, v);
+}
+
+static float env_pdf_direction(const environment *env, vec3 d)
+{
+    if (env->kind == ENV_CONSTANT)
+        return 0.25f * INV_PI_F;
+    float u, v;
+    env_direction_to_uv(env, d, &u, &v);
+    float sin_theta = sinf(PI_F * v);
+    if (sin_theta <= 0.0f)
+        return 0.0f;
+    return distrib2d_pdf(&env->dist, u, v) / (2.0f * PI_F * PI_F * sin_theta);
+}
+
+/* ---- Lights ----------------------------------------------------------------------------------- */
+
+int light_sample_from(const scene *s, vec3 p, float u_pick, float u0, float u1,
+                      light_sample *ls)
+{
+    if (!s->has_lights)
+        return 0;
+    size_t i = distrib1d_sample(&s->lights, u_pick, NULL);
+    float pick = (float)distrib1d_pmf(&s->lights, i);
+    if (s->env.kind != ENV_NONE && i == s->nlights - 1) {
+        const environment *env = &s->env;
+        if (env->kind == ENV_CONSTANT) {
+            ls->wi = sample_uniform_sphere(u0, u1);
+            ls->pdf = pick * 0.25f * INV_PI_F;
+            ls->radiance = env->radiance;
+        } else {
+            float u, v, pdf_uv;
+            distrib2d_sample(&env->dist, u0, u1, &u, &v, &pdf_uv);
+            float sin_theta = sinf(PI_F * v);
+            if (sin_theta <= 0.0f || pdf_uv <= 0.0f)
+                return 0;
+            ls->wi = env_uv_to_direction(env, u, v);
+            ls->pdf = pick * pdf_uv / (2.0f * PI_F * PI_F * sin_theta);
+            ls->radiance = env_lookup(env, u, v);
+        }
+        ls->dist = INFINITY;
+        return ls->pdf > 0.0f;
+    }
+    const shape *sh = &s->shapes[s->light_shape[i]];
+    uint32_t t = (uint32_t)i - sh->first_light;
+    const uint32_t *id = sh->m.idx + 3 * t;
+    /* Uniform point on the triangle (the square-root warp). */
+    float su = sqrtf(u0), b0 = 1.0f - su, b1 = u1 * su, b2 = 1.0f - b0 - b1;
+    vec3 p0 = sh->m.p[id[0]], p1 = sh->m.p[id[1]], p2 = sh->m.p[id[2]];
+    vec3 q = v3_add(v3_add(v3_scale(p0, b0), v3_scale(p1, b1)), v3_scale(p2, b2));
+    vec3 n = v3_normalize(v3_cross(v3_sub(p1, p0), v3_sub(p2, p0)));
+    vec3 d = v3_sub(q, p);
+    float dist2 = v3_dot(d, d);
+    if (!(dist2 > 0.0f))
+        return 0;
+    float dist = sqrtf(dist2);
+    ls->wi = v3_scale(d, 1.0f / dist);
+    float cos_l = -v3_dot(ls->wi, n);
+    if (cos_l <= 0.0f)
+        return 0; /* the back of a one-sided emitter */
+    ls->dist = dist;
+    ls->radiance = sh->radiance;
+    ls->pdf = pick / sh->tri_area[t] * dist2 / cos_l;
+    return isfinite(ls->pdf) && ls->pdf > 0.0f;
+}
+
+float light_pdf_area(const scene *s, int shape_index, uint32_t prim, vec3 wi, float t, vec3 ng)
+{
+    const shape *sh = &s->shapes[shape_index];
+    if (!s->has_lights || !sh->emissive)
+        return 0.0f;
+    float cos_l = fabsf(v3_dot(wi, ng));
+    if (cos_l <= 0.0f)
+        return 0.0f;
+    float pick = (float)distrib1d_pmf(&s->lights, sh->first_light + prim);
+    return pick / sh->tri_area[prim] * t * t / cos_l;
+}
+
+float light_pdf_env(const scene *s, vec3 wi)
+{
+    if (!s->has_lights || s->env.kind == ENV_NONE)
+        return 0.0f;
+    float pick = (float)distrib1d_pmf(&s->lights, s->nlights - 1);
+    return pick * env_pdf_direction(&s->env, wi);
+}

@@ -1,0 +1,147 @@
+/*
+ * scene.h - everything the integrator needs to know about a scene: the camera, the shapes
+ * with their materials and emission, the environment, the light-selection distribution and
+ * the Embree acceleration structure. scene_load.c fills it from a Mitsuba 3 XML file.
+ */
+#ifndef TRACER_SCENE_H
+#define TRACER_SCENE_H
+
+#include <stdint.h>
+
+#include <embree3/rtcore.h>
+
+#include "bsdf.h"
+#include "distrib.h"
+#include "error.h"
+#include "image.h"
+#include "mesh.h"
+#include "texture.h"
+#include "transform.h"
+
+typedef struct camera {
+    vec3 origin;
+    mat4 to_world;              /* camera space: +z forward, +y up, +x to the image's left */
+    float tan_half_x, tan_half_y;
+} camera;
+
+typedef struct shape {
+    mesh m;
+    int bsdf;                   /* index into scene.bsdfs                                  */
+    int emissive;               /* an area emitter: emits `radiance` on its front side      */
+    rgb radiance;
+    uint32_t first_light;       /* index of its first triangle in scene.lights              */
+    float *tri_area;            /* emissive shapes: the area of each triangle              */
+} shape;
+
+typedef enum env_kind { ENV_NONE, ENV_CONSTANT, ENV_ENVMAP } env_kind;
+
+typedef struct environment {
+    env_kind kind;
+    rgb radiance;               /* ENV_CONSTANT                                             */
+    image map;                  /* ENV_ENVMAP: lat-long, in its own frame (+y up)           */
+    float scale;
+    mat4 to_world, to_local;
+    distrib2d dist;             /* ENV_ENVMAP: pixel luminance x sin(theta)                 */
+} environment;
+
+typedef struct scene {
+    char *path;                 /* the XML file                                            */
+    int width, height;          /* film size (the command line may override it)            */
+    float fov_degrees;
+    int fov_axis;               /* 0 x, 1 y, 2 diagonal, 3 smaller, 4 larger               */
+    mat4 camera_to_world;
+    camera cam;                 /* set by scene_set_resolution                             */
+    int max_depth;              /* longest path in segments; -1: unlimited                 */
+    int rr_depth;               /* the depth from which Russian roulette may stop a path   */
+    int hide_emitters;
+
+    shape *shapes;
+    int nshapes;
+    bsdf *bsdfs;
+    int nbsdfs;
+    texture **textures;         /* owned; bsdfs point into them                            */
+    int ntextures;
+    environment env;
+
+    /* Light selection: one entry per emissive triangle (all shapes, in order), then the
+     * environment if there is one. Weights: emitted power (luminance x area) of a
+     * triangle; for the environment, its mean luminance times the area of a disk spanning
+     * the scene (the power it can send into the scene's bounding sphere). */
+    distrib1d lights;
+    uint32_t nlights;
+    int *light_shape;           /* the shape of each triangle entry                        */
+    int has_lights;
+
+    vec3 bounds_min, bounds_max;
+    float radius;               /* of the bounding sphere                                  */
+
+    RTCDevice device;
+    RTCScene rtc;
+} scene;
+
+/* Loads and prepares a scene (scene_load.c). On failure returns 0 with a message naming the
+ * file, the line and the element. */
+int scene_load(const char *path, scene *s, tr_error *err);
+/* The same from a string; relative file names are resolved against `dir`. For tests. */
+int scene_load_string(const char *xml, const char *dir, scene *s, tr_error *err);
+void scene_free(scene *s);
+
+/* Sets the output resolution and the camera's field of view for it. */
+void scene_set_resolution(scene *s, int width, int height);
+
+/* After the shapes, lights and environment are in place: builds the light distribution,
+ * the bounds and the Embree scene (scene.c). */
+int scene_finalize(scene *s, tr_error *err);
+
+/* ---- Queries used by the integrator ---------------------------------------------------- */
+
+typedef struct ray {
+    vec3 o, d;
+    float tmax;
+} ray;
+
+/* A camera ray through the film position (px, py) in pixels (0..width, 0..height). */
+ray camera_ray(const scene *s, float px, float py);
+
+typedef struct hit {
+    float t;
+    int shape;
+    uint32_t prim;
+    float b1, b2;               /* barycentrics of vertices 1 and 2                         */
+} hit;
+
+int scene_intersect(const scene *s, const ray *r, hit *h);
+int scene_occluded(const scene *s, const ray *r);
+
+/* The differential geometry of a hit. */
+typedef struct surface {
+    vec3 p;
+    vec3 ng;                    /* unit geometric normal (the triangle's winding)          */
+    vec3 ns;                    /* unit shading normal, on ng's side                       */
+    float u, v;                 /* texture coordinates                                     */
+} surface;
+
+void scene_surface(const scene *s, const hit *h, const ray *r, surface *out);
+
+/* Radiance arriving from the environment along direction d (from the scene outwards). */
+rgb env_eval(const scene *s, vec3 d);
+
+/* A light sample seen from point p: direction, distance, emitted radiance towards p, and the
+ * solid-angle density of having chosen it (light selection included). */
+typedef struct light_sample {
+    vec3 wi;
+    float dist;                 /* INFINITY for the environment                            */
+    rgb radiance;
+    float pdf;
+} light_sample;
+
+int light_sample_from(const scene *s, vec3 p, float u_pick, float u0, float u1,
+                      light_sample *ls);
+/* The solid-angle density with which light_sample_from would produce the point where a ray
+ * from p along wi hits emissive shape `shape`, triangle `prim`, at distance t with the
+ * geometric normal ng. */
+float light_pdf_area(const scene *s, int shape, uint32_t prim, vec3 wi, float t, vec3 ng);
+/* The same for an escaped ray hitting the environment. */
+float light_pdf_env(const scene *s, vec3 wi);
+
+#endif /* TRACER_SCENE_H */

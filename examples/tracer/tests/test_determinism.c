@@ -1,0 +1,136 @@
+/*
+ * test_determinism.c - a given seed gives the same result whatever the number of threads:
+ * rendered images and trained models are compared bit for bit between 1 and 3 threads, and
+ * a different seed must change them (so the comparison is not vacuous). Also: a saved model
+ * loads with its BSDF-prior callbacks and renders identically.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "guide.h"
+#include "render.h"
+#include "scene.h"
+#include "training.h"
+
+static void load_cornell(scene *s)
+{
+    tr_error err;
+    char path[1024];
+    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
+    if (!scene_load(path, s, &err))
+        fail_msg("%s", err.msg);
+    scene_set_resolution(s, 24, 24);
+}
+
+/* Trains a fresh model for 3 iterations and renders 2 spp with it. */
+static void train_and_render(const scene *s, guide_prior prior, int threads, uint64_t seed,
+                             nf_model **model, image *img)
+{
+    tr_error err;
+    if (!guide_create(s, prior, 0, 5e-3f, 1, model, &err))
+        fail_msg("%s", err.msg);
+    tracer t = {s, *model, 0.5f, prior == GUIDE_PRIOR_BSDF};
+    training_settings ts = {3, 200, 0, 1, threads, seed, NULL, NULL};
+    training_report rep;
+    if (!train_guide(&t, *model, &ts, &rep, &err))
+        fail_msg("%s", err.msg);
+    assert_true(image_alloc(img, s->width, s->height, &err));
+    if (!render_image(&t, 2, seed, 0, threads, img, NULL, NULL, &err))
+        fail_msg("%s", err.msg);
+}
+
+static void compare_params(const nf_model *a, const nf_model *b, int expect_equal)
+{
+    size_t n = nf_param_count(a);
+    float *pa = malloc(n * sizeof *pa), *pb = malloc(n * sizeof *pb);
+    assert_non_null(pa);
+    assert_non_null(pb);
+    assert_int_equal(nf_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    if (expect_equal)
+        assert_memory_equal(pa, pb, n * sizeof *pa);
+    else
+        assert_memory_not_equal(pa, pb, n * sizeof *pa);
+    free(pa);
+    free(pb);
+}
+
+static void check_prior(guide_prior prior)
+{
+    scene s;
+    load_cornell(&s);
+    nf_model *m1, *m3, *m_other;
+    image i1, i3, i_other;
+    train_and_render(&s, prior, 1, 42, &m1, &i1);
+    train_and_render(&s, prior, 3, 42, &m3, &i3);
+    train_and_render(&s, prior, 3, 43, &m_other, &i_other);
+    size_t bytes = (size_t)s.width * (size_t)s.height * 3u * sizeof(float);
+    compare_params(m1, m3, 1);
+    assert_memory_equal(i1.data, i3.data, bytes);
+    compare_params(m1, m_other, 0);
+    assert_memory_not_equal(i1.data, i_other.data, bytes);
+    nf_model_destroy(m1);
+    nf_model_destroy(m3);
+    nf_model_destroy(m_other);
+    image_free(&i1);
+    image_free(&i3);
+    image_free(&i_other);
+    scene_free(&s);
+    /* The BSDF prior found its shading point in every callback, in rendering and training. */
+    assert_int_equal(guide_lookup_failures(), 0);
+}
+
+static void test_threads_do_not_change_results_cosine(void **state)
+{
+    (void)state;
+    check_prior(GUIDE_PRIOR_COSINE);
+}
+
+static void test_threads_do_not_change_results_bsdf_prior(void **state)
+{
+    (void)state;
+    check_prior(GUIDE_PRIOR_BSDF);
+}
+
+static void test_saved_model_renders_identically(void **state)
+{
+    (void)state;
+    scene s;
+    tr_error err;
+    load_cornell(&s);
+    nf_model *m, *loaded;
+    image a, b;
+    train_and_render(&s, GUIDE_PRIOR_BSDF, 2, 5, &m, &a);
+    char path[1024];
+    snprintf(path, sizeof path, "%s/saved.nf", TRACER_TEST_TMP_DIR);
+    assert_int_equal(nf_model_save(m, path), NF_OK);
+    if (!guide_load(path, &loaded, &err))
+        fail_msg("%s", err.msg);
+    compare_params(m, loaded, 1);
+    tracer t = {&s, loaded, 0.5f, 1};
+    assert_true(image_alloc(&b, s.width, s.height, &err));
+    assert_true(render_image(&t, 2, 5, 0, 2, &b, NULL, NULL, &err));
+    assert_memory_equal(a.data, b.data, (size_t)s.width * (size_t)s.height * 3u * sizeof(float));
+    nf_model_destroy(m);
+    nf_model_destroy(loaded);
+    image_free(&a);
+    image_free(&b);
+    scene_free(&s);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_threads_do_not_change_results_cosine),
+        cmocka_unit_test(test_threads_do_not_change_results_bsdf_prior),
+        cmocka_unit_test(test_saved_model_renders_identically),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

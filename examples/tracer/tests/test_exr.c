@@ -1,0 +1,178 @@
+/*
+ * test_exr.c - image files and metrics: float RGB OpenEXR round trips bit for bit (odd
+ * sizes, so that the last ZIP chunk is partial; extreme and special values), unreadable
+ * files are errors, PNG previews are written, and MAPE / relMSE / downsampling compute what
+ * their definitions say.
+ */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "image.h"
+#include "metrics.h"
+#include "rng.h"
+
+static void tmp_path(char *out, size_t size, const char *name)
+{
+    snprintf(out, size, "%s/%s", TRACER_TEST_TMP_DIR, name);
+}
+
+static void round_trip(int w, int h, uint64_t seed)
+{
+    image a, b;
+    tr_error err;
+    char path[1024];
+    tmp_path(path, sizeof path, "round_trip.exr");
+    assert_true(image_alloc(&a, w, h, &err));
+    rng r = rng_seed(seed, RNG_TEST, 0, 0);
+    size_t n = (size_t)w * (size_t)h * 3u;
+    for (size_t i = 0; i < n; ++i) {
+        /* Values over many magnitudes and both signs, so that no bit pattern is special. */
+        float v = ldexpf(rng_next(&r), (int)(rng_next_u32(&r) % 80u) - 40);
+        a.data[i] = (rng_next_u32(&r) & 1u) ? -v : v;
+    }
+    a.data[0] = 0.0f;
+    a.data[1] = -0.0f;
+    a.data[2] = 3.4028235e38f;
+    if (n > 5) {
+        a.data[3] = 1.0e-45f; /* the smallest denormal */
+        a.data[4] = INFINITY;
+        a.data[5] = -INFINITY;
+    }
+    if (!image_write_exr(&a, path, &err))
+        fail_msg("%s", err.msg);
+    if (!image_read_exr(path, &b, &err))
+        fail_msg("%s", err.msg);
+    assert_int_equal(b.width, w);
+    assert_int_equal(b.height, h);
+    assert_memory_equal(a.data, b.data, n * sizeof(float)); /* bit-exact */
+    image_free(&a);
+    image_free(&b);
+}
+
+static void test_exr_round_trip_is_bit_exact(void **state)
+{
+    (void)state;
+    round_trip(1, 1, 1);
+    round_trip(37, 23, 2);   /* 23 lines: one full 16-line ZIP chunk and a partial one */
+    round_trip(256, 129, 3);
+    round_trip(5, 300, 4);
+}
+
+static void test_exr_errors(void **state)
+{
+    (void)state;
+    image img;
+    tr_error err;
+    char path[1024];
+    assert_false(image_read_exr("/nonexistent/dir/x.exr", &img, &err));
+    assert_non_null(strstr(err.msg, "/nonexistent/dir/x.exr"));
+    assert_null(img.data);
+
+    /* Not an EXR file. */
+    tmp_path(path, sizeof path, "not_an.exr");
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    fputs("this is not an OpenEXR file", f);
+    fclose(f);
+    assert_false(image_read_exr(path, &img, &err));
+    assert_non_null(strstr(err.msg, "not_an.exr"));
+
+    /* A truncated EXR file. */
+    image a;
+    assert_true(image_alloc(&a, 64, 64, &err));
+    for (size_t i = 0; i < 64u * 64u * 3u; ++i)
+        a.data[i] = (float)i;
+    tmp_path(path, sizeof path, "truncated.exr");
+    assert_true(image_write_exr(&a, path, &err));
+    image_free(&a);
+    f = fopen(path, "rb+");
+    assert_non_null(f);
+    fseek(f, 0, SEEK_END);
+    long size = ftell(f);
+    fclose(f);
+    assert_int_equal(truncate(path, size / 2), 0);
+    assert_false(image_read_exr(path, &img, &err));
+
+    /* Writing into a directory that does not exist fails cleanly. */
+    assert_true(image_alloc(&a, 4, 4, &err));
+    assert_false(image_write_exr(&a, "/nonexistent/dir/y.exr", &err));
+    assert_false(image_write_png(&a, "/nonexistent/dir/y.png", 0.0f, &err));
+    image_free(&a);
+}
+
+static void test_png_preview(void **state)
+{
+    (void)state;
+    image a, b;
+    tr_error err;
+    char path[1024];
+    assert_true(image_alloc(&a, 3, 1, &err));
+    a.data[0] = 1.0f;   /* white stays white */
+    a.data[3] = 0.5f;   /* linear 0.5 is sRGB 188 */
+    a.data[6] = NAN;    /* non-finite values become black rather than garbage */
+    tmp_path(path, sizeof path, "preview.png");
+    assert_true(image_write_png(&a, path, 0.0f, &err));
+    /* Read it back raw (no sRGB decoding): 8-bit codes / 255. */
+    if (!image_load_ldr(path, 0, &b, &err))
+        fail_msg("%s", err.msg);
+    assert_int_equal(b.width, 3);
+    assert_float_equal(b.data[0], 1.0f, 1e-6f);
+    assert_float_equal(b.data[3] * 255.0f, 188.0f, 1e-3f);
+    assert_float_equal(b.data[6], 0.0f, 0.0f);
+    image_free(&a);
+    image_free(&b);
+}
+
+static void test_metrics(void **state)
+{
+    (void)state;
+    image ref, img, small;
+    tr_error err;
+    assert_true(image_alloc(&ref, 2, 2, &err));
+    assert_true(image_alloc(&img, 2, 2, &err));
+    for (int i = 0; i < 12; ++i) {
+        ref.data[i] = 1.0f;
+        img.data[i] = 1.0f;
+    }
+    assert_float_equal(image_mape(&ref, &img), 0.0, 0.0);
+    assert_float_equal(image_relmse(&ref, &img), 0.0, 0.0);
+    /* One channel off by 0.5 against a reference of 1: |dv| / (1 + 0.01) over 12 values. */
+    img.data[5] = 1.5f;
+    assert_float_equal(image_mape(&ref, &img), 0.5 / 1.01 / 12.0, 1e-9);
+    assert_float_equal(image_relmse(&ref, &img), 0.25 / 1.01 / 12.0, 1e-9);
+    /* A black reference pixel: the epsilon bounds the relative error. */
+    ref.data[0] = 0.0f;
+    img.data[0] = 0.01f;
+    img.data[5] = 1.0f;
+    assert_float_equal(image_mape(&ref, &img), 1.0 / 12.0, 1e-9);
+
+    /* Downsampling averages blocks; sizes must be integer multiples. */
+    for (int i = 0; i < 12; ++i)
+        ref.data[i] = (float)i;
+    assert_true(image_downsample(&ref, 1, 1, &small, &err));
+    assert_float_equal(small.data[0], (0 + 3 + 6 + 9) / 4.0f, 1e-6f);
+    assert_float_equal(small.data[2], (2 + 5 + 8 + 11) / 4.0f, 1e-6f);
+    image_free(&small);
+    assert_false(image_downsample(&ref, 3, 1, &small, &err));
+    image_free(&ref);
+    image_free(&img);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_exr_round_trip_is_bit_exact),
+        cmocka_unit_test(test_exr_errors),
+        cmocka_unit_test(test_png_preview),
+        cmocka_unit_test(test_metrics),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

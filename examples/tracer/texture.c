@@ -1,0 +1,87 @@
+/*
+ * texture.c - texture lookups. Conventions follow Mitsuba 3: texture coordinate v = 0 is
+ * the first (top) row of the bitmap; the checkerboard shows color0 where the fractional
+ * parts of u and v are both above or both below 1/2.
+ */
+#include "texture.h"
+
+#include <math.h>
+#include <string.h>
+
+void texture_init_constant(texture *t, rgb value)
+{
+    memset(t, 0, sizeof *t);
+    t->kind = TEX_CONSTANT;
+    t->value = t->mean = value;
+    t->uv[0][0] = t->uv[1][1] = 1.0f;
+}
+
+void texture_update_mean(texture *t)
+{
+    if (t->kind == TEX_CONSTANT) {
+        t->mean = t->value;
+    } else if (t->kind == TEX_CHECKERBOARD) {
+        t->mean = rgb_scale(rgb_add(t->color0, t->color1), 0.5f);
+    } else {
+        double s[3] = {0.0, 0.0, 0.0};
+        size_t n = (size_t)t->bitmap.width * (size_t)t->bitmap.height;
+        for (size_t i = 0; i < n; ++i)
+            for (int c = 0; c < 3; ++c)
+                s[c] += t->bitmap.data[3 * i + c];
+        t->mean = n ? rgb_make((float)(s[0] / n), (float)(s[1] / n), (float)(s[2] / n)) : rgb_gray(0.0f);
+    }
+}
+
+static int wrap(int i, int n, int clamp)
+{
+    if (clamp)
+        return i < 0 ? 0 : (i >= n ? n - 1 : i);
+    i %= n;
+    return i < 0 ? i + n : i;
+}
+
+static rgb texel(const texture *t, int x, int y)
+{
+    const image *b = &t->bitmap;
+    const float *p = image_pixel(b, wrap(x, b->width, t->clamp), wrap(y, b->height, t->clamp));
+    return rgb_make(p[0], p[1], p[2]);
+}
+
+rgb texture_eval(const texture *t, float u0, float v0)
+{
+    if (t->kind == TEX_CONSTANT)
+        return t->value;
+    float u = t->uv[0][0] * u0 + t->uv[0][1] * v0 + t->uv[0][2];
+    float v = t->uv[1][0] * u0 + t->uv[1][1] * v0 + t->uv[1][2];
+    if (!isfinite(u) || !isfinite(v))
+        u = v = 0.0f;
+    if (t->kind == TEX_CHECKERBOARD) {
+        int mu = u - floorf(u) > 0.5f, mv = v - floorf(v) > 0.5f;
+        return mu == mv ? t->color0 : t->color1;
+    }
+    /* Texel centres sit at half-integer positions. Keep u, v in a sane range first so that
+     * the float-to-int conversion below cannot overflow. */
+    if (!t->clamp) {
+        u -= floorf(u);
+        v -= floorf(v);
+    }
+    float x = u * (float)t->bitmap.width - 0.5f, y = v * (float)t->bitmap.height - 0.5f;
+    x = fminf(fmaxf(x, -2.0f), (float)t->bitmap.width + 1.0f);
+    y = fminf(fmaxf(y, -2.0f), (float)t->bitmap.height + 1.0f);
+    float fx = floorf(x), fy = floorf(y);
+    int ix = (int)fx, iy = (int)fy;
+    if (t->nearest)
+        return texel(t, (int)floorf(x + 0.5f), (int)floorf(y + 0.5f));
+    float ax = x - fx, ay = y - fy;
+    rgb c00 = texel(t, ix, iy), c10 = texel(t, ix + 1, iy);
+    rgb c01 = texel(t, ix, iy + 1), c11 = texel(t, ix + 1, iy + 1);
+    rgb top = rgb_add(rgb_scale(c00, 1.0f - ax), rgb_scale(c10, ax));
+    rgb bottom = rgb_add(rgb_scale(c01, 1.0f - ax), rgb_scale(c11, ax));
+    return rgb_add(rgb_scale(top, 1.0f - ay), rgb_scale(bottom, ay));
+}
+
+void texture_free(texture *t)
+{
+    if (t->kind == TEX_BITMAP)
+        image_free(&t->bitmap);
+}

@@ -1,0 +1,32 @@
+/*
+ * texture.h - spatially varying colours: a constant, a bitmap (JPEG/PNG via stb_image,
+ * bilinear or nearest, repeat or clamp) and Mitsuba's checkerboard, each behind an optional
+ * to_uv transform.
+ */
+#ifndef TRACER_TEXTURE_H
+#define TRACER_TEXTURE_H
+
+#include "image.h"
+#include "vecmath.h"
+
+typedef enum texture_kind { TEX_CONSTANT, TEX_BITMAP, TEX_CHECKERBOARD } texture_kind;
+
+typedef struct texture {
+    texture_kind kind;
+    rgb value;          /* TEX_CONSTANT                                        */
+    rgb color0, color1; /* TEX_CHECKERBOARD                                    */
+    image bitmap;       /* TEX_BITMAP, linear RGB                              */
+    int nearest;        /* bitmap: nearest-neighbour instead of bilinear       */
+    int clamp;          /* bitmap: clamp to the edge instead of repeating      */
+    float uv[2][3];     /* to_uv: (u', v') = uv * (u, v, 1)                     */
+    rgb mean;           /* the average colour (used for sampling weights)      */
+} texture;
+
+/* A constant texture (to_uv identity, mean = value). */
+void texture_init_constant(texture *t, rgb value);
+/* Sets t->mean from the texture's contents; call after filling a bitmap or checkerboard. */
+void texture_update_mean(texture *t);
+rgb texture_eval(const texture *t, float u, float v);
+void texture_free(texture *t);
+
+#endif /* TRACER_TEXTURE_H */

@@ -1,0 +1,45 @@
+/*
+ * training.h - the online training loop (the paper's protocol): each iteration traces a
+ * batch of paths with the current model, collects the training samples of their guided
+ * vertices and takes one nf_train_step; every eval_every iterations a whole image is
+ * rendered at eval_spp and its MAPE appended to a CSV file.
+ */
+#ifndef TRACER_TRAINING_H
+#define TRACER_TRAINING_H
+
+#include <stdint.h>
+#include <stdio.h>
+
+#include <nisflow/nisflow.h>
+
+#include "error.h"
+#include "image.h"
+#include "integrator.h"
+
+typedef struct training_settings {
+    int iterations;
+    int batch;                /* training paths per iteration                       */
+    int eval_every, eval_spp; /* eval_every 0: no evaluation                        */
+    int threads;
+    uint64_t seed;
+    const image *reference;   /* NULL: the MAPE column stays empty                  */
+    FILE *csv;                /* NULL: no CSV                                       */
+} training_settings;
+
+typedef struct training_report {
+    uint64_t samples;         /* training samples passed to nf_train_step           */
+    uint64_t paths;
+    double trace_seconds;     /* tracing the training paths                         */
+    double step_seconds;      /* inside nf_train_step                               */
+    double trace_cpu_seconds; /* CPU time of all threads while tracing               */
+    double step_cpu_seconds;  /* CPU time of nf_train_step (it runs on this thread)  */
+    int refused;              /* batches nf_train_step refused                      */
+    float last_loss;
+    path_stats stats;
+} training_report;
+
+/* Trains `model` (which `t` must use) in place. */
+int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
+                training_report *report, tr_error *err);
+
+#endif /* TRACER_TRAINING_H */
