@@ -154,6 +154,11 @@ static inline void nf_conditioner_forward(const nf_model *m, uint32_t layer, con
     }
     nf_affine(raw, packed + lin[depth].weight, lin[depth].stride, packed + lin[depth].bias,
               NULL, NULL, 0, 0, act + (size_t)(depth - 1) * hp, width);
+    /* Extreme but finite weights (nf_set_params, a loaded file) can overflow the MLP to Inf
+     * or NaN; the clamp (internal.h, NF_RAW_LIMIT) keeps the splines finite whatever the
+     * weights. nf_clampf maps NaN to the lower bound. A no-op for ordinary models. */
+    for (uint32_t r = 0; r < m->raw_dim; ++r)
+        raw[r] = nf_clampf(raw[r], -NF_RAW_LIMIT, NF_RAW_LIMIT);
 }
 
 /* Reverse mode: given d loss / d raw (g_raw, NF_PAD(3K+1) floats with zero padding), adds the

@@ -6,6 +6,7 @@
 #ifndef NISFLOW_FLOW_EVAL_H
 #define NISFLOW_FLOW_EVAL_H
 
+#include <float.h>
 #include <math.h>
 
 #include "conditioner.h"
@@ -106,16 +107,26 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
         for (uint32_t r = 0; r < NF_MAX_RAW_PADDED; ++r)
             sc->g_raw[r] = 0.0f;
         nf_spline_raw_backward(&sc->spline, &bin, &p, -g_y, -coef, sc->g_raw);
+        /* A raw parameter held at the clamp of nf_conditioner_forward does not depend on the
+         * weights: its gradient is zero. */
+        for (uint32_t r = 0; r < m->raw_dim; ++r)
+            if (sc->raw[r] <= -NF_RAW_LIMIT || sc->raw[r] >= NF_RAW_LIMIT)
+                sc->g_raw[r] = 0.0f;
         g[1 - t] += nf_conditioner_backward(m, i, pt, xi[1 - t], sc->act, sc->g_raw, grad);
         g[t] = g_y;
     }
     return NF_OK;
 }
 
-/* Density on the square -> solid-angle density at s (SPEC section 1). */
+/* Density on the square -> solid-angle density at s (SPEC section 1). Extreme parameters can
+ * make a density (correctly) exceed the float range; it is clamped to [FLT_MIN, FLT_MAX] so
+ * that both the density and its reciprocal are finite and positive (a renderer divides by
+ * it). Ordinary densities are untouched; NaN, which cannot arise, would pass through. */
 static inline float nf_solid_angle_pdf(double p_s, float s0)
 {
-    return (float)(p_s / (double)(NF_TWO_PI_SQUARED * nf_maxf(nf_sin_pi(s0), NF_SIN_THETA_MIN)));
+    double p = p_s / (double)(NF_TWO_PI_SQUARED * nf_maxf(nf_sin_pi(s0), NF_SIN_THETA_MIN));
+    p = p > (double)FLT_MAX ? (double)FLT_MAX : p;
+    return (float)(p < (double)FLT_MIN ? (double)FLT_MIN : p);
 }
 
 #endif /* NISFLOW_FLOW_EVAL_H */

@@ -20,6 +20,13 @@
 #define NF_INV_FOUR_PI 0.0795774715459476679f
 #define NF_TWO_PI_SQUARED 19.7392088021787172f
 #define NF_SPLINE_MIN 1e-3f /* m in SPEC section 3: smallest bin width, height, derivative */
+/* The conditioners' raw spline parameters are clamped to [-NF_RAW_LIMIT, NF_RAW_LIMIT] (NaN,
+ * which an overflowing MLP can produce from extreme but finite weights, becomes the lower
+ * bound). Widths and heights saturate long before (softmax differences beyond ~87 are
+ * clamped by nf_fast_exp), and knot derivatives up to ~1e4 keep every spline slope within
+ * [~1e-17, ~1e8] in float, so products over NF_MAX_COUPLING_LAYERS layers stay finite and
+ * non-zero in double. Trained models stay orders of magnitude inside this bound. */
+#define NF_RAW_LIMIT 1e4f
 
 #define NF_MAX_RAW (3u * NF_MAX_SPLINE_BINS + 1u)
 #define NF_MAX_SH (NF_MAX_SH_BANDS * NF_MAX_SH_BANDS)

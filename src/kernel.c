@@ -29,6 +29,11 @@ static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context 
         if (st != NF_OK)
             return st;
         double det = nf_flow_forward(m, &pt, z, s, &sc);
+        /* The flow can round s1 up to exactly 1, i.e. phi = 2 pi, whose direction nf_pdf
+         * maps back to phi = 0: the other side of the seam, where the flow's density is a
+         * different one. One ulp below 1 keeps the sample on the side it came from, as
+         * nf_to_square does (sphere.h), so that nf_pdf agrees with the returned pdf. */
+        s[1] = nf_minf(s[1], 0x1.fffffep-1f);
         nf_from_square(s, dir + 3 * i);
         if (pdf)
             pdf[i] = nf_solid_angle_pdf((double)q / det, s[0]);

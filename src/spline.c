@@ -19,11 +19,21 @@ static nf_status nf_spline_check(const char *fn, uint32_t bins, const float *raw
     return NF_OK;
 }
 
-nf_status nf_spline_forward(uint32_t bins, const float *raw, float x, float *y, float *dydx)
+/* The raw parameters clamped as the conditioners clamp theirs (internal.h, NF_RAW_LIMIT):
+ * without it a raw derivative near FLT_MAX overflowed the slope to Inf or NaN. */
+static void nf_spline_clamp_raw(uint32_t bins, const float *raw, float *out)
 {
-    nf_status st = nf_spline_check("nf_spline_forward", bins, raw, x, y);
+    for (uint32_t i = 0; i < 3u * bins + 1u; ++i)
+        out[i] = nf_clampf(raw[i], -NF_RAW_LIMIT, NF_RAW_LIMIT);
+}
+
+nf_status nf_spline_forward(uint32_t bins, const float *raw_in, float x, float *y, float *dydx)
+{
+    nf_status st = nf_spline_check("nf_spline_forward", bins, raw_in, x, y);
     if (st != NF_OK)
         return st;
+    float raw[NF_MAX_RAW];
+    nf_spline_clamp_raw(bins, raw_in, raw);
     nf_spline s;
     nf_spline_bin bin;
     nf_spline_build(&s, bins, raw);
@@ -36,11 +46,13 @@ nf_status nf_spline_forward(uint32_t bins, const float *raw, float x, float *y, 
     return NF_OK;
 }
 
-nf_status nf_spline_inverse(uint32_t bins, const float *raw, float y, float *x, float *dydx)
+nf_status nf_spline_inverse(uint32_t bins, const float *raw_in, float y, float *x, float *dydx)
 {
-    nf_status st = nf_spline_check("nf_spline_inverse", bins, raw, y, x);
+    nf_status st = nf_spline_check("nf_spline_inverse", bins, raw_in, y, x);
     if (st != NF_OK)
         return st;
+    float raw[NF_MAX_RAW];
+    nf_spline_clamp_raw(bins, raw_in, raw);
     nf_spline s;
     nf_spline_bin bin;
     nf_spline_build(&s, bins, raw);

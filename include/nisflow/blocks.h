@@ -41,7 +41,7 @@ NF_API void nf_encode_sh(const float dir[3], uint32_t bands, float *out);
 NF_API void nf_direction_to_square(const float dir[3], float s[2]);
 
 /* The unit vector (sin theta cos phi, sin theta sin phi, cos theta) with theta = pi s0,
- * phi = 2 pi s1. */
+ * phi = 2 pi s1. s is clamped to [0,1]^2 (NaN to 0). */
 NF_API void nf_square_to_direction(const float s[2], float dir[3]);
 
 NF_EXTERN_C_END

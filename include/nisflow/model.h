@@ -35,8 +35,9 @@ typedef struct nf_model nf_model;
 
 /* A shading context. `position` is in world units (normalized by the config's scene bounds
  * and clamped to them). `normal` is the shading normal and `wo` the direction towards the
- * previous vertex (pointing away from the surface). Both must be finite and non-zero; they
- * are normalized by the library, so unit length is expected but not required. */
+ * previous vertex (pointing away from the surface). Both must be finite and non-zero (a
+ * squared length above 1e-30); they are normalized by the library, so unit length is expected
+ * but not required. */
 typedef struct nf_context {
     float position[3];
     float normal[3];
@@ -157,8 +158,9 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * well-conditioned flows. pdf[i] belongs to the exact latent point, nf_pdf's value to the
  * inverse of the float direction; for sharp trained flows (densities of 100-2000 per sr) the
  * float round trip drifts and a few percent of samples differ by up to ~2e-3 (measured by
- * tests/test_sampling.c), which one-sample MIS tolerates. The map from u to dir is
- * deterministic. n = 0 is a no-op (pointers may then be NULL). The whole batch is validated
+ * tests/test_sampling.c), which one-sample MIS tolerates. Densities are clamped to
+ * [FLT_MIN, FLT_MAX], so that pdf and 1 / pdf are finite whatever the parameters
+ * (docs/robustness.md). The map from u to dir is deterministic. n = 0 is a no-op (pointers may then be NULL). The whole batch is validated
  * before anything is written: on NF_ERROR_INVALID_ARGUMENT no output is written. The one
  * error that can arise mid-batch is NF_ERROR_NUMERIC from a custom prior callback returning
  * an invalid value; outputs of earlier samples are then written, later ones are not.
@@ -167,8 +169,10 @@ NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, c
                            float *dir, float *pdf);
 
 /* Evaluates the solid-angle density of n directions: pdf[i] = p(dir[3i..3i+2] | ctx[i]).
- * Directions must be finite and non-zero; they are normalized by the library. Near the poles
- * sin(theta) is clamped to NF_SIN_THETA_MIN, so densities stay finite. n = 0 is a no-op. On
+ * Directions must be finite and non-zero (a squared length above 1e-30); they are normalized
+ * by the library, and any length gives the same density. Near the poles sin(theta) is
+ * clamped to NF_SIN_THETA_MIN, and densities are clamped to [FLT_MIN, FLT_MAX] as in
+ * nf_sample, so they stay finite and positive. n = 0 is a no-op. On
  * NF_ERROR_INVALID_ARGUMENT pdf is not written; NF_ERROR_NUMERIC (a custom prior callback
  * returned an invalid value) may come after earlier entries were written.
  * Thread-safe on a const model; never allocates. */

@@ -27,8 +27,8 @@ NF_EXTERN_C_BEGIN
  * then nf_apply_gradient. *loss (if not NULL) receives the batch's loss before the step.
  * Weights must be finite and >= 0; a batch whose weights are all zero leaves the model
  * unchanged (no step is counted) and reports a loss of 0. A refused batch (any invalid input)
- * or a step that would make a parameter non-finite (NF_ERROR_NUMERIC) leaves the model
- * exactly as it was. n = 0 is a no-op. Not thread-safe: no other call may use `m` meanwhile.
+ * or a step whose loss, gradient or new parameters would not be finite (NF_ERROR_NUMERIC,
+ * possible with extreme parameters or learning rates) leaves the model exactly as it was. n = 0 is a no-op. Not thread-safe: no other call may use `m` meanwhile.
  * Does not allocate. */
 NF_API nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                                const float *weight, float *loss);
@@ -42,13 +42,18 @@ NF_API size_t nf_param_count(const nf_model *m);
 NF_API nf_status nf_get_params(const nf_model *m, float *params);
 
 /* Replaces the parameters (nf_param_count floats, layout as above). Refuses non-finite values
- * with NF_ERROR_INVALID_ARGUMENT and leaves the model unchanged. The optimizer state is kept.
+ * with NF_ERROR_INVALID_ARGUMENT and leaves the model unchanged. Every finite value is
+ * accepted: the conditioners clamp the spline parameters they compute, so that sampling and
+ * densities stay finite even for weights near FLT_MAX (docs/robustness.md); training such a
+ * model may be refused with NF_ERROR_NUMERIC. The optimizer state is kept.
  * Not thread-safe. */
 NF_API nf_status nf_set_params(nf_model *m, const float *params);
 
 /* Computes the batch loss (if loss is not NULL) and its gradient with respect to the
  * parameters into grad (nf_param_count floats, overwritten), by hand-written reverse mode.
- * Validation as for nf_train_step; with all weights zero the loss and gradient are 0.
+ * Validation as for nf_train_step; with all weights zero the loss and gradient are 0. When the
+ * loss or the gradient would not be finite (extreme parameters) it returns NF_ERROR_NUMERIC;
+ * grad's content is then unspecified and *loss is not written.
  * Thread-safe on a const model (each thread passes its own grad); never allocates. */
 NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *dir, const float *weight, float *loss,
