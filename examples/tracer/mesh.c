@@ -47,7 +47,15 @@ int mesh_read_file(const char *path, char **data, size_t *size, tr_error *err)
     }
     long len = ftell(f);
     rewind(f);
-    *data = len >= 0 ? malloc((size_t)len + 1) : NULL;
+    /* A directory opens on Linux and "ends" at LONG_MAX: refuse sizes no mesh has rather
+     * than asking malloc for them (found by fuzz/fuzz_scene_load). */
+    if (len < 0 || len > (1L << 30)) {
+        fclose(f);
+        *data = NULL;
+        return tr_fail(err, "cannot read '%s': not a regular file, or larger than 1 GiB",
+                       path);
+    }
+    *data = malloc((size_t)len + 1);
     if (!*data || fread(*data, 1, (size_t)len, f) != (size_t)len) {
         fclose(f);
         free(*data);
