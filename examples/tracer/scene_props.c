@@ -201,21 +201,39 @@ int wrong_type(loader *L, const xml_node *n, const char *expected)
     return fail_at(L, n, "'%s' must be given as <%s>", xml_attr(n, "name"), expected);
 }
 
-int get_float(loader *L, xml_node *plugin, const char *name, float def, float *out)
+/* The property `name` of a plugin, given as a <tag> (or <alt>) element with only name and
+ * value attributes: returns 1 with *out the element, or NULL when the plugin does not set
+ * it; 0 after recording an error (duplicate, wrong element, stray attribute). */
+static int find_value_prop(loader *L, xml_node *plugin, const char *name, const char *tag,
+                           const char *alt, xml_node **out)
 {
     static const char *const allowed[] = {"name", "value", NULL};
     int failed;
     xml_node *n = find_prop(L, plugin, name, &failed);
-    *out = def;
+    *out = NULL;
     if (failed)
         return 0;
     if (!n)
         return 1;
     n->used = 1;
-    if (strcmp(n->name, "float") && strcmp(n->name, "integer"))
-        return wrong_type(L, n, "float");
+    if (strcmp(n->name, tag) && (!alt || strcmp(n->name, alt)))
+        return wrong_type(L, n, tag);
+    if (!check_attrs(L, n, allowed))
+        return 0;
+    *out = n;
+    return 1;
+}
+
+int get_float(loader *L, xml_node *plugin, const char *name, float def, float *out)
+{
+    xml_node *n;
     double v;
-    if (!check_attrs(L, n, allowed) || !parse_number_attr(L, n, "value", &v))
+    *out = def;
+    if (!find_value_prop(L, plugin, name, "float", "integer", &n))
+        return 0;
+    if (!n)
+        return 1;
+    if (!parse_number_attr(L, n, "value", &v))
         return 0;
     *out = (float)v;
     return 1;
@@ -223,19 +241,14 @@ int get_float(loader *L, xml_node *plugin, const char *name, float def, float *o
 
 int get_int(loader *L, xml_node *plugin, const char *name, int def, int *out)
 {
-    static const char *const allowed[] = {"name", "value", NULL};
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
+    xml_node *n;
+    double v;
     *out = def;
-    if (failed)
+    if (!find_value_prop(L, plugin, name, "integer", NULL, &n))
         return 0;
     if (!n)
         return 1;
-    n->used = 1;
-    if (strcmp(n->name, "integer"))
-        return wrong_type(L, n, "integer");
-    double v;
-    if (!check_attrs(L, n, allowed) || !parse_number_attr(L, n, "value", &v))
+    if (!parse_number_attr(L, n, "value", &v))
         return 0;
     if (v != floor(v) || fabs(v) > 1e9)
         return fail_at(L, n, "'%s' is not an integer", xml_attr(n, "value"));
@@ -245,18 +258,13 @@ int get_int(loader *L, xml_node *plugin, const char *name, int def, int *out)
 
 int get_bool(loader *L, xml_node *plugin, const char *name, int def, int *out)
 {
-    static const char *const allowed[] = {"name", "value", NULL};
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
+    xml_node *n;
     *out = def;
-    if (failed)
+    if (!find_value_prop(L, plugin, name, "boolean", NULL, &n))
         return 0;
     if (!n)
         return 1;
-    n->used = 1;
-    if (strcmp(n->name, "boolean"))
-        return wrong_type(L, n, "boolean");
-    const char *v = check_attrs(L, n, allowed) ? require_attr(L, n, "value") : NULL;
+    const char *v = require_attr(L, n, "value");
     if (!v)
         return 0;
     if (!strcasecmp(v, "true"))
@@ -272,20 +280,13 @@ int get_bool(loader *L, xml_node *plugin, const char *name, int def, int *out)
 int get_string(loader *L, xml_node *plugin, const char *name, const char *def,
                const char **out)
 {
-    static const char *const allowed[] = {"name", "value", NULL};
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
+    xml_node *n;
     *out = def;
-    if (failed)
+    if (!find_value_prop(L, plugin, name, "string", NULL, &n))
         return 0;
     if (!n)
         return 1;
-    n->used = 1;
-    if (strcmp(n->name, "string"))
-        return wrong_type(L, n, "string");
-    if (!check_attrs(L, n, allowed) || !(*out = require_attr(L, n, "value")))
-        return 0;
-    return 1;
+    return (*out = require_attr(L, n, "value")) != NULL;
 }
 
 /* A colour from <rgb value="r, g, b"> (or one grey value), <float> or <spectrum value="v">
