@@ -132,16 +132,28 @@ const char *guide_prior_name(guide_prior p)
     return names[p];
 }
 
-int guide_create(const scene *s, guide_prior prior, int large, float learning_rate,
-                 uint64_t seed, nf_model **out, tr_error *err)
+guide_settings guide_default_settings(guide_prior prior)
+{
+    guide_settings g;
+    g.prior = prior;
+    g.large = 0;
+    g.learning_rate = 5e-3f;
+    g.prior_epsilon = -1.0f;
+    g.seed = 1;
+    return g;
+}
+
+int guide_create(const scene *s, const guide_settings *settings, nf_model **out, tr_error *err)
 {
     nf_config cfg;
-    nf_config_init(&cfg, large ? NF_PRESET_LARGE : NF_PRESET_SMALL);
+    nf_config_init(&cfg, settings->large ? NF_PRESET_LARGE : NF_PRESET_SMALL);
     static const nf_prior_kind kinds[] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR_UNIFORM_ANGLE,
                                           NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};
-    cfg.prior = kinds[prior];
-    if (prior == GUIDE_PRIOR_BSDF)
+    cfg.prior = kinds[settings->prior];
+    if (settings->prior == GUIDE_PRIOR_BSDF)
         cfg.custom_prior = guide_bsdf_callbacks();
+    if (settings->prior_epsilon >= 0.0f)
+        cfg.prior_epsilon = settings->prior_epsilon;
     /* Pad the bounds by 1% so that no position sits exactly on the clamp, and give flat
      * scenes a non-zero extent on every axis. */
     vec3 lo = s->bounds_min, hi = s->bounds_max;
@@ -151,8 +163,8 @@ int guide_create(const scene *s, guide_prior prior, int large, float learning_ra
         cfg.bounds_min[a] = l[a] - pad;
         cfg.bounds_max[a] = h[a] + pad;
     }
-    cfg.learning_rate = learning_rate;
-    cfg.seed = seed;
+    cfg.learning_rate = settings->learning_rate;
+    cfg.seed = settings->seed;
     nf_status st = nf_model_create(&cfg, out);
     if (st != NF_OK)
         return tr_fail(err, "nf_model_create: %s: %s", nf_status_string(st),

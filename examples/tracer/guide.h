@@ -46,10 +46,22 @@ typedef struct guide_point {
 /* The callbacks of the BSDF prior (for nf_config.custom_prior and nf_model_load). */
 nf_prior_callbacks guide_bsdf_callbacks(void);
 
+/* What a new model is made of. */
+typedef struct guide_settings {
+    guide_prior prior;
+    int large;              /* NF_PRESET_LARGE instead of NF_PRESET_SMALL                     */
+    float learning_rate;
+    float prior_epsilon;    /* the cosine/bsdf priors' uniform mixture weight; < 0: default   */
+    uint64_t seed;
+} guide_settings;
+
+/* The settings of the command line's defaults for `prior`: small model, rate 5e-3, the
+ * library's prior_epsilon, seed 1. */
+guide_settings guide_default_settings(guide_prior prior);
+
 /* Creates a model for the scene: positions are normalized by the scene's bounds (padded a
- * little), the preset is NF_PRESET_SMALL or NF_PRESET_LARGE. */
-int guide_create(const scene *s, guide_prior prior, int large, float learning_rate,
-                 uint64_t seed, nf_model **out, tr_error *err);
+ * little). */
+int guide_create(const scene *s, const guide_settings *settings, nf_model **out, tr_error *err);
 
 /* Loads a model saved with --save-model; the BSDF prior's callbacks are supplied. */
 int guide_load(const char *path, nf_model **out, tr_error *err);

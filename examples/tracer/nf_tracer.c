@@ -172,9 +172,13 @@ int main(int argc, char **argv)
     t.guide_prob = o.guiding ? o.guide_prob : 0.0f;
     t.bsdf_prior = 0;
     if (o.guiding) {
+        guide_settings gs = guide_default_settings(o.prior);
+        gs.large = o.large_model;
+        gs.learning_rate = o.learning_rate;
+        gs.prior_epsilon = o.prior_epsilon;
+        gs.seed = o.seed;
         int ok = o.load_model ? guide_load(o.load_model, &model, &err)
-                              : guide_create(&s, o.prior, o.large_model, o.learning_rate, o.seed,
-                                             &model, &err);
+                              : guide_create(&s, &gs, &model, &err);
         if (!ok) {
             fail(NULL, &err);
             goto done;

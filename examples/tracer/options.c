@@ -39,6 +39,8 @@ void options_print_help(const char *program)
         "  --batch N             training paths per iteration, each through a random film\n"
         "                        position (default 4096)\n"
         "  --guide-prob P        probability of sampling the flow at a guided vertex (default 0.5)\n"
+        "  --prior-epsilon E     weight of the uniform density mixed into the cosine and bsdf\n"
+        "                        priors, in (0, 1] (default: the library's, 0.01)\n"
         "  --no-guiding          plain path tracing (BSDF sampling and next-event estimation)\n"
         "  --save-model FILE     save the trained model\n"
         "  --load-model FILE     start from a saved model (its prior and architecture replace\n"
@@ -99,6 +101,7 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->threads = processor_count();
     o->seed = 1;
     o->guide_prob = 0.5f;
+    o->prior_epsilon = -1.0f;
     o->guiding = 1;
 
     for (int i = 1; i < argc; ++i) {
@@ -180,6 +183,8 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             o->seed = (uint64_t)s;
         } else if (!strcmp(a, "--guide-prob"))
             ok = parse_float(a, v, 0.0, 0.99, &o->guide_prob, err);
+        else if (!strcmp(a, "--prior-epsilon"))
+            ok = parse_float(a, v, 1e-6, 1.0, &o->prior_epsilon, err);
         else if (!strcmp(a, "--exposure"))
             ok = parse_float(a, v, -64.0, 64.0, &o->exposure, err);
         else

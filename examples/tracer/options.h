@@ -27,6 +27,7 @@ typedef struct options {
     int threads;
     uint64_t seed;
     float guide_prob;
+    float prior_epsilon;      /* cosine/bsdf defensive mixture weight; < 0: the library's     */
     int guiding;
     int reference_mode;
     float exposure;

@@ -34,7 +34,8 @@ static void train_and_render(const scene *s, guide_prior prior, int threads, uin
                              nf_model **model, image *img)
 {
     tr_error err;
-    if (!guide_create(s, prior, 0, 5e-3f, 1, model, &err))
+    guide_settings gs = guide_default_settings(prior);
+    if (!guide_create(s, &gs, model, &err))
         fail_msg("%s", err.msg);
     tracer t = {s, *model, 0.5f, prior == GUIDE_PRIOR_BSDF};
     training_settings ts = {3, 200, 0, 1, threads, seed, NULL, NULL};

@@ -92,7 +92,9 @@ static void furnace(const char *environment, int guided, guide_prior prior, int 
     nf_model *model = NULL;
     tracer t = {&s, NULL, 0.0f, 0};
     if (guided) {
-        if (!guide_create(&s, prior, 0, 5e-3f, 7, &model, &err))
+        guide_settings gs = guide_default_settings(prior);
+        gs.seed = 7;
+        if (!guide_create(&s, &gs, &model, &err))
             fail_msg("%s", err.msg);
         t.model = model;
         t.guide_prob = 0.5f;
@@ -278,7 +280,9 @@ static void test_guided_matches_unguided(void **state)
         nf_model *model = NULL;
         tracer t = {&s, NULL, 0.0f, 0};
         if (guided) {
-            if (!guide_create(&s, GUIDE_PRIOR_COSINE, 0, 5e-3f, 7, &model, &err))
+            guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+            gs.seed = 7;
+            if (!guide_create(&s, &gs, &model, &err))
                 fail_msg("%s", err.msg);
             t.model = model;
             t.guide_prob = 0.5f;

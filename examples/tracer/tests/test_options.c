@@ -1,0 +1,77 @@
+/*
+ * test_options.c - the command line reaches the model: --prior-epsilon (used by the paper
+ * study's sweep) is parsed, range-checked, and ends up in the created model's config, and
+ * leaving it out keeps the library's default.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "guide.h"
+#include "options.h"
+#include "scene.h"
+
+static int parse(options *o, const char *a, const char *b, tr_error *err)
+{
+    char *argv[] = {"nf_tracer", "--scene", "x.xml", (char *)a, (char *)b, NULL};
+    return options_parse(a ? 5 : 3, argv, o, err);
+}
+
+static void test_prior_epsilon_is_parsed_and_range_checked(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(parse(&o, NULL, NULL, &err));
+    assert_true(o.prior_epsilon < 0.0f); /* not given: the library's default */
+    assert_true(parse(&o, "--prior-epsilon", "0.25", &err));
+    assert_true(o.prior_epsilon == 0.25f);
+    assert_true(parse(&o, "--prior-epsilon", "1", &err));
+    const char *bad[] = {"0", "-0.1", "1.5", "nan", "abc", ""};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; ++i) {
+        err.msg[0] = '\0';
+        assert_false(parse(&o, "--prior-epsilon", bad[i], &err));
+        assert_non_null(strstr(err.msg, "--prior-epsilon"));
+    }
+}
+
+static void test_created_model_carries_the_epsilon(void **state)
+{
+    (void)state;
+    scene s;
+    tr_error err;
+    char path[1024];
+    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
+    if (!scene_load(path, &s, &err))
+        fail_msg("%s", err.msg);
+
+    nf_config defaults;
+    nf_config_init(&defaults, NF_PRESET_SMALL);
+    const float wanted[] = {-1.0f, 0.001f, 0.25f};
+    for (size_t i = 0; i < 3; ++i) {
+        guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+        gs.prior_epsilon = wanted[i];
+        nf_model *model = NULL;
+        if (!guide_create(&s, &gs, &model, &err))
+            fail_msg("%s", err.msg);
+        nf_config cfg;
+        nf_model_config(model, &cfg);
+        assert_true(cfg.prior_epsilon == (wanted[i] < 0.0f ? defaults.prior_epsilon : wanted[i]));
+        nf_model_destroy(model);
+    }
+    scene_free(&s);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_prior_epsilon_is_parsed_and_range_checked),
+        cmocka_unit_test(test_created_model_carries_the_epsilon),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
