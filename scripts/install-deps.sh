@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
 # Installs the build dependencies of libnisflow on Debian 12 (bookworm) with apt-get.
 # Runs apt-get directly as root and through sudo otherwise. Safe to run repeatedly.
+#
+#   ./scripts/install-deps.sh           what the build, the tests and the tracer need
+#   ./scripts/install-deps.sh --study   also gnuplot and python3, for scripts/paper-study.sh
 set -euo pipefail
 
 # Add packages here as the project grows.
@@ -17,6 +20,12 @@ NF_DEB_PACKAGES=(
     libstb-dev      # stb_image, stb_image_write: JPEG textures, PNG previews
     libexpat1-dev   # expat: the scene XML
 )
+
+case "${1:-}" in
+    "") ;;
+    --study) NF_DEB_PACKAGES+=(gnuplot-nox python3) ;;
+    *) echo "usage: $0 [--study]" >&2; exit 2 ;;
+esac
 
 if [ "$(id -u)" -eq 0 ]; then
     SUDO=()
