@@ -22,6 +22,8 @@ EPSILONS = ["0.001", "0.01", "0.1", "0.25"]  # 0.01 is the library's default
 UNGUIDED_SPP = [8, 32, 128, 512]
 COLORS = {"uniform-direction": "#1f77b4", "uniform-angle": "#2ca02c", "cosine": "#d62728",
           "bsdf": "#9467bd", "unguided": "#000000"}
+# The study's image sizes (paper-study.sh), for the crops.
+IMAGE_SIZES = {"cornell-box": (256, 256), "veach-ajar": (256, 144), "statue": (256, 256)}
 # Crops for the side-by-side images, in pixels from the top-left corner: x, y, w, h.
 CROPS = {"cornell-box": (8, 150, 96, 96), "veach-ajar": (64, 70, 128, 64),
          "statue": (64, 0, 128, 128)}
@@ -188,13 +190,6 @@ class Plots:
             subprocess.run(["gnuplot", path], check=True)
 
 
-def band_and_line(dat, color, title):
-    """A shaded min-max band over the seeds and the mean as a line."""
-    return (f"'{dat}' using 1:3:4 with filledcurves fc rgb '{color}' fs transparent solid 0.18 "
-            f"noborder notitle, '{dat}' using 1:2 with lines lw 2 lc rgb '{color}' "
-            f"title '{title}'")
-
-
 def convergence_panel(plots, groups, scene, series, title):
     """gnuplot commands for one panel: series is [(variant, label, color, dash)]."""
     parts = []
@@ -225,10 +220,6 @@ def crops_plot(plots, name, panels, crop, image_size, size):
                     f"binary filetype=png with rgbimage")
     body.append("unset multiplot")
     plots.add(name, "\n".join(body) + "\n", size)
-
-
-def image_size(groups, scene):
-    return {"cornell-box": (256, 256), "veach-ajar": (256, 144), "statue": (256, 256)}[scene]
 
 
 def main():
@@ -277,7 +268,7 @@ def main():
         if panels:
             w, h = CROPS[scene][2], CROPS[scene][3]
             cell = 190
-            crops_plot(plots, f"crops-{scene}", panels, CROPS[scene], image_size(groups, scene),
+            crops_plot(plots, f"crops-{scene}", panels, CROPS[scene], IMAGE_SIZES[scene],
                        f"{cell * len(panels)},{int(cell * h / w) + 50}")
 
     # ---- Figure 2: convergence -------------------------------------------------------------
@@ -337,7 +328,7 @@ def main():
         if run and os.path.exists(run["png"]):
             panels.append((run["png"], f"{label}\\nMAPE {run['mape']:.3f}"))
     if panels:
-        crops_plot(plots, "statue-early-late", panels, CROPS["statue"], (256, 256),
+        crops_plot(plots, "statue-early-late", panels, CROPS["statue"], IMAGE_SIZES["statue"],
                    f"{200 * len(panels)},260")
 
     # ---- Figure 4: model size -----------------------------------------------------------------
@@ -433,7 +424,7 @@ def main():
             diff_cell(mapes(groups, scene, variant_of("cosine", e)), base)
             for e in EPSILONS if e != "0.01") + " |")
     md += ["", "MAPE at 4 spp during training, cosine prior by ε:", "",
-           "| scene | ε | iteration 0 | 50 | 200 | last |", "|---|---|---|---|---|---|"]
+           "| scene | ε | iteration 0 | 50 | 200 | end |", "|---|---|---|---|---|---|"]
     for scene in SCENES:
         for e in EPSILONS + ["uniform-direction"]:
             variant = "uniform-direction" if e == "uniform-direction" else variant_of("cosine", e)
