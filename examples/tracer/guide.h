@@ -55,8 +55,8 @@ typedef struct guide_settings {
     uint64_t seed;
 } guide_settings;
 
-/* The settings of the command line's defaults for `prior`: small model, rate 5e-3, the
- * library's prior_epsilon, seed 1. */
+/* The defaults for `prior` (the command line's too): small model, rate 5e-3, the library's
+ * prior_epsilon, seed 1. */
 guide_settings guide_default_settings(guide_prior prior);
 
 /* Creates a model for the scene: positions are normalized by the scene's bounds (padded a

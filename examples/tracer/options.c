@@ -91,8 +91,12 @@ static int parse_float(const char *name, const char *text, double lo, double hi,
 int options_parse(int argc, char **argv, options *o, tr_error *err)
 {
     memset(o, 0, sizeof *o);
-    o->prior = GUIDE_PRIOR_COSINE;
-    o->learning_rate = 5e-3f;
+    /* The model's defaults have one home: guide_default_settings. */
+    guide_settings model = guide_default_settings(GUIDE_PRIOR_COSINE);
+    o->prior = model.prior;
+    o->learning_rate = model.learning_rate;
+    o->prior_epsilon = model.prior_epsilon;
+    o->seed = model.seed;
     o->iterations = 200;
     o->batch = 4096;
     o->eval_every = 50;
@@ -100,9 +104,7 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->spp = 32;
     o->max_depth = -2;
     o->threads = processor_count();
-    o->seed = 1;
     o->guide_prob = 0.5f;
-    o->prior_epsilon = -1.0f;
     o->guiding = 1;
 
     for (int i = 1; i < argc; ++i) {
