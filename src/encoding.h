@@ -18,7 +18,9 @@ static inline float nf_quartic_cdf(float tb)
     float q = (15.0f / 16.0f) * u * (1.0f - (2.0f / 3.0f) * u2 + 0.2f * u2 * u2) + 0.5f;
     /* At u = -1 the polynomial rounds to 2^-25 instead of 0, which would make the bins next
      * to a blob slightly negative: the kernel's ends are pinned to 0 and 1 exactly. */
-    return u <= -1.0f ? 0.0f : (u >= 1.0f ? 1.0f : nf_clampf(q, 0.0f, 1.0f));
+    float r = nf_clampf(q, 0.0f, 1.0f);
+    r = u <= -1.0f ? 0.0f : r;
+    return u >= 1.0f ? 1.0f : r; /* one select at a time: the kernels' loops if-convert it */
 }
 
 /* dQ / d(tb) = 15/16 (1 - u^2)^2 inside the kernel, 0 outside. */
@@ -88,16 +90,11 @@ static inline void nf_sh_recurrence(const float d[3], uint32_t bands, float *out
     }
 }
 
-/* Real SH of a unit vector, bands 0..bands-1. The first four bands (the default) are written
- * out; they are the recurrence's values expanded by hand. Higher bands come from the
- * recurrence, and the first four are still the written-out ones, so an encoding with fewer
- * bands is always a prefix of one with more. */
-static inline void nf_sh_unit(const float d[3], uint32_t bands, float *out)
+/* The first four bands (16 values) of the real SH of a unit vector (x, y, z), written out:
+ * the recurrence's values expanded by hand. Straight-line code, so a loop over directions
+ * vectorizes. */
+static inline void nf_sh4(float x, float y, float z, float v[16])
 {
-    if (bands > 4)
-        nf_sh_recurrence(d, bands, out);
-    float x = d[0], y = d[1], z = d[2];
-    float v[16];
     v[0] = 0.28209479177387814f;
     v[1] = 0.48860251190291992f * y;
     v[2] = 0.48860251190291992f * z;
@@ -114,6 +111,17 @@ static inline void nf_sh_unit(const float d[3], uint32_t bands, float *out)
     v[13] = 0.45704579946446572f * x * (5.0f * z * z - 1.0f);
     v[14] = 1.4453057213202769f * z * (x * x - y * y);
     v[15] = 0.59004358992664352f * x * (x * x - 3.0f * y * y);
+}
+
+/* Real SH of a unit vector, bands 0..bands-1. Higher bands come from the recurrence, and the
+ * first four are always nf_sh4's, so an encoding with fewer bands is always a prefix of one
+ * with more. */
+static inline void nf_sh_unit(const float d[3], uint32_t bands, float *out)
+{
+    if (bands > 4)
+        nf_sh_recurrence(d, bands, out);
+    float v[16];
+    nf_sh4(d[0], d[1], d[2], v);
     uint32_t count = bands < 4 ? bands * bands : 16;
     for (uint32_t i = 0; i < count; ++i)
         out[i] = v[i];

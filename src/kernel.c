@@ -7,6 +7,7 @@
 #include <math.h>
 
 #include "flow_eval.h"
+#include "tile_flow.h"
 #include "internal.h"
 
 #ifndef NF_KERNEL_ISA
@@ -17,26 +18,17 @@
 #define NF_KERNEL_STR2(a) #a
 #define NF_KERNEL_STR(a) NF_KERNEL_STR2(a)
 
+/* Tiles of NF_TILE samples (tile_flow.h): the scratch is declared once per call. */
 static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *u, float *dir, float *pdf)
 {
-    nf_scratch sc;
-    for (size_t i = 0; i < n; ++i) {
-        nf_point pt;
-        nf_point_prepare(m, &ctx[i], &pt);
-        float z[2], s[2], q;
-        nf_status st = nf_prior_sample(m, &pt, u[2 * i], u[2 * i + 1], z, &q);
+    nf_tile_work w;
+    for (size_t i = 0; i < n; i += NF_TILE) {
+        uint32_t count = (uint32_t)(n - i < NF_TILE ? n - i : NF_TILE);
+        nf_status st = nf_tile_sample(m, ctx + i, u + 2 * i, count, dir + 3 * i,
+                                      pdf ? pdf + i : NULL, &w);
         if (st != NF_OK)
             return st;
-        double det = nf_flow_forward(m, &pt, z, s, &sc);
-        /* The flow can round s1 up to exactly 1, i.e. phi = 2 pi, whose direction nf_pdf
-         * maps back to phi = 0: the other side of the seam, where the flow's density is a
-         * different one. One ulp below 1 keeps the sample on the side it came from, as
-         * nf_to_square does (sphere.h), so that nf_pdf agrees with the returned pdf. */
-        s[1] = nf_minf(s[1], 0x1.fffffep-1f);
-        nf_from_square(s, dir + 3 * i);
-        if (pdf)
-            pdf[i] = nf_solid_angle_pdf((double)q / det, s[0]);
     }
     return NF_OK;
 }
@@ -44,17 +36,12 @@ static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context 
 static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ctx,
                                const float *dir, float *pdf)
 {
-    nf_scratch sc;
-    for (size_t i = 0; i < n; ++i) {
-        nf_point pt;
-        nf_point_prepare(m, &ctx[i], &pt);
-        float s[2];
-        double p_s = 0.0;
-        nf_to_square(dir + 3 * i, s);
-        nf_status st = nf_flow_density(m, &pt, s, 0.0f, NULL, &p_s, NULL, &sc);
+    nf_tile_work w;
+    for (size_t i = 0; i < n; i += NF_TILE) {
+        uint32_t count = (uint32_t)(n - i < NF_TILE ? n - i : NF_TILE);
+        nf_status st = nf_tile_pdf(m, ctx + i, dir + 3 * i, count, pdf + i, &w);
         if (st != NF_OK)
             return st;
-        pdf[i] = nf_solid_angle_pdf(p_s, s[0]);
     }
     return NF_OK;
 }

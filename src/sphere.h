@@ -30,16 +30,19 @@ static inline void nf_to_square(const float dir_in[3], float s[2])
      * exact scaling leaves the results bit-identical to the unscaled computation. */
     float dir[3] = {dir_in[0], dir_in[1], dir_in[2]};
     float big = nf_maxf(nf_maxf(fabsf(dir[0]), fabsf(dir[1])), fabsf(dir[2]));
-    if (big > 0.0f && big <= 0x1.fffffep127f) { /* not the zero vector (nor Inf/NaN) */
-        /* First into [2^-85, 2^64) (denormals become normal), then by 2^-e with big in
-         * [2^e, 2^(e+1)), e in [-85, 63]: both factors are normal floats. */
-        float pre = big >= 0x1p64f ? 0x1p-64f : (big < 0x1p-64f ? 0x1p64f : 1.0f);
-        big *= pre;
-        int e = (int)((nf_float_to_bits(big) >> 23) & 0xffu) - 127;
-        float scale = nf_bits_to_float((uint32_t)(127 - e) << 23);
-        for (int a = 0; a < 3; ++a)
-            dir[a] = dir[a] * pre * scale;
-    }
+    /* Branch-free, so that the kernels' loops over samples vectorize. The zero vector (and
+     * Inf/NaN) keeps its components: scale and pre are then 1. First into [2^-85, 2^64)
+     * (denormals become normal), then by 2^-e with big in [2^e, 2^(e+1)), e in [-85, 63]:
+     * both factors are normal floats. */
+    int usable = big > 0.0f && big <= 0x1.fffffep127f;
+    float pre = big >= 0x1p64f ? 0x1p-64f : 1.0f;
+    pre = big < 0x1p-64f ? 0x1p64f : pre;
+    int e = (int)((nf_float_to_bits(big * pre) >> 23) & 0xffu) - 127;
+    float scale = nf_bits_to_float((uint32_t)(127 - e) << 23);
+    pre = usable ? pre : 1.0f;
+    scale = usable ? scale : 1.0f;
+    for (int a = 0; a < 3; ++a)
+        dir[a] = dir[a] * pre * scale;
     float theta = nf_fast_atan2(sqrtf(dir[0] * dir[0] + dir[1] * dir[1]), dir[2]);
     float phi = nf_fast_atan2(dir[1], dir[0]);
     phi = phi < 0.0f ? phi + NF_TWO_PI : phi;

@@ -247,14 +247,18 @@ static void test_sample_pdf_consistent(void **state)
  * |det J_F| down to ~0.003) lose the SPEC's 1e-4 at some samples through float conditioning
  * alone: a float s determines z = F^-1(s) only to within F^-1's stretch of an ulp (hundreds of
  * ulps of z), and the log-determinant's slope turns that into ~1e-4..1e-3 relative (measured:
- * at most 2.6e-3, at <= 1.8% of samples). Still, nearly every sample must meet 1e-4 (at most
- * 3% outside) and none may be off by 1e-2: a wrong latent point or log-determinant would be
- * off at most samples, by far more. (The large preset with sigma 0.3 reaches densities of 1e6
- * and |det J_F| ~ 1e-6, where float cannot invert the flow at all: not tested.) */
+ * at most 2.6e-3, at <= 1.8% of samples). The worst sample (cosine, index 518) is worse
+ * conditioned still: there nf_pdf itself moves by 0.9% when one component of the direction
+ * moves by one float ulp, so the round trip's few ulps give 0.5% (per-sample kernels) or 1.3%
+ * (tiled kernels, another summation order) at that sample alone. Still, nearly every sample
+ * must meet 1e-4 (at most 3% outside) and none may be off by 3e-2: a wrong latent point or
+ * log-determinant would be off at most samples, by far more. (The large preset with sigma 0.3
+ * reaches densities of 1e6 and |det J_F| ~ 1e-6, where float cannot invert the flow at all:
+ * not tested.) */
 static void test_sample_pdf_consistent_wild(void **state)
 {
     (void)state;
-    check_sample_pdf(1, 0.3, 0.03, 1e-2);
+    check_sample_pdf(1, 0.3, 0.03, 3e-2);
 }
 
 /* The flow is far from the identity (so the tests above test something), and the sampled
@@ -497,11 +501,13 @@ static void test_fresh_parameters_identity(void **state)
     }
 }
 
-/* A batch gives bit-identical results to one call per sample, and the map is deterministic. */
+/* A batch gives bit-identical results to one call per sample, and the map is deterministic.
+ * The kernels work on tiles of 16 samples whose unused lanes repeat sample 0: 37 samples make
+ * two full tiles and a partial one, and every single call is a tile with 15 unused lanes. */
 static void test_batch_equals_single(void **state)
 {
     (void)state;
-    enum { N = 64 };
+    enum { N = 37 };
     nf_context ctx[N];
     float u[2 * N], dir[3 * N], pdf[N], dir2[3 * N], pdf2[N];
     nf_model *m = random_model(NF_PRESET_LARGE, NF_PRIOR_COSINE, 0.3, 800u);

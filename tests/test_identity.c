@@ -240,8 +240,15 @@ static void test_scaled_vectors_same_density(void **state)
             assert_int_equal(nf_pdf(m, 1, &s, ws, &p_scaled), NF_OK);
             /* Renormalizing a scaled float vector changes it by a few ulps (~3e-7); through
              * the randomized conditioner (parameters in [-0.3, 0.3]) and splines this moved
-             * the density by at most 3e-6 relative in measurements; 1e-4 leaves room. */
-            double tol = 1e-4 + 2e-6 / fmax(nft_sin_theta(w), 1e-3);
+             * the density by at most 9e-6 relative in measurements; 1e-4 leaves room. The
+             * cosine prior adds an ill-conditioned case: just above the horizon (n.w ~ 0)
+             * its density is nearly the eps floor and changes by (1 - eps) 2 pi / (eps pi/2)
+             * ~ 400 times the error of n.w, which carries the ulps of the normal and the
+             * ~3e-7 of the sincos that rebuilds w from the latent point: 1.4e-4 measured at
+             * such a sample (1e-5 before the tiled kernels reordered the MLP sums); 4e-4
+             * allows for it. */
+            double tol = (all_priors[k] == NF_PRIOR_COSINE ? 4e-4 : 1e-4) +
+                         2e-6 / fmax(nft_sin_theta(w), 1e-3);
             if (!(fabs(p_unit - p_scaled) <= tol * p_unit))
                 fail_msg("prior %s: scaled vectors change the density: %.9g vs %.9g",
                          nft_prior_name(all_priors[k]), p_unit, p_scaled);

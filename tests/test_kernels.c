@@ -66,10 +66,17 @@ static void compare_with_generic(nf_isa isa)
             for (int i = 0; i < N; ++i) {
                 for (int a = 0; a < 3; ++a)
                     worst_dir = fmax(worst_dir, fabs(dir_g[3 * i + a] - dir_v[3 * i + a]));
-                worst_pdf = fmax(worst_pdf, rel_diff(pdf_g[i], pdf_v[i]));
+                /* The returned density carries 1 / sin(theta) of the sampled s0, a float: one
+                 * ulp of s0 (<= 2^-24) changes it by pi 2^-24 |cot theta| relative, 1e-3 at
+                 * sin(theta) = 1e-3 (measured: a sample at sin(theta) = 0.00135 whose s0
+                 * differs by ~2 ulps between variants). Eight ulps of that are allowed on top;
+                 * away from the poles the bound stays ~1e-4. */
+                double z = dir_g[3 * i + 2], sin_t = sqrt(fmax(1.0 - z * z, 1e-12));
+                double allowed = 1e-4 + 8.0 * 3.14159265 * 0x1p-24 * fabs(z) / sin_t;
+                assert_true(rel_diff(pdf_g[i], pdf_v[i]) < allowed);
+                worst_pdf = fmax(worst_pdf, rel_diff(pdf_g[i], pdf_v[i]) / allowed);
             }
             assert_true(worst_dir < 1e-4);
-            assert_true(worst_pdf < 1e-4);
             assert_int_equal(nf_pdf(v, N, ctx, dir_g, pdf_v), NF_OK);
             assert_int_equal(nf_pdf(g, N, ctx, dir_g, pdf_g), NF_OK);
             for (int i = 0; i < N; ++i)
@@ -89,7 +96,7 @@ static void compare_with_generic(nf_isa isa)
                 num += ((double)grad_g[i] - grad_v[i]) * ((double)grad_g[i] - grad_v[i]);
                 den += (double)grad_g[i] * grad_g[i];
             }
-            print_message("%s preset %d prior %d: dir %.2g, pdf %.2g, gradient %.2g\n",
+            print_message("%s preset %d prior %d: dir %.2g, pdf %.2g of its bound, gradient %.2g\n",
                           nf_model_isa_name(v), preset, prior, worst_dir, worst_pdf,
                           sqrt(num / den));
             assert_true(sqrt(num / den) < 1e-4);
