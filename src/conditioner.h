@@ -16,6 +16,7 @@
 
 #include "encoding.h"
 #include "internal.h"
+#include "lanes.h"
 
 /* v / |v| with one rounding per component. Double cannot overflow or underflow on the
  * squares of finite floats, and inputs are validated non-zero upstream. */
@@ -38,16 +39,12 @@ static inline void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf
     pt->ctx.position[2] = ctx->position[2];
     nf_normalize3(ctx->normal, pt->ctx.normal);
     nf_normalize3(ctx->wo, pt->ctx.wo);
-    pt->row_count = 0;
+    /* three one-blob slots per axis (zero-valued where outside the encoding) */
+    pt->row_count = 9;
     for (uint32_t a = 0; a < 3; ++a) {
         float t = (ctx->position[a] - cfg->bounds_min[a]) /
                   (cfg->bounds_max[a] - cfg->bounds_min[a]);
-        nf_blob blob;
-        nf_oneblob_sparse(t, bins, &blob);
-        for (uint32_t c = 0; c < blob.count; ++c) {
-            pt->rows[pt->row_count] = (a + 1) * bins + blob.bin[c];
-            pt->values[pt->row_count++] = blob.value[c];
-        }
+        nf_oneblob_slots(t, bins, (a + 1) * bins, pt->rows + 3 * a, pt->values + 3 * a);
     }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {
@@ -56,39 +53,71 @@ static inline void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf
     }
 }
 
-/* y[0..stride) = bias + sum_r vals[r] W[rows[r]] + sum_k dense[k] W[dense_first + k]. */
-static inline void nf_affine(float *restrict y, const float *restrict w, uint32_t stride,
-                             const float *restrict bias, const uint32_t *restrict rows,
-                             const float *restrict vals, uint32_t count, uint32_t dense_first,
-                             const float *restrict dense, uint32_t dense_count)
+/* The first hidden layer of one sample before its ReLU: act[0..hp) = bias + the 12 one-blob
+ * slots (rows/vals: three for the pass-through coordinate, then three per position axis) +
+ * sum_k sh[k * sh_stride] wd[k], k < dense (the SH inputs and their weight rows). hp is the
+ * padded width. Four accumulators, one per encoded scalar and every fourth SH input, keep four
+ * FMA chains in flight. The tile kernels and the per-sample kernels both call this, so a
+ * sample's sums run in the same order whichever path evaluates it. */
+static inline void nf_input_layer(const float *restrict w, const float *restrict bias,
+                                  uint32_t hp, const uint32_t rows[12], const float vals[12],
+                                  const float *restrict wd, const float *restrict sh,
+                                  size_t sh_stride, uint32_t dense, float *restrict act)
+{
+    _Static_assert(NF_CHUNK == 16, "nf_lanes holds one chunk of units");
+    for (uint32_t c = 0; c < hp; c += NF_CHUNK) {
+        nf_lanes a0, a1, a2, a3, row;
+        nf_lanes_load(&a0, bias + c);
+        nf_lanes_splat(&a1, 0.0f);
+        nf_lanes_splat(&a2, 0.0f);
+        nf_lanes_splat(&a3, 0.0f);
+        for (uint32_t s = 0; s < 3; ++s) {
+            nf_lanes_load(&row, w + (size_t)rows[s] * hp + c);
+            nf_lanes_madd(&a0, vals[s], &row);
+            nf_lanes_load(&row, w + (size_t)rows[3 + s] * hp + c);
+            nf_lanes_madd(&a1, vals[3 + s], &row);
+            nf_lanes_load(&row, w + (size_t)rows[6 + s] * hp + c);
+            nf_lanes_madd(&a2, vals[6 + s], &row);
+            nf_lanes_load(&row, w + (size_t)rows[9 + s] * hp + c);
+            nf_lanes_madd(&a3, vals[9 + s], &row);
+        }
+        uint32_t k = 0;
+        for (; k + 4 <= dense; k += 4) {
+            const float *wk = wd + (size_t)k * hp + c;
+            nf_lanes_load(&row, wk);
+            nf_lanes_madd(&a0, sh[k * sh_stride], &row);
+            nf_lanes_load(&row, wk + hp);
+            nf_lanes_madd(&a1, sh[(k + 1) * sh_stride], &row);
+            nf_lanes_load(&row, wk + 2 * hp);
+            nf_lanes_madd(&a2, sh[(k + 2) * sh_stride], &row);
+            nf_lanes_load(&row, wk + 3 * hp);
+            nf_lanes_madd(&a3, sh[(k + 3) * sh_stride], &row);
+        }
+        for (; k < dense; ++k) {
+            nf_lanes_load(&row, wd + (size_t)k * hp + c);
+            nf_lanes_madd(&a0, sh[k * sh_stride], &row);
+        }
+        nf_lanes_add(&a0, &a1);
+        nf_lanes_add(&a2, &a3);
+        nf_lanes_add(&a0, &a2);
+        nf_lanes_store(act + c, &a0);
+    }
+}
+
+/* y[0..stride) = bias + sum_k x[k] W[k] for k ascending (stride a multiple of NF_CHUNK): per
+ * output the same sequence of FMAs as the tile kernels' dense layers. */
+static inline void nf_dense_one(float *restrict y, const float *restrict w, uint32_t stride,
+                                const float *restrict bias, const float *restrict x,
+                                uint32_t inputs)
 {
     for (uint32_t c = 0; c < stride; c += NF_CHUNK) {
-        float acc[NF_CHUNK];
-        for (uint32_t j = 0; j < NF_CHUNK; ++j)
-            acc[j] = bias[c + j];
-        for (uint32_t r = 0; r < count; ++r) {
-            const float *wr = w + (size_t)rows[r] * stride + c;
-            float v = vals[r];
-            for (uint32_t j = 0; j < NF_CHUNK; ++j)
-                acc[j] += v * wr[j];
+        nf_lanes acc, row;
+        nf_lanes_load(&acc, bias + c);
+        for (uint32_t k = 0; k < inputs; ++k) {
+            nf_lanes_load(&row, w + (size_t)k * stride + c);
+            nf_lanes_madd(&acc, x[k], &row);
         }
-        /* Four rows per iteration: the loop control otherwise costs as much as the FMAs. */
-        uint32_t r = 0;
-        for (; r + 4 <= dense_count; r += 4) {
-            const float *w0 = w + (size_t)(dense_first + r) * stride + c;
-            const float *w1 = w0 + stride, *w2 = w1 + stride, *w3 = w2 + stride;
-            float v0 = dense[r], v1 = dense[r + 1], v2 = dense[r + 2], v3 = dense[r + 3];
-            for (uint32_t j = 0; j < NF_CHUNK; ++j)
-                acc[j] += v0 * w0[j] + v1 * w1[j] + v2 * w2[j] + v3 * w3[j];
-        }
-        for (; r < dense_count; ++r) {
-            const float *wr = w + (size_t)(dense_first + r) * stride + c;
-            float v = dense[r];
-            for (uint32_t j = 0; j < NF_CHUNK; ++j)
-                acc[j] += v * wr[j];
-        }
-        for (uint32_t j = 0; j < NF_CHUNK; ++j)
-            y[c + j] = acc[j];
+        nf_lanes_store(y + c, &acc);
     }
 }
 
@@ -132,28 +161,22 @@ static inline void nf_conditioner_forward(const nf_model *m, uint32_t layer, con
 
     uint32_t rows[12];
     float vals[12];
-    nf_blob blob;
-    nf_oneblob_sparse(v, bins, &blob);
-    uint32_t count = 0;
-    for (uint32_t c = 0; c < blob.count; ++c) {
-        rows[count] = blob.bin[c];
-        vals[count++] = blob.value[c];
+    nf_oneblob_slots(v, bins, 0, rows, vals);
+    for (uint32_t r = 0; r < 9; ++r) {
+        rows[3 + r] = pt->rows[r];
+        vals[3 + r] = pt->values[r];
     }
-    for (uint32_t r = 0; r < pt->row_count; ++r) {
-        rows[count] = pt->rows[r];
-        vals[count++] = pt->values[r];
-    }
-    nf_affine(act, packed + lin[0].weight, hp, packed + lin[0].bias, rows, vals, count,
-              4u * bins, pt->sh, 2u * m->cfg.sh_bands * m->cfg.sh_bands);
+    nf_input_layer(packed + lin[0].weight, packed + lin[0].bias, hp, rows, vals,
+                   packed + lin[0].weight + (size_t)4u * bins * hp, pt->sh, 1,
+                   2u * m->cfg.sh_bands * m->cfg.sh_bands, act);
     nf_relu(act, hp);
     for (uint32_t l = 1; l < depth; ++l) {
         float *h = act + (size_t)l * hp;
-        nf_affine(h, packed + lin[l].weight, hp, packed + lin[l].bias, NULL, NULL, 0, 0,
-                  h - hp, width);
+        nf_dense_one(h, packed + lin[l].weight, hp, packed + lin[l].bias, h - hp, width);
         nf_relu(h, hp);
     }
-    nf_affine(raw, packed + lin[depth].weight, lin[depth].stride, packed + lin[depth].bias,
-              NULL, NULL, 0, 0, act + (size_t)(depth - 1) * hp, width);
+    nf_dense_one(raw, packed + lin[depth].weight, lin[depth].stride, packed + lin[depth].bias,
+                 act + (size_t)(depth - 1) * hp, width);
     /* Extreme but finite weights (nf_set_params, a loaded file) can overflow the MLP to Inf
      * or NaN; the clamp (internal.h, NF_RAW_LIMIT) keeps the splines finite whatever the
      * weights. nf_clampf maps NaN to the lower bound. A no-op for ordinary models. */

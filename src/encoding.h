@@ -51,6 +51,25 @@ static inline void nf_oneblob_sparse(float v, uint32_t bins, nf_blob *out)
     }
 }
 
+/* The one-blob of v as exactly three slots j = floor(vB) - 1 .. floor(vB) + 1 (the bins that
+ * can be non-zero, see nf_oneblob_sparse). A slot outside the encoding has value 0 and row
+ * row_offset, so every encoded scalar has three slots and no branch: the tile kernels and the
+ * per-sample kernels use this same form, which keeps their sums in the same order. */
+static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset,
+                                    uint32_t row[3], float value[3])
+{
+    float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
+    int first = (int)vb - 1; /* vb >= 0, so truncation is floor */
+    for (int c = 0; c < 3; ++c) {
+        int j = first + c;
+        int inside = (j >= 0) & (j < (int)bins);
+        float hi = (float)(j + 1) - vb, lo = (float)j - vb;
+        float q = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
+        row[c] = row_offset + (uint32_t)(inside ? j : 0);
+        value[c] = inside ? q : 0.0f;
+    }
+}
+
 /* Real SH, any band count, from the Cartesian form: sin^m(theta) {cos, sin}(m phi) are the
  * real and imaginary parts of (x + i y)^m, and P_l^m(z) / sin^m(theta) follows the usual
  * three-term recurrence in l (no Condon-Shortley phase). Double keeps it exact to float. */

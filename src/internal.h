@@ -144,9 +144,9 @@ typedef struct nf_blob {
 typedef struct nf_point {
     const nf_context *user;  /* the caller's context, passed on to custom prior callbacks */
     nf_context ctx;          /* normal and wo normalized; position as given              */
-    uint32_t rows[9];        /* input rows of the position one-blobs (<= 3 per axis)     */
-    float values[9];
-    uint32_t row_count;
+    uint32_t rows[9];        /* input rows of the position one-blobs: 3 slots per axis   */
+    float values[9];         /* (nf_oneblob_slots; 0 where a slot is outside)            */
+    uint32_t row_count;      /* 9                                                        */
     float sh[2 * NF_MAX_SH]; /* SH of normal, then of wo                                 */
 } nf_point;
 

@@ -18,10 +18,61 @@
 #define NF_KERNEL_STR2(a) #a
 #define NF_KERNEL_STR(a) NF_KERNEL_STR2(a)
 
+/* Calls with fewer samples than this take the per-sample path (flow_eval.h): a tile costs
+ * nearly as much for one sample as for sixteen, since its vector loops run over all lanes,
+ * and the per-sample code is cheaper up to two samples (measured with nf_bench, batch 1). */
+#define NF_TILED_FROM 3u
+
+static nf_status nf_sample_one(const nf_model *m, const nf_context *ctx, const float u[2],
+                               float dir[3], float *pdf, nf_scratch *sc)
+{
+    nf_point pt;
+    nf_point_prepare(m, ctx, &pt);
+    float z[2], s[2], q;
+    nf_status st = nf_prior_sample(m, &pt, u[0], u[1], z, &q);
+    if (st != NF_OK)
+        return st;
+    double det = nf_flow_forward(m, &pt, z, s, sc);
+    /* The flow can round s1 up to exactly 1, i.e. phi = 2 pi, whose direction nf_pdf maps
+     * back to phi = 0: the other side of the seam, where the flow's density is a different
+     * one. One ulp below 1 keeps the sample on the side it came from, as nf_to_square does
+     * (sphere.h), so that nf_pdf agrees with the returned pdf. */
+    s[1] = nf_minf(s[1], 0x1.fffffep-1f);
+    nf_from_square(s, dir);
+    if (pdf)
+        *pdf = nf_solid_angle_pdf((double)q / det, s[0]);
+    return NF_OK;
+}
+
+static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const float dir[3],
+                            float *pdf, nf_scratch *sc)
+{
+    nf_point pt;
+    nf_point_prepare(m, ctx, &pt);
+    float s[2];
+    double p_s = 0.0;
+    nf_to_square(dir, s);
+    nf_status st = nf_flow_density(m, &pt, s, 0.0f, NULL, &p_s, NULL, sc);
+    if (st != NF_OK)
+        return st;
+    *pdf = nf_solid_angle_pdf(p_s, s[0]);
+    return NF_OK;
+}
+
 /* Tiles of NF_TILE samples (tile_flow.h): the scratch is declared once per call. */
 static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *u, float *dir, float *pdf)
 {
+    if (n < NF_TILED_FROM) {
+        nf_scratch sc;
+        for (size_t i = 0; i < n; ++i) {
+            nf_status st = nf_sample_one(m, &ctx[i], u + 2 * i, dir + 3 * i,
+                                         pdf ? pdf + i : NULL, &sc);
+            if (st != NF_OK)
+                return st;
+        }
+        return NF_OK;
+    }
     nf_tile_work w;
     for (size_t i = 0; i < n; i += NF_TILE) {
         uint32_t count = (uint32_t)(n - i < NF_TILE ? n - i : NF_TILE);
@@ -36,6 +87,15 @@ static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context 
 static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ctx,
                                const float *dir, float *pdf)
 {
+    if (n < NF_TILED_FROM) {
+        nf_scratch sc;
+        for (size_t i = 0; i < n; ++i) {
+            nf_status st = nf_pdf_one(m, &ctx[i], dir + 3 * i, pdf + i, &sc);
+            if (st != NF_OK)
+                return st;
+        }
+        return NF_OK;
+    }
     nf_tile_work w;
     for (size_t i = 0; i < n; i += NF_TILE) {
         uint32_t count = (uint32_t)(n - i < NF_TILE ? n - i : NF_TILE);

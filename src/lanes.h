@@ -14,9 +14,12 @@
 
 #include <string.h>
 
+#include <stdint.h>
+
 #if defined(__GNUC__) || defined(__clang__)
 #define NF_LANES_VECTOR 1
 typedef float nf_lanes __attribute__((vector_size(64)));
+typedef int32_t nf_lanes_i32 __attribute__((vector_size(64))); /* comparison masks */
 #else
 typedef struct nf_lanes {
     float v[16];
@@ -64,6 +67,75 @@ static inline void nf_lanes_add(nf_lanes *acc, const nf_lanes *x)
 #else
     for (int i = 0; i < 16; ++i)
         acc->v[i] += x->v[i];
+#endif
+}
+
+/* acc /= x */
+static inline void nf_lanes_div(nf_lanes *acc, const nf_lanes *x)
+{
+#if defined(NF_LANES_VECTOR)
+    *acc /= *x;
+#else
+    for (int i = 0; i < 16; ++i)
+        acc->v[i] /= x->v[i];
+#endif
+}
+
+/* acc *= x */
+static inline void nf_lanes_mul(nf_lanes *acc, const nf_lanes *x)
+{
+#if defined(NF_LANES_VECTOR)
+    *acc *= *x;
+#else
+    for (int i = 0; i < 16; ++i)
+        acc->v[i] *= x->v[i];
+#endif
+}
+
+/* acc = acc > x ? acc : x per lane, as nf_maxf(acc, x) */
+static inline void nf_lanes_max(nf_lanes *acc, const nf_lanes *x)
+{
+#if defined(NF_LANES_VECTOR)
+    nf_lanes_i32 keep = *acc > *x, a, b;
+    memcpy(&a, acc, sizeof a);
+    memcpy(&b, x, sizeof b);
+    a = (a & keep) | (b & ~keep);
+    memcpy(acc, &a, sizeof a);
+#else
+    for (int i = 0; i < 16; ++i)
+        acc->v[i] = acc->v[i] > x->v[i] ? acc->v[i] : x->v[i];
+#endif
+}
+
+/* count[i] += (v[i] >= key[i]) for 16 lanes */
+static inline void nf_lanes_count_ge(uint32_t *count, const nf_lanes *v, const nf_lanes *key)
+{
+#if defined(NF_LANES_VECTOR)
+    nf_lanes_i32 c;
+    memcpy(&c, count, sizeof c);
+    c -= (*v >= *key); /* a true comparison is -1 */
+    memcpy(count, &c, sizeof c);
+#else
+    for (int i = 0; i < 16; ++i)
+        count[i] += v->v[i] >= key->v[i];
+#endif
+}
+
+/* acc[i] = index[i] == j ? x[i] : acc[i] for 16 lanes */
+static inline void nf_lanes_pick(nf_lanes *acc, const uint32_t *index, uint32_t j,
+                                 const nf_lanes *x)
+{
+#if defined(NF_LANES_VECTOR)
+    nf_lanes_i32 idx, a, b, hit;
+    memcpy(&idx, index, sizeof idx);
+    hit = idx == (nf_lanes_i32){0} + (int32_t)j;
+    memcpy(&a, acc, sizeof a);
+    memcpy(&b, x, sizeof b);
+    a = (a & ~hit) | (b & hit);
+    memcpy(acc, &a, sizeof a);
+#else
+    for (int i = 0; i < 16; ++i)
+        acc->v[i] = index[i] == j ? x->v[i] : acc->v[i];
 #endif
 }
 

@@ -19,9 +19,7 @@
 #define NF_TILE 16u
 _Static_assert(NF_TILE == 16, "lanes.h holds 16 floats per tile");
 
-/* The one-blob encoding of one scalar per lane as three slots around floor(v B) (see
- * nf_oneblob_sparse). A slot whose bin lies outside the encoding has value 0 and points at a
- * valid row, so every lane always has exactly three slots and no branch. */
+/* The one-blob encoding of one scalar per lane as the three slots of nf_oneblob_slots. */
 typedef struct nf_tile_blob {
     uint32_t row[3][NF_TILE]; /* row of the input layer's weights (encoding offset added) */
     float value[3][NF_TILE];
@@ -42,30 +40,22 @@ typedef struct nf_tile {
 static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_offset,
                                    int with_derivative, nf_tile_blob *out)
 {
-    float vb[NF_TILE];
-    int first[NF_TILE];
-    for (uint32_t i = 0; i < NF_TILE; ++i) {
-        vb[i] = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
-        first[i] = (int)vb[i] - 1; /* vb >= 0, so truncation is floor */
-    }
-    for (int c = 0; c < 3; ++c) {
+    /* nf_oneblob_slots' arithmetic with the slot loop outermost, so that the lane loops
+     * vectorize; the results are the same bits. */
+    for (uint32_t c = 0; c < 3; ++c)
         for (uint32_t i = 0; i < NF_TILE; ++i) {
-            int j = first[i] + c;
+            float vb = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
+            int j = (int)vb - 1 + (int)c;
             int inside = (j >= 0) & (j < (int)bins);
-            float hi = (float)(j + 1) - vb[i], lo = (float)j - vb[i];
-            float value = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
+            float hi = (float)(j + 1) - vb, lo = (float)j - vb;
+            float q = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
             out->row[c][i] = row_offset + (uint32_t)(inside ? j : 0);
-            out->value[c][i] = inside ? value : 0.0f;
-        }
-        if (with_derivative)
-            for (uint32_t i = 0; i < NF_TILE; ++i) {
-                int j = first[i] + c;
-                int inside = (j >= 0) & (j < (int)bins);
-                float hi = (float)(j + 1) - vb[i], lo = (float)j - vb[i];
-                float dvalue = (float)bins * (nf_quartic_kernel(lo) - nf_quartic_kernel(hi));
-                out->dvalue[c][i] = inside ? dvalue : 0.0f;
+            out->value[c][i] = inside ? q : 0.0f;
+            if (with_derivative) {
+                float dq = (float)bins * (nf_quartic_kernel(lo) - nf_quartic_kernel(hi));
+                out->dvalue[c][i] = inside ? dq : 0.0f;
             }
-    }
+        }
 }
 
 /* Real SH of the unit vectors d[.][i] into out[row][i] (S^2 rows). */

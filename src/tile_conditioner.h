@@ -9,6 +9,8 @@
 #ifndef NISFLOW_TILE_CONDITIONER_H
 #define NISFLOW_TILE_CONDITIONER_H
 
+#include <string.h>
+
 #include "internal.h"
 #include "lanes.h"
 #include "tile.h"
@@ -20,80 +22,67 @@ typedef struct nf_tile_act {
 } nf_tile_act;
 
 /* The first hidden layer of layer `layer`'s conditioner, with `vblob` the one-blob of the
- * pass-through coordinate, into out[unit][lane] (ReLU applied). One sample at a time, NF_CHUNK
- * units per vector; four accumulators (summed at the end) keep four FMA chains in flight. */
+ * pass-through coordinate, into out[unit][lane] (ReLU applied; rows up to the padded width
+ * are written, the padding ones zero). One sample at a time through nf_input_layer, the same
+ * arithmetic as the per-sample kernels, then transposed into the tile layout. */
 static inline void nf_tile_input_layer(const nf_model *m, uint32_t layer, const nf_tile *tile,
                                        const nf_tile_blob *vblob, float (*out)[NF_TILE])
 {
-    _Static_assert(NF_CHUNK == 16, "nf_lanes holds one chunk of units");
     const nf_linear *lin = &m->packed_linear[layer][0];
     const float *w = m->packed + lin->weight, *bias = m->packed + lin->bias;
-    const uint32_t hp = lin->stride, width = m->cfg.hidden_width;
+    const uint32_t hp = lin->stride;
     const float *wd = w + (size_t)4u * m->cfg.oneblob_bins * hp; /* the SH rows */
     const uint32_t dense = 2u * m->cfg.sh_bands * m->cfg.sh_bands;
+    /* sample-major, in blocks of NF_CHUNK units: act[chunk][lane][unit] */
+    float act[NF_PAD(NF_MAX_HIDDEN_WIDTH) / NF_CHUNK][NF_TILE][NF_CHUNK];
+    float one[NF_PAD(NF_MAX_HIDDEN_WIDTH)];
     for (uint32_t i = 0; i < tile->count; ++i) {
-        float act[NF_PAD(NF_MAX_HIDDEN_WIDTH)];
-        for (uint32_t c = 0; c < hp; c += NF_CHUNK) {
-            nf_lanes a0, a1, a2, a3, row;
-            nf_lanes_load(&a0, bias + c);
-            nf_lanes_splat(&a1, 0.0f);
-            nf_lanes_splat(&a2, 0.0f);
-            nf_lanes_splat(&a3, 0.0f);
-            /* one-blob slots: three for v, three per position axis */
-            for (uint32_t s = 0; s < 3; ++s) {
-                nf_lanes_load(&row, w + (size_t)vblob->row[s][i] * hp + c);
-                nf_lanes_madd(&a0, vblob->value[s][i], &row);
-                nf_lanes_load(&row, w + (size_t)tile->position[0].row[s][i] * hp + c);
-                nf_lanes_madd(&a1, tile->position[0].value[s][i], &row);
-                nf_lanes_load(&row, w + (size_t)tile->position[1].row[s][i] * hp + c);
-                nf_lanes_madd(&a2, tile->position[1].value[s][i], &row);
-                nf_lanes_load(&row, w + (size_t)tile->position[2].row[s][i] * hp + c);
-                nf_lanes_madd(&a3, tile->position[2].value[s][i], &row);
+        uint32_t rows[12];
+        float vals[12];
+        for (uint32_t s = 0; s < 3; ++s) {
+            rows[s] = vblob->row[s][i];
+            vals[s] = vblob->value[s][i];
+            for (uint32_t a = 0; a < 3; ++a) {
+                rows[3 * (a + 1) + s] = tile->position[a].row[s][i];
+                vals[3 * (a + 1) + s] = tile->position[a].value[s][i];
             }
-            uint32_t k = 0;
-            for (; k + 4 <= dense; k += 4) {
-                const float *wk = wd + (size_t)k * hp + c;
-                nf_lanes_load(&row, wk);
-                nf_lanes_madd(&a0, tile->sh[k][i], &row);
-                nf_lanes_load(&row, wk + hp);
-                nf_lanes_madd(&a1, tile->sh[k + 1][i], &row);
-                nf_lanes_load(&row, wk + 2 * hp);
-                nf_lanes_madd(&a2, tile->sh[k + 2][i], &row);
-                nf_lanes_load(&row, wk + 3 * hp);
-                nf_lanes_madd(&a3, tile->sh[k + 3][i], &row);
-            }
-            for (; k < dense; ++k) {
-                nf_lanes_load(&row, wd + (size_t)k * hp + c);
-                nf_lanes_madd(&a0, tile->sh[k][i], &row);
-            }
-            nf_lanes_add(&a0, &a1);
-            nf_lanes_add(&a2, &a3);
-            nf_lanes_add(&a0, &a2);
-            nf_lanes_store(act + c, &a0);
         }
-        for (uint32_t j = 0; j < width; ++j)
-            out[j][i] = nf_maxf(act[j], 0.0f);
+        nf_input_layer(w, bias, hp, rows, vals, wd, &tile->sh[0][i], NF_TILE, dense, one);
+        for (uint32_t c = 0; c < hp; c += NF_CHUNK)
+            memcpy(act[c / NF_CHUNK][i], one + c, sizeof act[0][0]);
     }
-    for (uint32_t j = 0; j < width; ++j)
+    for (uint32_t c = 0; c < hp / NF_CHUNK; ++c) {
         for (uint32_t i = tile->count; i < NF_TILE; ++i)
-            out[j][i] = out[j][0];
+            memcpy(act[c][i], act[c][0], sizeof act[c][i]);
+        /* a fixed-size 16 x 16 transpose, which the compiler turns into vector permutes */
+        const float (*block)[NF_CHUNK] = (const float(*)[NF_CHUNK])act[c];
+        float (*dst)[NF_TILE] = out + c * NF_CHUNK;
+        for (uint32_t j = 0; j < NF_CHUNK; ++j)
+            for (uint32_t i = 0; i < NF_TILE; ++i)
+                dst[j][i] = nf_maxf(block[i][j], 0.0f);
+    }
 }
 
-/* out[r][lane] = bias[r] + sum_k w[k][r] in[k][lane] for r < outputs; ReLU if relu. Four
- * outputs at a time share each input row and give the FMA unit four independent chains; out
- * needs room for outputs rounded up to 4 rows (w and bias are padded to NF_CHUNK columns). */
+/* out[r][lane] = bias[r] + sum_k w[k][r] in[k][lane] for r < outputs; ReLU if relu. Eight
+ * outputs at a time share each input row and give the FMA units eight independent chains
+ * (an FMA's latency is four cycles, and two can start per cycle); out needs room for outputs
+ * rounded up to 8 rows, and w and bias are padded to NF_CHUNK columns. */
 static inline void nf_tile_dense_layer(const float *w, uint32_t stride, const float *bias,
                                        uint32_t inputs, uint32_t outputs,
                                        const float (*in)[NF_TILE], float (*out)[NF_TILE],
                                        int relu)
 {
-    for (uint32_t r = 0; r < outputs; r += 4) {
+    for (uint32_t r = 0; r < outputs; r += 8) {
         /* Named accumulators: an array of them would be kept in memory. */
-        nf_lanes a0, a1, a2, a3, x;
+        nf_lanes a0, a1, a2, a3, a4, a5, a6, a7, x;
         nf_lanes_splat(&a0, bias[r]);
         nf_lanes_splat(&a1, bias[r + 1]);
         nf_lanes_splat(&a2, bias[r + 2]);
         nf_lanes_splat(&a3, bias[r + 3]);
+        nf_lanes_splat(&a4, bias[r + 4]);
+        nf_lanes_splat(&a5, bias[r + 5]);
+        nf_lanes_splat(&a6, bias[r + 6]);
+        nf_lanes_splat(&a7, bias[r + 7]);
         for (uint32_t k = 0; k < inputs; ++k) {
             const float *wk = w + (size_t)k * stride + r;
             nf_lanes_load(&x, in[k]);
@@ -101,11 +90,19 @@ static inline void nf_tile_dense_layer(const float *w, uint32_t stride, const fl
             nf_lanes_madd(&a1, wk[1], &x);
             nf_lanes_madd(&a2, wk[2], &x);
             nf_lanes_madd(&a3, wk[3], &x);
+            nf_lanes_madd(&a4, wk[4], &x);
+            nf_lanes_madd(&a5, wk[5], &x);
+            nf_lanes_madd(&a6, wk[6], &x);
+            nf_lanes_madd(&a7, wk[7], &x);
         }
         nf_lanes_store(out[r], &a0);
         nf_lanes_store(out[r + 1], &a1);
         nf_lanes_store(out[r + 2], &a2);
         nf_lanes_store(out[r + 3], &a3);
+        nf_lanes_store(out[r + 4], &a4);
+        nf_lanes_store(out[r + 5], &a5);
+        nf_lanes_store(out[r + 6], &a6);
+        nf_lanes_store(out[r + 7], &a7);
     }
     if (relu)
         for (uint32_t r = 0; r < outputs; ++r)

@@ -17,7 +17,7 @@ typedef struct nf_tile_work {
     nf_tile tile;
     nf_tile_blob blob;                  /* one-blob of the pass-through coordinate */
     nf_tile_act act;
-    float raw[NF_MAX_RAW_PADDED][NF_TILE]; /* nf_tile_dense_layer writes 4 rows at a time */
+    float raw[NF_MAX_RAW_PADDED][NF_TILE]; /* nf_tile_dense_layer writes 8 rows at a time */
     nf_tile_spline spline;
     nf_tile_bin bin;
 } nf_tile_work;

@@ -8,6 +8,7 @@
 #ifndef NISFLOW_TILE_SPLINE_H
 #define NISFLOW_TILE_SPLINE_H
 
+#include "lanes.h"
 #include "spline_eval.h"
 #include "tile.h"
 
@@ -27,35 +28,39 @@ typedef struct nf_tile_bin {
     float d0[NF_TILE], d1[NF_TILE], sd0[NF_TILE], sd1[NF_TILE];
 } nf_tile_bin;
 
-/* nf_spline_knots for every lane. */
+/* nf_spline_knots for every lane, in the same order of operations. */
 static inline void nf_tile_knots(uint32_t bins, const float (*raw)[NF_TILE],
                                  float (*knots)[NF_TILE], float (*soft)[NF_TILE])
 {
-    float top[NF_TILE], sum[NF_TILE], inv[NF_TILE], acc[NF_TILE];
     const float scale = 1.0f - (float)bins * NF_SPLINE_MIN;
-    for (uint32_t i = 0; i < NF_TILE; ++i)
-        top[i] = raw[0][i];
-    for (uint32_t b = 1; b < bins; ++b)
-        for (uint32_t i = 0; i < NF_TILE; ++i)
-            top[i] = nf_maxf(top[i], raw[b][i]);
-    for (uint32_t i = 0; i < NF_TILE; ++i)
-        sum[i] = 0.0f;
-    for (uint32_t b = 0; b < bins; ++b)
-        for (uint32_t i = 0; i < NF_TILE; ++i) {
-            soft[b][i] = nf_fast_exp(raw[b][i] - top[i]);
-            sum[i] += soft[b][i];
-        }
-    for (uint32_t i = 0; i < NF_TILE; ++i) {
-        inv[i] = 1.0f / sum[i];
-        acc[i] = 0.0f;
-        knots[0][i] = 0.0f;
+    nf_lanes top, sum, inv, acc, x, step;
+    nf_lanes_load(&top, raw[0]);
+    for (uint32_t b = 1; b < bins; ++b) {
+        nf_lanes_load(&x, raw[b]);
+        nf_lanes_max(&top, &x);
     }
-    for (uint32_t b = 0; b < bins; ++b)
-        for (uint32_t i = 0; i < NF_TILE; ++i) {
-            soft[b][i] *= inv[i];
-            acc[i] += NF_SPLINE_MIN + scale * soft[b][i];
-            knots[b + 1][i] = acc[i];
-        }
+    float t[NF_TILE];
+    nf_lanes_store(t, &top);
+    nf_lanes_splat(&sum, 0.0f);
+    for (uint32_t b = 0; b < bins; ++b) {
+        for (uint32_t i = 0; i < NF_TILE; ++i)
+            soft[b][i] = nf_fast_exp(raw[b][i] - t[i]);
+        nf_lanes_load(&x, soft[b]);
+        nf_lanes_add(&sum, &x);
+    }
+    nf_lanes_splat(&inv, 1.0f);
+    nf_lanes_div(&inv, &sum);
+    nf_lanes_splat(&acc, 0.0f);
+    nf_lanes_store(knots[0], &acc);
+    for (uint32_t b = 0; b < bins; ++b) {
+        nf_lanes_load(&x, soft[b]);
+        nf_lanes_mul(&x, &inv);
+        nf_lanes_store(soft[b], &x);
+        nf_lanes_splat(&step, NF_SPLINE_MIN);
+        nf_lanes_madd(&step, scale, &x);
+        nf_lanes_add(&acc, &step);
+        nf_lanes_store(knots[b + 1], &acc);
+    }
     for (uint32_t i = 0; i < NF_TILE; ++i)
         knots[bins][i] = 1.0f; /* exactly 1, as in nf_spline_knots */
 }
@@ -75,30 +80,44 @@ static inline void nf_tile_bin_select(const nf_tile_spline *s, uint32_t bins,
                                       const float (*key)[NF_TILE], const float *v,
                                       nf_tile_bin *b)
 {
-    float rd0[NF_TILE], rd1[NF_TILE];
+    nf_lanes vl, kl;
+    nf_lanes_load(&vl, v);
     for (uint32_t i = 0; i < NF_TILE; ++i)
         b->k[i] = 0;
-    for (uint32_t j = 1; j < bins; ++j)
-        for (uint32_t i = 0; i < NF_TILE; ++i)
-            b->k[i] += (v[i] >= key[j][i]);
-    for (uint32_t i = 0; i < NF_TILE; ++i) {
-        b->xk[i] = s->x[0][i];
-        b->x1[i] = s->x[1][i];
-        b->yk[i] = s->y[0][i];
-        b->y1[i] = s->y[1][i];
-        rd0[i] = raw_d[0][i];
-        rd1[i] = raw_d[1][i];
+    for (uint32_t j = 1; j < bins; ++j) {
+        nf_lanes_load(&kl, key[j]);
+        nf_lanes_count_ge(b->k, &vl, &kl);
     }
-    for (uint32_t j = 1; j < bins; ++j)
-        for (uint32_t i = 0; i < NF_TILE; ++i) {
-            int hit = b->k[i] == j;
-            b->xk[i] = hit ? s->x[j][i] : b->xk[i];
-            b->x1[i] = hit ? s->x[j + 1][i] : b->x1[i];
-            b->yk[i] = hit ? s->y[j][i] : b->yk[i];
-            b->y1[i] = hit ? s->y[j + 1][i] : b->y1[i];
-            rd0[i] = hit ? raw_d[j][i] : rd0[i];
-            rd1[i] = hit ? raw_d[j + 1][i] : rd1[i];
-        }
+    /* The bin's knots and raw derivatives by compare-and-select over the bins: gathers
+     * would need AVX2 and GCC does not emit them for generic tuning. */
+    nf_lanes xk, x1, yk, y1, r0, r1, t;
+    nf_lanes_load(&xk, s->x[0]);
+    nf_lanes_load(&x1, s->x[1]);
+    nf_lanes_load(&yk, s->y[0]);
+    nf_lanes_load(&y1, s->y[1]);
+    nf_lanes_load(&r0, raw_d[0]);
+    nf_lanes_load(&r1, raw_d[1]);
+    for (uint32_t j = 1; j < bins; ++j) {
+        nf_lanes_load(&t, s->x[j]);
+        nf_lanes_pick(&xk, b->k, j, &t);
+        nf_lanes_load(&t, s->x[j + 1]);
+        nf_lanes_pick(&x1, b->k, j, &t);
+        nf_lanes_load(&t, s->y[j]);
+        nf_lanes_pick(&yk, b->k, j, &t);
+        nf_lanes_load(&t, s->y[j + 1]);
+        nf_lanes_pick(&y1, b->k, j, &t);
+        nf_lanes_load(&t, raw_d[j]);
+        nf_lanes_pick(&r0, b->k, j, &t);
+        nf_lanes_load(&t, raw_d[j + 1]);
+        nf_lanes_pick(&r1, b->k, j, &t);
+    }
+    float rd0[NF_TILE], rd1[NF_TILE];
+    nf_lanes_store(b->xk, &xk);
+    nf_lanes_store(b->x1, &x1);
+    nf_lanes_store(b->yk, &yk);
+    nf_lanes_store(b->y1, &y1);
+    nf_lanes_store(rd0, &r0);
+    nf_lanes_store(rd1, &r1);
     /* c = log(exp(1 - m) - 1), as in nf_spline_bin_at */
     const float shift = 0.53974242f;
     for (uint32_t i = 0; i < NF_TILE; ++i) {
