@@ -160,11 +160,14 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * float round trip drifts and a few percent of samples differ by up to ~2e-3 (measured by
  * tests/test_sampling.c), which one-sample MIS tolerates. Densities are clamped to
  * [FLT_MIN, FLT_MAX], so that pdf and 1 / pdf are finite whatever the parameters
- * (docs/robustness.md). The map from u to dir is deterministic. n = 0 is a no-op (pointers may then be NULL). The whole batch is validated
- * before anything is written: on NF_ERROR_INVALID_ARGUMENT no output is written. The one
- * error that can arise mid-batch is NF_ERROR_NUMERIC from a custom prior callback returning
- * an invalid value; outputs of earlier samples are then written, later ones are not.
- * Thread-safe on a const model; never allocates. */
+ * (docs/robustness.md). The map from u to dir is deterministic, and bit-identical however a
+ * batch is split into calls (batches run in groups of 16 samples, calls of 1 or 2 samples per
+ * sample, with the same arithmetic). n = 0 is a no-op (pointers may then be NULL). The whole
+ * batch is validated before anything is written: on NF_ERROR_INVALID_ARGUMENT no output is
+ * written. The one error that can arise mid-batch is NF_ERROR_NUMERIC from a custom prior
+ * callback returning an invalid value; the outputs of earlier groups of 16 samples are then
+ * written, those of the failing sample's group and later ones are not.
+ * Thread-safe on a const model; never allocates; uses about 56 KiB of the caller's stack. */
 NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
                            float *dir, float *pdf);
 
@@ -174,8 +177,9 @@ NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, c
  * clamped to NF_SIN_THETA_MIN, and densities are clamped to [FLT_MIN, FLT_MAX] as in
  * nf_sample, so they stay finite and positive. n = 0 is a no-op. On
  * NF_ERROR_INVALID_ARGUMENT pdf is not written; NF_ERROR_NUMERIC (a custom prior callback
- * returned an invalid value) may come after earlier entries were written.
- * Thread-safe on a const model; never allocates. */
+ * returned an invalid value) may come after earlier entries were written. Results are
+ * bit-identical however a batch is split into calls, as for nf_sample.
+ * Thread-safe on a const model; never allocates; uses about 56 KiB of the caller's stack. */
 NF_API nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                         float *pdf);
 
