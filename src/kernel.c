@@ -2,7 +2,8 @@
  * kernel.c - the batch kernels behind nf_sample, nf_pdf and nf_loss_gradient. CMake compiles
  * this file once per instruction set with NF_KERNEL_ISA set to generic, avx2 or avx512 (and
  * the matching -m flags); each copy defines the table nf_kernels_<isa>. Inputs arrive
- * validated from flow.c and train.c.
+ * validated from flow.c and train.c. nf_sample and nf_pdf run on tiles of 16 samples
+ * (tile_flow.h), or per sample for calls of 1 or 2; the gradient runs per sample.
  */
 #include <math.h>
 

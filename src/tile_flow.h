@@ -181,7 +181,7 @@ static inline nf_status nf_tile_sample(const nf_model *m, const nf_context *ctx,
     }
     float out[3][NF_TILE], p[NF_TILE];
     for (uint32_t i = 0; i < NF_TILE; ++i) {
-        /* s1 one ulp below 1 at most, as in the per-sample kernel (see kernel.c history):
+        /* s1 one ulp below 1 at most, as in nf_sample_one (kernel.c):
          * nf_pdf maps phi = 2 pi back to the other side of the seam. */
         float s[2] = {x[0][i], nf_minf(x[1][i], 0x1.fffffep-1f)}, d[3];
         nf_from_square(s, d);
