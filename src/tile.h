@@ -23,7 +23,6 @@ _Static_assert(NF_TILE == 16, "lanes.h holds 16 floats per tile");
 typedef struct nf_tile_blob {
     uint32_t row[3][NF_TILE]; /* row of the input layer's weights (encoding offset added) */
     float value[3][NF_TILE];
-    float dvalue[3][NF_TILE]; /* d value / d v */
 } nf_tile_blob;
 
 /* The shading points of a tile: everything the conditioners share across layers. */
@@ -35,10 +34,9 @@ typedef struct nf_tile {
     float sh[2 * NF_MAX_SH][NF_TILE];   /* SH of the normal (S^2 rows), then of wo        */
 } nf_tile;
 
-/* The one-blob of v[lane] (clamped to [0,1]) with B bins; rows are offset by row_offset.
- * dvalue is filled only if with_derivative (reverse mode). */
+/* The one-blob of v[lane] (clamped to [0,1]) with B bins; rows are offset by row_offset. */
 static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_offset,
-                                   int with_derivative, nf_tile_blob *out)
+                                   nf_tile_blob *out)
 {
     /* nf_oneblob_slots' arithmetic with the slot loop outermost, so that the lane loops
      * vectorize; the results are the same bits. */
@@ -51,10 +49,6 @@ static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_o
             float q = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
             out->row[c][i] = row_offset + (uint32_t)(inside ? j : 0);
             out->value[c][i] = inside ? q : 0.0f;
-            if (with_derivative) {
-                float dq = (float)bins * (nf_quartic_kernel(lo) - nf_quartic_kernel(hi));
-                out->dvalue[c][i] = inside ? dq : 0.0f;
-            }
         }
 }
 
@@ -116,8 +110,7 @@ static inline void nf_tile_prepare(const nf_model *m, const nf_context *ctx, uin
         float lo = cfg->bounds_min[a], extent = cfg->bounds_max[a] - cfg->bounds_min[a];
         for (uint32_t i = 0; i < NF_TILE; ++i)
             t[i] = (position[a][i] - lo) / extent;
-        nf_tile_oneblob(t, cfg->oneblob_bins, (a + 1) * cfg->oneblob_bins, 0,
-                        &tile->position[a]);
+        nf_tile_oneblob(t, cfg->oneblob_bins, (a + 1) * cfg->oneblob_bins, &tile->position[a]);
     }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {

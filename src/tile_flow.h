@@ -149,7 +149,7 @@ static inline void nf_tile_layer_splines(const nf_model *m, uint32_t layer,
                                          const float (*x)[NF_TILE], nf_tile_work *w)
 {
     uint32_t t = nf_transformed(layer);
-    nf_tile_oneblob(x[1 - t], m->cfg.oneblob_bins, 0, 0, &w->blob);
+    nf_tile_oneblob(x[1 - t], m->cfg.oneblob_bins, 0, &w->blob);
     nf_tile_conditioner_forward(m, layer, &w->tile, &w->blob, &w->act, w->raw);
     nf_tile_spline_build(&w->spline, m->cfg.spline_bins, (const float(*)[NF_TILE])w->raw);
 }
