@@ -57,7 +57,7 @@ static inline void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf
  * slots (rows/vals: three for the pass-through coordinate, then three per position axis) +
  * sum_k sh[k * sh_stride] wd[k], k < dense (the SH inputs and their weight rows). hp is the
  * padded width. Four accumulators, one per encoded scalar and every fourth SH input, keep four
- * FMA chains in flight. The tile kernels and the per-sample kernels both call this, so a
+ * multiply-add chains in flight. The tile kernels and the per-sample kernels both call this, so a
  * sample's sums run in the same order whichever path evaluates it. */
 static inline void nf_input_layer(const float *restrict w, const float *restrict bias,
                                   uint32_t hp, const uint32_t rows[12], const float vals[12],

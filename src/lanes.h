@@ -4,8 +4,9 @@
  *
  * Why: a loop `for k: for i: acc[i] += w[k] * x[k][i]` vectorizes over i, but GCC and Clang
  * then keep the array acc in memory between iterations of k, which puts a store-to-load round
- * trip on every step of the dependency chain (measured: the dense layers ran 3x slower than
- * with a register accumulator). With GNU C vector types the accumulator is one variable that
+ * trip on every step of the dependency chain (measured with nf_bench, small preset, batch
+ * 4096: moving the knots and the bin selection into this type took nf_pdf from 262 to
+ * 203 ns/sample). With GNU C vector types the accumulator is one variable that
  * lives in registers (one zmm, two ymm or four xmm). Other compilers get a plain struct and
  * loops with the same results.
  */

@@ -64,8 +64,8 @@ static inline void nf_tile_input_layer(const nf_model *m, uint32_t layer, const 
 }
 
 /* out[r][lane] = bias[r] + sum_k w[k][r] in[k][lane] for r < outputs; ReLU if relu. Eight
- * outputs at a time share each input row and give the FMA units eight independent chains
- * (an FMA's latency is four cycles, and two can start per cycle); out needs room for outputs
+ * outputs at a time share each input row and give the CPU eight independent multiply-add
+ * chains to overlap (each step waits on the previous one's latency); out needs room for outputs
  * rounded up to 8 rows, and w and bias are padded to NF_CHUNK columns. */
 static inline void nf_tile_dense_layer(const float *w, uint32_t stride, const float *bias,
                                        uint32_t inputs, uint32_t outputs,
