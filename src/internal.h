@@ -50,6 +50,14 @@ typedef struct nf_linear {
 
 typedef struct nf_kernels nf_kernels;
 
+/* The constants of one AdamW step (SPEC section 6), computed by nf_apply_gradient. */
+typedef struct nf_adamw_step {
+    float beta1, beta2, epsilon;
+    float step_size;      /* learning_rate / (1 - beta1^t)     */
+    float inv_sqrt_bias2; /* 1 / sqrt(1 - beta2^t)             */
+    float decay;          /* 1 - learning_rate * weight_decay  */
+} nf_adamw_step;
+
 struct nf_model {
     nf_config cfg;          /* validated; cfg.allocator resolved to real functions         */
     uint32_t input_dim;     /* conditioner input: 4 B + 2 S^2                               */
@@ -62,6 +70,9 @@ struct nf_model {
     /* [layer][j]: j = 0 input layer, j = hidden_layers output layer */
     nf_linear linear[NF_MAX_COUPLING_LAYERS][NF_MAX_HIDDEN_LAYERS + 1]; /* public layout */
     nf_linear packed_linear[NF_MAX_COUPLING_LAYERS][NF_MAX_HIDDEN_LAYERS + 1];
+    /* params, adam_m and adam_v are one bank of 3 * param_count floats, staging the other;
+     * nf_apply_gradient writes a step into staging and then exchanges the banks, so these
+     * pointers change with every step (nothing may keep them). */
     float *params;          /* param_count; layout documented in train.h                    */
     float *packed;          /* the same weights, padded for the kernels; see nf_model_pack  */
     float *adam_m;          /* param_count, first moments                                   */
@@ -96,6 +107,10 @@ struct nf_kernels {
      * the loss in *loss. */
     nf_status (*gradient)(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                           const float *weight, double total, double *loss, float *grad);
+    /* One AdamW step from parameters p and moments m, v with gradient g into p_new, m_new,
+     * v_new (count floats each, no overlap); returns 0 if any new value is not finite. */
+    int (*adamw)(const nf_adamw_step *step, size_t count, const float *g, const float *p,
+                 const float *m, const float *v, float *p_new, float *m_new, float *v_new);
 };
 
 extern const nf_kernels nf_kernels_generic;

