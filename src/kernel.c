@@ -11,6 +11,7 @@
 
 #include "flow_eval.h"
 #include "tile_flow.h"
+#include "tile_gradient.h"
 #include "internal.h"
 
 #ifndef NF_KERNEL_ISA
@@ -25,6 +26,9 @@
  * nearly as much for one sample as for sixteen, since its vector loops run over all lanes,
  * and the per-sample code is cheaper up to two samples (measured with nf_bench, batch 1). */
 #define NF_TILED_FROM 3u
+
+/* The same for the gradient, whose per-sample code is cheaper up to this many samples. */
+#define NF_GRADIENT_TILED_FROM 4u
 
 static nf_status nf_sample_one(const nf_model *m, const nf_context *ctx, const float u[2],
                                float dir[3], float *pdf, nf_scratch *sc)
@@ -109,9 +113,10 @@ static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ct
     return NF_OK;
 }
 
-static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_context *ctx,
-                                    const float *dir, const float *weight, double total,
-                                    double *loss, float *grad)
+/* The per-sample gradient of flow_eval.h, for calls too small to fill a tile. */
+static nf_status nf_gradient_per_sample(const nf_model *m, size_t n, const nf_context *ctx,
+                                        const float *dir, const float *weight, double total,
+                                        double *loss, float *grad)
 {
     nf_scratch sc;
     double acc = 0.0;
@@ -129,6 +134,41 @@ static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_contex
         /* log p_w = log p_s - log(2 pi^2 sin theta) */
         double sin_theta = (double)nf_maxf(nf_sin_pi(s[0]), NF_SIN_THETA_MIN);
         acc -= share * (log_p - log((double)NF_TWO_PI_SQUARED * sin_theta));
+    }
+    *loss = acc;
+    return NF_OK;
+}
+
+/* Samples with weight zero contribute nothing and are left out, so tiles are filled with the
+ * others, in order: the loss is summed in the same order as by the per-sample code. */
+static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_context *ctx,
+                                    const float *dir, const float *weight, double total,
+                                    double *loss, float *grad)
+{
+    if (n < NF_GRADIENT_TILED_FROM)
+        return nf_gradient_per_sample(m, n, ctx, dir, weight, total, loss, grad);
+    nf_tile_gradient_work w;
+    const nf_context *tile_ctx[NF_TILE];
+    const float *tile_dir[NF_TILE];
+    double share[NF_TILE], acc = 0.0;
+    uint32_t count = 0;
+    for (size_t i = 0; i < n; ++i) {
+        if (weight[i] == 0.0f)
+            continue;
+        tile_ctx[count] = &ctx[i];
+        tile_dir[count] = dir + 3 * i;
+        share[count] = (double)weight[i] / total;
+        if (++count < NF_TILE)
+            continue;
+        nf_status st = nf_tile_gradient(m, tile_ctx, tile_dir, share, count, grad, &acc, &w);
+        if (st != NF_OK)
+            return st;
+        count = 0;
+    }
+    if (count > 0) {
+        nf_status st = nf_tile_gradient(m, tile_ctx, tile_dir, share, count, grad, &acc, &w);
+        if (st != NF_OK)
+            return st;
     }
     *loss = acc;
     return NF_OK;

@@ -82,6 +82,17 @@ static inline void nf_lanes_div(nf_lanes *acc, const nf_lanes *x)
 #endif
 }
 
+/* acc -= x */
+static inline void nf_lanes_sub(nf_lanes *acc, const nf_lanes *x)
+{
+#if defined(NF_LANES_VECTOR)
+    *acc -= *x;
+#else
+    for (int i = 0; i < 16; ++i)
+        acc->v[i] -= x->v[i];
+#endif
+}
+
 /* acc *= x */
 static inline void nf_lanes_mul(nf_lanes *acc, const nf_lanes *x)
 {
@@ -137,6 +148,39 @@ static inline void nf_lanes_pick(nf_lanes *acc, const uint32_t *index, uint32_t 
 #else
     for (int i = 0; i < 16; ++i)
         acc->v[i] = index[i] == j ? x->v[i] : acc->v[i];
+#endif
+}
+
+/* acc[i] = index[i] > j ? x[i] : acc[i] for 16 lanes */
+static inline void nf_lanes_pick_above(nf_lanes *acc, const uint32_t *index, uint32_t j,
+                                       const nf_lanes *x)
+{
+#if defined(NF_LANES_VECTOR)
+    nf_lanes_i32 idx, a, b, hit;
+    memcpy(&idx, index, sizeof idx);
+    /* indices are small (bins), so the signed comparison is the unsigned one */
+    hit = idx > (nf_lanes_i32){0} + (int32_t)j;
+    memcpy(&a, acc, sizeof a);
+    memcpy(&b, x, sizeof b);
+    a = (a & ~hit) | (b & hit);
+    memcpy(acc, &a, sizeof a);
+#else
+    for (int i = 0; i < 16; ++i)
+        acc->v[i] = index[i] > j ? x->v[i] : acc->v[i];
+#endif
+}
+
+/* g[i] = a[i] > 0 ? g[i] : 0 for 16 lanes: a gradient through a ReLU whose outputs were a */
+static inline void nf_lanes_relu_backward(nf_lanes *g, const nf_lanes *a)
+{
+#if defined(NF_LANES_VECTOR)
+    nf_lanes_i32 keep = *a > (nf_lanes){0.0f}, bits;
+    memcpy(&bits, g, sizeof bits);
+    bits &= keep;
+    memcpy(g, &bits, sizeof bits);
+#else
+    for (int i = 0; i < 16; ++i)
+        g->v[i] = a->v[i] > 0.0f ? g->v[i] : 0.0f;
 #endif
 }
 

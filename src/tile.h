@@ -52,6 +52,21 @@ static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_o
         }
 }
 
+/* d value / d v of the three slots of nf_tile_oneblob (0 for a slot outside the encoding), as
+ * nf_oneblob_sparse's dvalue, for the reverse pass. */
+static inline void nf_tile_oneblob_slopes(const float *v, uint32_t bins, float (*slope)[NF_TILE])
+{
+    for (uint32_t c = 0; c < 3; ++c)
+        for (uint32_t i = 0; i < NF_TILE; ++i) {
+            float vb = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
+            int j = (int)vb - 1 + (int)c;
+            int inside = (j >= 0) & (j < (int)bins);
+            float hi = (float)(j + 1) - vb, lo = (float)j - vb;
+            float d = (float)bins * (nf_quartic_kernel(lo) - nf_quartic_kernel(hi));
+            slope[c][i] = inside ? d : 0.0f;
+        }
+}
+
 /* Real SH of the unit vectors d[.][i] into out[row][i] (S^2 rows). */
 static inline void nf_tile_sh(const float (*d)[NF_TILE], uint32_t bands,
                               float (*out)[NF_TILE])
@@ -79,15 +94,16 @@ static inline void nf_tile_sh(const float (*d)[NF_TILE], uint32_t bands,
     }
 }
 
-/* Loads contexts ctx[0..count) (count in 1..NF_TILE, inputs validated) into a tile. */
-static inline void nf_tile_prepare(const nf_model *m, const nf_context *ctx, uint32_t count,
-                                   nf_tile *tile)
+/* Loads the contexts *ctx[0..count) (count in 1..NF_TILE, inputs validated) into a tile. The
+ * pointers are kept for custom prior callbacks, which receive the caller's own context. */
+static inline void nf_tile_prepare_from(const nf_model *m, const nf_context *const *ctx,
+                                        uint32_t count, nf_tile *tile)
 {
     const nf_config *cfg = &m->cfg;
     float position[3][NF_TILE], normal[3][NF_TILE], wo[3][NF_TILE];
     tile->count = count;
     for (uint32_t i = 0; i < NF_TILE; ++i) {
-        const nf_context *c = &ctx[i < count ? i : 0];
+        const nf_context *c = ctx[i < count ? i : 0];
         tile->user[i] = c;
         for (uint32_t a = 0; a < 3; ++a) {
             position[a][i] = c->position[a];
@@ -117,6 +133,16 @@ static inline void nf_tile_prepare(const nf_model *m, const nf_context *ctx, uin
         nf_tile_sh((const float(*)[NF_TILE])tile->normal, cfg->sh_bands, tile->sh);
         nf_tile_sh((const float(*)[NF_TILE])wo, cfg->sh_bands, tile->sh + sh);
     }
+}
+
+/* Loads contexts ctx[0..count) (count in 1..NF_TILE, inputs validated) into a tile. */
+static inline void nf_tile_prepare(const nf_model *m, const nf_context *ctx, uint32_t count,
+                                   nf_tile *tile)
+{
+    const nf_context *each[NF_TILE];
+    for (uint32_t i = 0; i < count; ++i)
+        each[i] = &ctx[i];
+    nf_tile_prepare_from(m, each, count, tile);
 }
 
 #endif /* NISFLOW_TILE_H */

@@ -16,7 +16,7 @@
 typedef struct nf_tile_work {
     nf_tile tile;
     nf_tile_blob blob;                  /* one-blob of the pass-through coordinate */
-    nf_tile_act act;
+    float act[NF_TILE_ACT_ROWS(2)][NF_TILE];
     float raw[NF_MAX_RAW_PADDED][NF_TILE]; /* nf_tile_dense_layer writes 8 rows at a time */
     nf_tile_spline spline;
     nf_tile_bin bin;
@@ -150,7 +150,7 @@ static inline void nf_tile_layer_splines(const nf_model *m, uint32_t layer,
 {
     uint32_t t = nf_transformed(layer);
     nf_tile_oneblob(x[1 - t], m->cfg.oneblob_bins, 0, &w->blob);
-    nf_tile_conditioner_forward(m, layer, &w->tile, &w->blob, &w->act, w->raw);
+    nf_tile_conditioner_forward(m, layer, &w->tile, &w->blob, w->act, 2, w->raw);
     nf_tile_spline_build(&w->spline, m->cfg.spline_bins, (const float(*)[NF_TILE])w->raw);
 }
 

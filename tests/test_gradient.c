@@ -312,6 +312,81 @@ static void test_zero_weights(void **state)
     nf_model_destroy(m);
 }
 
+/* Batches of 4 or more samples run on tiles of 16 (src/tile_gradient.h), single samples on the
+ * per-sample code (src/flow_eval.h): two implementations of the same reverse mode. A batch of
+ * 37 with every fifth weight zero (so tiles are compacted and the last one is partial) must
+ * give the weighted sum of its samples' single-sample gradients, for every prior including a
+ * custom one, on both presets.
+ *
+ * Tolerance: both sum the same float terms in different orders (over lanes then into grad,
+ * against sample by sample) and the tiles sum one-blob slope rows before their dot product:
+ * rounding of ~1e-7 relative per term; measured 1.5e-7..2.4e-7 of the gradient's norm
+ * (printed). 1e-5 is far above that and far below any real difference (a missing sample
+ * moves the gradient by ~1/30 of its norm, a wrong row or lane by O(1)). */
+static void test_tiles_match_single_samples(void **state)
+{
+    (void)state;
+    enum { N = 37 };
+    static nf_context ctx[N];
+    static float dir[3 * N], weight[N];
+    nft_rng r;
+    nft_rng_seed(&r, 700u, 3u);
+    for (int i = 0; i < N; ++i) {
+        nft_random_context(&r, &ctx[i]);
+        nft_random_unit_vector(&r, dir + 3 * i);
+        weight[i] = i % 5 == 3 ? 0.0f : 0.1f + nft_rng_float(&r);
+    }
+    double total = 0.0;
+    for (int i = 0; i < N; ++i)
+        total += weight[i];
+    const nf_prior_kind priors[4] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR_UNIFORM_ANGLE,
+                                     NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};
+    for (int preset = 0; preset < 2; ++preset) {
+        for (int p = 0; p < 4; ++p) {
+            nf_model *m = nft_make_model((nf_preset)preset, priors[p]);
+            assert_non_null(m);
+            assert_int_equal(nft_randomize_params(m, 0.3f, 701u + (uint64_t)p), NF_OK);
+            size_t count = nf_param_count(m);
+            float *batch_grad = malloc(count * sizeof(float));
+            float *one = malloc(count * sizeof(float));
+            double *sum = calloc(count, sizeof(double));
+            assert_true(batch_grad && one && sum);
+            float batch_loss, one_loss;
+            assert_int_equal(nf_loss_gradient(m, N, ctx, dir, weight, &batch_loss, batch_grad),
+                             NF_OK);
+            double loss_sum = 0.0;
+            for (int i = 0; i < N; ++i) {
+                if (weight[i] == 0.0f)
+                    continue;
+                assert_int_equal(nf_loss_gradient(m, 1, &ctx[i], dir + 3 * i, &weight[i],
+                                                  &one_loss, one),
+                                 NF_OK);
+                double share = weight[i] / total;
+                loss_sum += share * one_loss;
+                for (size_t k = 0; k < count; ++k)
+                    sum[k] += share * one[k];
+            }
+            double num = 0.0, den = 0.0;
+            for (size_t k = 0; k < count; ++k) {
+                num += (batch_grad[k] - sum[k]) * (batch_grad[k] - sum[k]);
+                den += sum[k] * sum[k];
+            }
+            double rel = sqrt(num / den);
+            print_message("%s preset %d: tiles vs single samples, loss %.7g vs %.7g, gradient "
+                          "%.3g of its norm %.3g\n",
+                          nft_prior_name(priors[p]), preset, (double)batch_loss, loss_sum, rel,
+                          sqrt(den));
+            assert_true(den > 1e-4);
+            assert_true(fabs(batch_loss - loss_sum) <= 1e-5 * fabs(loss_sum));
+            assert_true(rel < 1e-5);
+            free(batch_grad);
+            free(one);
+            free(sum);
+            nf_model_destroy(m);
+        }
+    }
+}
+
 /* The weights are normalized by their sum: scaling all of them by 7 leaves the loss and the
  * gradient unchanged up to rounding, and zero-weight samples contribute nothing. */
 static void test_weight_normalization(void **state)
@@ -556,6 +631,7 @@ int main(void)
         cmocka_unit_test(test_fd_large),
         cmocka_unit_test(test_directional_derivatives),
         cmocka_unit_test(test_zero_weights),
+        cmocka_unit_test(test_tiles_match_single_samples),
         cmocka_unit_test(test_weight_normalization),
         cmocka_unit_test(test_sharding),
         cmocka_unit_test(test_train_step_adamw),

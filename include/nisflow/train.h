@@ -28,8 +28,9 @@ NF_EXTERN_C_BEGIN
  * Weights must be finite and >= 0; a batch whose weights are all zero leaves the model
  * unchanged (no step is counted) and reports a loss of 0. A refused batch (any invalid input)
  * or a step whose loss, gradient or new parameters would not be finite (NF_ERROR_NUMERIC,
- * possible with extreme parameters or learning rates) leaves the model exactly as it was. n = 0 is a no-op. Not thread-safe: no other call may use `m` meanwhile.
- * Does not allocate. */
+ * possible with extreme parameters or learning rates) leaves the model exactly as it was.
+ * n = 0 is a no-op. Not thread-safe: no other call may use `m` meanwhile. Does not allocate;
+ * uses about 150 KiB of the caller's stack (as nf_loss_gradient). */
 NF_API nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                                const float *weight, float *loss);
 
@@ -54,7 +55,12 @@ NF_API nf_status nf_set_params(nf_model *m, const float *params);
  * Validation as for nf_train_step; with all weights zero the loss and gradient are 0. When the
  * loss or the gradient would not be finite (extreme parameters) it returns NF_ERROR_NUMERIC;
  * grad's content is then unspecified and *loss is not written.
- * Thread-safe on a const model (each thread passes its own grad); never allocates. */
+ * Batches of 4 or more samples are evaluated 16 at a time and single samples one by one; the
+ * two sum in different orders, so splitting a batch differently changes the gradient by
+ * rounding (~1e-7 relative), not more.
+ * Thread-safe on a const model (each thread passes its own grad); never allocates; uses about
+ * 150 KiB of the caller's stack (the activations of 16 samples for the largest networks the
+ * configuration limits allow). */
 NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *dir, const float *weight, float *loss,
                                   float *grad);
