@@ -30,7 +30,7 @@ NF_EXTERN_C_BEGIN
  * or a step whose loss, gradient or new parameters would not be finite (NF_ERROR_NUMERIC,
  * possible with extreme parameters or learning rates) leaves the model exactly as it was.
  * n = 0 is a no-op. Not thread-safe: no other call may use `m` meanwhile. Does not allocate;
- * uses about 150 KiB of the caller's stack (as nf_loss_gradient). */
+ * uses about 160 KiB of the caller's stack (as nf_loss_gradient). */
 NF_API nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                                const float *weight, float *loss);
 
@@ -59,7 +59,7 @@ NF_API nf_status nf_set_params(nf_model *m, const float *params);
  * two sum in different orders, so splitting a batch differently changes the gradient by
  * rounding (~1e-7 relative), not more.
  * Thread-safe on a const model (each thread passes its own grad); never allocates; uses about
- * 150 KiB of the caller's stack (the activations of 16 samples for the largest networks the
+ * 160 KiB of the caller's stack (the activations of 16 samples for the largest networks the
  * configuration limits allow). */
 NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *dir, const float *weight, float *loss,
