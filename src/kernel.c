@@ -1,9 +1,10 @@
 /*
- * kernel.c - the batch kernels behind nf_sample, nf_pdf and nf_loss_gradient. CMake compiles
- * this file once per instruction set with NF_KERNEL_ISA set to generic, avx2 or avx512 (and
- * the matching -m flags); each copy defines the table nf_kernels_<isa>. Inputs arrive
- * validated from flow.c and train.c. nf_sample and nf_pdf run on tiles of 16 samples
- * (tile_flow.h), or per sample for calls of 1 or 2; the gradient runs per sample.
+ * kernel.c - the batch kernels behind nf_sample, nf_pdf, nf_loss_gradient and the AdamW step.
+ * CMake compiles this file once per instruction set with NF_KERNEL_ISA set to generic, avx2 or
+ * avx512 (and the matching -m flags); each copy defines the table nf_kernels_<isa>. Inputs
+ * arrive validated from flow.c and train.c. nf_sample and nf_pdf run on tiles of 16 samples
+ * (tile_flow.h), or per sample for calls of 1 or 2; the gradient on tiles (tile_gradient.h),
+ * or per sample for calls of 1 to 3.
  */
 #include <float.h>
 #include <math.h>
