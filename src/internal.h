@@ -11,6 +11,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "nisflow/nisflow.h"
 
@@ -135,6 +136,21 @@ nf_status nf_fail(nf_status status, const char *fmt, ...)
 /* ---- validation of batch inputs (validate.c) --------------------------------------------- */
 
 int nf_all_finite(const float *v, size_t n);
+
+/* nf_all_finite's test, inline for the kernels (which compile it per instruction set). A float
+ * is NaN or Inf exactly when its exponent bits are all ones; OR-ing that test over the array
+ * is associative, so the loop vectorizes. (A float sum of v[i] * 0, used before, could not be
+ * reordered and ran at one add latency per element: 37% of single-sample training.) */
+static inline int nf_floats_finite(const float *v, size_t n)
+{
+    uint32_t bad = 0;
+    for (size_t i = 0; i < n; ++i) {
+        uint32_t bits;
+        memcpy(&bits, &v[i], sizeof bits);
+        bad |= (uint32_t)((bits & 0x7f800000u) == 0x7f800000u);
+    }
+    return bad == 0;
+}
 nf_status nf_validate_contexts(const char *fn, size_t n, const nf_context *ctx);
 nf_status nf_validate_directions(const char *fn, const char *name, size_t n, const float *dir);
 nf_status nf_validate_batch_size(const char *fn, size_t n);

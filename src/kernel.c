@@ -8,7 +8,6 @@
  */
 #include <float.h>
 #include <math.h>
-#include <string.h>
 
 #include "flow_eval.h"
 #include "tile_flow.h"
@@ -175,19 +174,6 @@ static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_contex
     return NF_OK;
 }
 
-/* 1 if no float of v[0..n) is NaN or Inf, i.e. none has all exponent bits set. An OR of
- * integer tests vectorizes; a float reduction would not without reassociation. */
-static inline int nf_kernel_all_finite(const float *v, size_t n)
-{
-    uint32_t bad = 0;
-    for (size_t i = 0; i < n; ++i) {
-        uint32_t bits;
-        memcpy(&bits, &v[i], sizeof bits);
-        bad |= (uint32_t)((bits & 0x7f800000u) == 0x7f800000u);
-    }
-    return bad == 0;
-}
-
 /* AdamW here rather than in train.c so that it runs in the widest vectors the CPU has: sqrt
  * and division are correctly rounded in every instruction set, so the variants agree to the
  * bit. The arrays are restrict parameters (GCC ignores restrict on local pointers) and the
@@ -218,8 +204,8 @@ static int nf_kernel_adamw(const nf_adamw_step *step, size_t count, const float 
         m_new[i] = mi;
         v_new[i] = vi;
     }
-    return nf_kernel_all_finite(p_new, count) && nf_kernel_all_finite(m_new, count) &&
-           nf_kernel_all_finite(v_new, count);
+    return nf_floats_finite(p_new, count) && nf_floats_finite(m_new, count) &&
+           nf_floats_finite(v_new, count);
 }
 
 const nf_kernels NF_KERNEL_CAT(nf_kernels_, NF_KERNEL_ISA) = {
