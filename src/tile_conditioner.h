@@ -142,8 +142,9 @@ static inline void nf_tile_conditioner_forward(const nf_model *m, uint32_t layer
         nf_tile_dense_layer(packed + lin[l].weight, lin[l].stride, 1, packed + lin[l].bias,
                             width, width, (const float(*)[NF_TILE])(act + (l - 1) % slots * hp),
                             act + l % slots * hp, 1);
-    /* All eight rows of the last group: the packed columns are zero-padded to NF_CHUNK, so
-     * the extra rows are zeros, and eight chains in flight beat one row at a time. */
+    /* All eight rows of the last group (the packed columns are zero-padded to NF_CHUNK, so
+     * the extra rows are zeros): the raw rows stay on the eight-chain path, as before the
+     * one-row tail existed, instead of ending with a row on a chain of its own. */
     nf_tile_dense_layer(packed + lin[depth].weight, lin[depth].stride, 1,
                         packed + lin[depth].bias, width, (m->raw_dim + 7u) / 8u * 8u,
                         (const float(*)[NF_TILE])(act + (depth - 1) % slots * hp), raw, 0);
