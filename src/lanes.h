@@ -133,18 +133,27 @@ static inline void nf_lanes_count_ge(uint32_t *count, const nf_lanes *v, const n
 #endif
 }
 
+#if defined(NF_LANES_VECTOR)
+/* acc[i] = hit[i] ? x[i] : acc[i], hit a comparison mask (all ones or zero per lane) */
+static inline void nf_lanes_blend(nf_lanes *acc, const nf_lanes_i32 *hit, const nf_lanes *x)
+{
+    nf_lanes_i32 a, b;
+    memcpy(&a, acc, sizeof a);
+    memcpy(&b, x, sizeof b);
+    a = (a & ~*hit) | (b & *hit);
+    memcpy(acc, &a, sizeof a);
+}
+#endif
+
 /* acc[i] = index[i] == j ? x[i] : acc[i] for 16 lanes */
 static inline void nf_lanes_pick(nf_lanes *acc, const uint32_t *index, uint32_t j,
                                  const nf_lanes *x)
 {
 #if defined(NF_LANES_VECTOR)
-    nf_lanes_i32 idx, a, b, hit;
+    nf_lanes_i32 idx, hit;
     memcpy(&idx, index, sizeof idx);
     hit = idx == (nf_lanes_i32){0} + (int32_t)j;
-    memcpy(&a, acc, sizeof a);
-    memcpy(&b, x, sizeof b);
-    a = (a & ~hit) | (b & hit);
-    memcpy(acc, &a, sizeof a);
+    nf_lanes_blend(acc, &hit, x);
 #else
     for (int i = 0; i < 16; ++i)
         acc->v[i] = index[i] == j ? x->v[i] : acc->v[i];
@@ -156,14 +165,11 @@ static inline void nf_lanes_pick_above(nf_lanes *acc, const uint32_t *index, uin
                                        const nf_lanes *x)
 {
 #if defined(NF_LANES_VECTOR)
-    nf_lanes_i32 idx, a, b, hit;
+    nf_lanes_i32 idx, hit;
     memcpy(&idx, index, sizeof idx);
     /* indices are small (bins), so the signed comparison is the unsigned one */
     hit = idx > (nf_lanes_i32){0} + (int32_t)j;
-    memcpy(&a, acc, sizeof a);
-    memcpy(&b, x, sizeof b);
-    a = (a & ~hit) | (b & hit);
-    memcpy(acc, &a, sizeof a);
+    nf_lanes_blend(acc, &hit, x);
 #else
     for (int i = 0; i < 16; ++i)
         acc->v[i] = index[i] > j ? x->v[i] : acc->v[i];
