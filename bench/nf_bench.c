@@ -630,6 +630,7 @@ typedef struct options {
     double busy_threshold;
     long nproc;
     int op_mask;
+    size_t batch; /* 0: every batch size; else only this one */
 } options;
 
 typedef struct result {
@@ -1096,6 +1097,7 @@ static void usage(FILE *f)
             "  --label TEXT               a free-form label stored in the JSON and printed\n"
             "  --retries N                re-measure a case up to N times when other\n"
             "                             processes disturbed it (default 2)\n"
+            "  --batch 1|64|4096|65536    measure only this batch size (for profiling)\n"
             "  --quick                    smoke run: batches 1, 64, 4096; 3 reps of >= 5 ms\n"
             "  --help                     this text\n"
             "Batch sizes 1, 64, 4096, 65536. Batch 1 is streams of calls with n = 1, in units\n"
@@ -1212,6 +1214,13 @@ static int parse_args(int argc, char **argv, options *o)
                 fprintf(stderr, "nf_bench: --op takes sample, pdf, train or all\n");
                 return -1;
             }
+        } else if (strcmp(a, "--batch") == 0) {
+            int n;
+            if (parse_int(v, 1, 65536, &n) != 0 || (n != 1 && n != 64 && n != 4096 && n != 65536)) {
+                fprintf(stderr, "nf_bench: --batch takes 1, 64, 4096 or 65536\n");
+                return -1;
+            }
+            o->batch = (size_t)n;
         } else if (strcmp(a, "--retries") == 0) {
             if (parse_int(v, 0, 10, &o->retries) != 0) {
                 fprintf(stderr, "nf_bench: --retries takes an integer in [0, 10]\n");
@@ -1247,8 +1256,12 @@ int main(int argc, char **argv)
     double t_start = now_s();
     cpu_snapshot run_start;
     cpu_snap(&run_start);
-    static const size_t all_batches[] = {1, 64, 4096, 65536};
+    size_t all_batches[] = {1, 64, 4096, 65536};
     size_t batch_count = o.quick ? 3 : 4;
+    if (o.batch) {
+        all_batches[0] = o.batch;
+        batch_count = 1;
+    }
     int max_threads = 1;
     for (int i = 0; i < o.thread_count; ++i)
         if (o.threads[i] > max_threads)
