@@ -33,7 +33,7 @@ static inline void nf_tile_knots(uint32_t bins, const float (*raw)[NF_TILE],
                                  float (*knots)[NF_TILE], float (*soft)[NF_TILE])
 {
     const float scale = 1.0f - (float)bins * NF_SPLINE_MIN;
-    nf_lanes top, sum, inv, acc, x, step;
+    nf_lanes top, sum, inv, acc, x, step, min;
     nf_lanes_load(&top, raw[0]);
     for (uint32_t b = 1; b < bins; ++b) {
         nf_lanes_load(&x, raw[b]);
@@ -56,8 +56,11 @@ static inline void nf_tile_knots(uint32_t bins, const float (*raw)[NF_TILE],
         nf_lanes_load(&x, soft[b]);
         nf_lanes_mul(&x, &inv);
         nf_lanes_store(soft[b], &x);
-        nf_lanes_splat(&step, NF_SPLINE_MIN);
-        nf_lanes_madd(&step, scale, &x);
+        /* NF_SPLINE_MIN + scale * soft rounded twice, as nf_spline_knots: not a madd */
+        nf_lanes_splat(&step, scale);
+        nf_lanes_mul(&step, &x);
+        nf_lanes_splat(&min, NF_SPLINE_MIN);
+        nf_lanes_add(&step, &min);
         nf_lanes_add(&acc, &step);
         nf_lanes_store(knots[b + 1], &acc);
     }

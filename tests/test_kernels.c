@@ -58,12 +58,10 @@ static void compare_with_generic(nf_isa isa)
             assert_non_null(v);
             assert_int_equal(nf_sample(g, N, ctx, u, dir_g, pdf_g), NF_OK);
             assert_int_equal(nf_sample(v, N, ctx, u, dir_v, pdf_v), NF_OK);
-            /* All variants perform the same IEEE operations in the same order (contraction
-             * into FMA is off), and with GCC 12 and Clang 14 they agree to the bit (printed
-             * below). The tolerance admits a compiler that vectorizes a sum in another
-             * order: ~1e-6 relative through the MLP, amplified by the spline slopes of a
-             * randomized model; 1e-4 still catches any real divergence (a wrong lane or
-             * padding is O(1)). */
+            /* The variants run the conditioners' multiply-adds fused, the generic kernels
+             * rounded twice (lanes.h): one rounding per step apart, ~1e-6 relative through
+             * the MLP (printed below), amplified by the spline slopes of a randomized model;
+             * 1e-4 still catches any real divergence (a wrong lane or padding is O(1)). */
             double worst_dir = 0.0, worst_pdf = 0.0;
             for (int i = 0; i < N; ++i) {
                 for (int a = 0; a < 3; ++a)
@@ -150,6 +148,61 @@ static void test_variants_agree(void **state)
     print_message("compared %d instruction-set variants with the generic kernels\n", compared);
 }
 
+/* AVX2 and AVX-512 perform the same IEEE operations (both fuse the conditioners' multiply-adds;
+ * AVX2 holds a tile in two registers, lane by lane the same): a renderer gets the same
+ * samples, densities and gradients on either kind of machine, to the bit. */
+static void test_fused_variants_agree_to_the_bit(void **state)
+{
+    (void)state;
+    static nf_context ctx[N];
+    static float u[2 * N], dir_a[3 * N], dir_b[3 * N], pdf_a[N], pdf_b[N], w[N];
+    nft_rng rng;
+    nft_rng_seed(&rng, 7u, 3u);
+    for (int i = 0; i < N; ++i) {
+        nft_random_context(&rng, &ctx[i]);
+        u[2 * i] = nft_rng_float(&rng);
+        u[2 * i + 1] = nft_rng_float(&rng);
+        w[i] = nft_rng_float(&rng);
+    }
+    for (int preset = 0; preset < 2; ++preset) {
+        for (int prior = 0; prior < 3; ++prior) {
+            nf_model *a = make_model((nf_preset)preset, (nf_prior_kind)prior, NF_ISA_AVX2);
+            nf_model *b = make_model((nf_preset)preset, (nf_prior_kind)prior, NF_ISA_AVX512);
+            if (!a || !b) {
+                /* a CPU or build without both: nothing to compare (test_variants_agree
+                 * checks the refusal) */
+                nf_model_destroy(a);
+                nf_model_destroy(b);
+                print_message("AVX2 and AVX-512 not both available: skipped\n");
+                return;
+            }
+            /* n = 1 takes the per-sample path, N the tiles: both must match */
+            for (int n = 1; n <= N; n += N - 1) {
+                assert_int_equal(nf_sample(a, (size_t)n, ctx, u, dir_a, pdf_a), NF_OK);
+                assert_int_equal(nf_sample(b, (size_t)n, ctx, u, dir_b, pdf_b), NF_OK);
+                assert_memory_equal(dir_a, dir_b, 3 * (size_t)n * sizeof(float));
+                assert_memory_equal(pdf_a, pdf_b, (size_t)n * sizeof(float));
+                assert_int_equal(nf_pdf(a, (size_t)n, ctx, dir_a, pdf_a), NF_OK);
+                assert_int_equal(nf_pdf(b, (size_t)n, ctx, dir_a, pdf_b), NF_OK);
+                assert_memory_equal(pdf_a, pdf_b, (size_t)n * sizeof(float));
+            }
+            size_t count = nf_param_count(a);
+            float *grad_a = malloc(count * sizeof(float)), *grad_b = malloc(count * sizeof(float));
+            float loss_a, loss_b;
+            assert_non_null(grad_a);
+            assert_non_null(grad_b);
+            assert_int_equal(nf_loss_gradient(a, N, ctx, dir_a, w, &loss_a, grad_a), NF_OK);
+            assert_int_equal(nf_loss_gradient(b, N, ctx, dir_a, w, &loss_b, grad_b), NF_OK);
+            assert_memory_equal(&loss_a, &loss_b, sizeof loss_a);
+            assert_memory_equal(grad_a, grad_b, count * sizeof(float));
+            free(grad_a);
+            free(grad_b);
+            nf_model_destroy(a);
+            nf_model_destroy(b);
+        }
+    }
+}
+
 static void test_auto_and_invalid(void **state)
 {
     (void)state;
@@ -170,6 +223,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_variants_agree),
+        cmocka_unit_test(test_fused_variants_agree_to_the_bit),
         cmocka_unit_test(test_auto_and_invalid),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

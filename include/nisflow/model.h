@@ -97,7 +97,10 @@ typedef enum nf_preset {
 
 /* The instruction set of the sample / pdf / gradient kernels. The library ships one copy of
  * the kernels per set and picks the best the CPU supports (NF_ISA_AUTO); naming one is for
- * tests and benchmarks. Values are explicit and never renumbered. */
+ * tests, benchmarks and reproducibility. AVX2 and AVX-512 give bit-identical results (both
+ * fuse the conditioners' multiply-adds); the generic kernels round those twice and differ by
+ * about 1e-6 relative. A render farm mixing CPUs with and without AVX2 that needs identical
+ * results can name NF_ISA_GENERIC everywhere. Values are explicit and never renumbered. */
 typedef enum nf_isa {
     NF_ISA_AUTO = 0,    /* the best available (default)                                   */
     NF_ISA_GENERIC = 1, /* portable C, the compiler's baseline for the target             */
