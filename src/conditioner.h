@@ -59,10 +59,11 @@ static inline void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf
  * padded width. Four accumulators, one per encoded scalar and every fourth SH input, keep four
  * multiply-add chains in flight. The tile kernels and the per-sample kernels both call this, so a
  * sample's sums run in the same order whichever path evaluates it. */
-static inline void nf_input_layer(const float *restrict w, const float *restrict bias,
-                                  uint32_t hp, const uint32_t rows[12], const float vals[12],
-                                  const float *restrict wd, const float *restrict sh,
-                                  size_t sh_stride, uint32_t dense, float *restrict act)
+static inline void nf_input_layer_sums(const float *restrict w, const float *restrict bias,
+                                       uint32_t hp, const uint32_t rows[12],
+                                       const float vals[12], const float *restrict wd,
+                                       const float *restrict sh, size_t sh_stride,
+                                       uint32_t dense, float *restrict act)
 {
     _Static_assert(NF_CHUNK == 16, "nf_lanes holds one chunk of units");
     for (uint32_t c = 0; c < hp; c += NF_CHUNK) {
@@ -102,6 +103,21 @@ static inline void nf_input_layer(const float *restrict w, const float *restrict
         nf_lanes_add(&a0, &a2);
         nf_lanes_store(act + c, &a0);
     }
+}
+
+static inline void nf_input_layer(const float *restrict w, const float *restrict bias,
+                                  uint32_t hp, const uint32_t rows[12], const float vals[12],
+                                  const float *restrict wd, const float *restrict sh,
+                                  size_t sh_stride, uint32_t dense, float *restrict act)
+{
+    /* The presets' shape (16 units, 4 SH bands: 32 SH inputs) with constant bounds: the
+     * compiler unrolls the loops and addresses the rows at fixed offsets, instead of keeping
+     * loop counters and row pointers in registers it then spills. Same operations, same
+     * order. */
+    if (hp == NF_CHUNK && dense == 32)
+        nf_input_layer_sums(w, bias, NF_CHUNK, rows, vals, wd, sh, sh_stride, 32, act);
+    else
+        nf_input_layer_sums(w, bias, hp, rows, vals, wd, sh, sh_stride, dense, act);
 }
 
 /* y[0..stride) = bias + sum_k x[k] W[k] for k ascending (stride a multiple of NF_CHUNK): per

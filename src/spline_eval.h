@@ -35,17 +35,18 @@ typedef struct nf_spline_partials {
 } nf_spline_partials;
 
 /* Knots 0 = t_0 < ... < t_K = 1 from K raw values, m + (1 - K m) softmax(raw). The exp loop
- * has no branch and no call, so it vectorizes over the bins. */
+ * has no branch, no call and no sum, so it vectorizes over the bins; the sum follows in bin
+ * order (a float sum in one loop with the exps kept GCC from vectorizing either). */
 static inline void nf_spline_knots(uint32_t bins, const float *raw, float *knots, float *soft)
 {
     float top = raw[0];
     for (uint32_t i = 1; i < bins; ++i)
         top = nf_maxf(top, raw[i]);
-    float sum = 0.0f;
-    for (uint32_t i = 0; i < bins; ++i) {
+    for (uint32_t i = 0; i < bins; ++i)
         soft[i] = nf_fast_exp(raw[i] - top);
+    float sum = 0.0f;
+    for (uint32_t i = 0; i < bins; ++i)
         sum += soft[i];
-    }
     float inv = 1.0f / sum, scale = 1.0f - (float)bins * NF_SPLINE_MIN, acc = 0.0f;
     knots[0] = 0.0f;
     for (uint32_t i = 0; i < bins; ++i) {
