@@ -631,6 +631,7 @@ typedef struct options {
     long nproc;
     int op_mask;
     size_t batch; /* 0: every batch size; else only this one */
+    nf_isa isa;   /* kernels to ask for (NF_ISA_AUTO: the library's choice) */
 } options;
 
 typedef struct result {
@@ -698,6 +699,7 @@ typedef struct preset_info {
     double flops_sparse; /* forward FLOPs per sample, one-blob sparsity exploited */
     double flops_dense;  /* forward FLOPs per sample, dense input layer           */
     double shard_check;  /* check_sharding's relative difference                  */
+    const char *isa;     /* the kernel variant the model runs (nf_model_isa_name)  */
     nf_config cfg;
 } preset_info;
 
@@ -735,6 +737,7 @@ static int make_model(int preset, const options *o, counting_allocator *ca, pres
     nf_config cfg;
     nf_config_init(&cfg, preset == 0 ? NF_PRESET_SMALL : NF_PRESET_LARGE);
     cfg.prior = o->prior;
+    cfg.isa = o->isa;
     if (o->prior == NF_PRIOR_CUSTOM) {
         cfg.custom_prior.sample = custom_sample;
         cfg.custom_prior.pdf = custom_pdf;
@@ -769,6 +772,7 @@ static int make_model(int preset, const options *o, counting_allocator *ca, pres
     info->name = PRESET_NAME[preset];
     info->params = p;
     info->model_bytes = atomic_load(&ca->live) - before;
+    info->isa = nf_model_isa_name(m);
     info->cfg = cfg;
     model_flops(&cfg, &info->flops_sparse, &info->flops_dense);
     *out = m;
@@ -1028,10 +1032,11 @@ static int write_json(const options *o, const char *cpu, long nproc, const prese
                 "\"hidden_layers\": %u, \"hidden_width\": %u, \"params\": %zu, "
                 "\"model_bytes\": %zu, \"forward_flops_sparse\": %.0f, "
                 "\"forward_flops_dense\": %.0f, \"train_flops\": %.0f, "
-                "\"sharded_gradient_rel_diff\": %.2e}",
+                "\"sharded_gradient_rel_diff\": %.2e, \"kernels\": \"%s\"}",
                 pi ? "," : "", p->name, p->cfg.coupling_layers, p->cfg.spline_bins,
                 p->cfg.hidden_layers, p->cfg.hidden_width, p->params, p->model_bytes,
-                p->flops_sparse, p->flops_dense, 3.0 * p->flops_sparse, p->shard_check);
+                p->flops_sparse, p->flops_dense, 3.0 * p->flops_sparse, p->shard_check,
+                p->isa);
     }
     fprintf(f, "\n  ],\n  \"results\": [");
     int first = 1;
@@ -1098,6 +1103,8 @@ static void usage(FILE *f)
             "  --retries N                re-measure a case up to N times when other\n"
             "                             processes disturbed it (default 2)\n"
             "  --batch 1|64|4096|65536    measure only this batch size (for profiling)\n"
+            "  --isa auto|generic|avx2|avx512\n"
+            "                             kernels to use (default auto, the library's choice)\n"
             "  --quick                    smoke run: batches 1, 64, 4096; 3 reps of >= 5 ms\n"
             "  --help                     this text\n"
             "Batch sizes 1, 64, 4096, 65536. Batch 1 is streams of calls with n = 1, in units\n"
@@ -1214,6 +1221,19 @@ static int parse_args(int argc, char **argv, options *o)
                 fprintf(stderr, "nf_bench: --op takes sample, pdf, train or all\n");
                 return -1;
             }
+        } else if (strcmp(a, "--isa") == 0) {
+            if (strcmp(v, "auto") == 0)
+                o->isa = NF_ISA_AUTO;
+            else if (strcmp(v, "generic") == 0)
+                o->isa = NF_ISA_GENERIC;
+            else if (strcmp(v, "avx2") == 0)
+                o->isa = NF_ISA_AVX2;
+            else if (strcmp(v, "avx512") == 0)
+                o->isa = NF_ISA_AVX512;
+            else {
+                fprintf(stderr, "nf_bench: --isa takes auto, generic, avx2 or avx512\n");
+                return -1;
+            }
         } else if (strcmp(a, "--batch") == 0) {
             int n;
             if (parse_int(v, 1, 65536, &n) != 0 || (n != 1 && n != 64 && n != 4096 && n != 65536)) {
@@ -1323,11 +1343,11 @@ int main(int argc, char **argv)
         if (make_model(preset, &o, &ca, inf, &model) != 0)
             goto done;
         printf("\npreset %s: %u coupling layers, %u bins, %u x %u hidden; %zu params, model "
-               "%.1f KiB;\n  forward FLOP/sample %.0f (one-blob sparse input) / %.0f (dense); "
-               "training counted as 3x forward = %.0f\n",
+               "%.1f KiB; %s kernels;\n  forward FLOP/sample %.0f (one-blob sparse input) / "
+               "%.0f (dense); training counted as 3x forward = %.0f\n",
                inf->name, inf->cfg.coupling_layers, inf->cfg.spline_bins,
                inf->cfg.hidden_layers, inf->cfg.hidden_width, inf->params,
-               inf->model_bytes / 1024.0, inf->flops_sparse, inf->flops_dense,
+               inf->model_bytes / 1024.0, inf->isa, inf->flops_sparse, inf->flops_dense,
                3.0 * inf->flops_sparse);
         fflush(stdout);
         /* Directions for pdf and training: the model's own samples. */
