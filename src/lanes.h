@@ -190,6 +190,18 @@ static inline void nf_lanes_count_ge(uint32_t *count, const nf_lanes *v, const n
 #endif
 }
 
+#if defined(NF_LANES_HALVES)
+/* acc[i] = hit[i] ? x[i] : acc[i] for the eight lanes of half h, hit a comparison mask */
+static inline void nf_half_blend(nf_lanes *acc, int h, const nf_half_i32 *hit, const nf_lanes *x)
+{
+    nf_half_i32 a, b;
+    memcpy(&a, (const char *)acc + h * sizeof a, sizeof a);
+    memcpy(&b, (const char *)x + h * sizeof b, sizeof b);
+    a = (a & ~*hit) | (b & *hit);
+    memcpy((char *)acc + h * sizeof a, &a, sizeof a);
+}
+#endif
+
 #if defined(NF_LANES_VECTOR)
 /* acc[i] = hit[i] ? x[i] : acc[i], hit a comparison mask (all ones or zero per lane) */
 static inline void nf_lanes_blend(nf_lanes *acc, const nf_lanes_i32 *hit, const nf_lanes *x)
@@ -208,13 +220,10 @@ static inline void nf_lanes_pick(nf_lanes *acc, const uint32_t *index, uint32_t 
 {
 #if defined(NF_LANES_HALVES)
     for (int h = 0; h < 2; ++h) {
-        nf_half_i32 idx, a, b, hit;
+        nf_half_i32 idx, hit;
         memcpy(&idx, index + 8 * h, sizeof idx);
-        memcpy(&a, (const char *)acc + h * sizeof a, sizeof a);
-        memcpy(&b, (const char *)x + h * sizeof b, sizeof b);
         hit = idx == (nf_half_i32){0} + (int32_t)j;
-        a = (a & ~hit) | (b & hit);
-        memcpy((char *)acc + h * sizeof a, &a, sizeof a);
+        nf_half_blend(acc, h, &hit, x);
     }
 #elif defined(NF_LANES_VECTOR)
     nf_lanes_i32 idx, hit;
@@ -233,13 +242,10 @@ static inline void nf_lanes_pick_above(nf_lanes *acc, const uint32_t *index, uin
 {
 #if defined(NF_LANES_HALVES)
     for (int h = 0; h < 2; ++h) {
-        nf_half_i32 idx, a, b, hit;
+        nf_half_i32 idx, hit;
         memcpy(&idx, index + 8 * h, sizeof idx);
-        memcpy(&a, (const char *)acc + h * sizeof a, sizeof a);
-        memcpy(&b, (const char *)x + h * sizeof b, sizeof b);
         hit = idx > (nf_half_i32){0} + (int32_t)j;
-        a = (a & ~hit) | (b & hit);
-        memcpy((char *)acc + h * sizeof a, &a, sizeof a);
+        nf_half_blend(acc, h, &hit, x);
     }
 #elif defined(NF_LANES_VECTOR)
     nf_lanes_i32 idx, hit;

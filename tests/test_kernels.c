@@ -38,18 +38,24 @@ static double rel_diff(double a, double b)
     return fabs(a - b) / fmax(fabs(a), fabs(b));
 }
 
-static void compare_with_generic(nf_isa isa)
+/* N random contexts, sample pairs u[2N] and training weights w[N] from one seed. */
+static void random_inputs(uint64_t seed, nf_context *ctx, float *u, float *w)
 {
-    static nf_context ctx[N];
-    static float u[2 * N], dir_g[3 * N], dir_v[3 * N], pdf_g[N], pdf_v[N], w[N];
     nft_rng rng;
-    nft_rng_seed(&rng, 99u, 1u);
+    nft_rng_seed(&rng, seed, 1u);
     for (int i = 0; i < N; ++i) {
         nft_random_context(&rng, &ctx[i]);
         u[2 * i] = nft_rng_float(&rng);
         u[2 * i + 1] = nft_rng_float(&rng);
         w[i] = nft_rng_float(&rng);
     }
+}
+
+static void compare_with_generic(nf_isa isa)
+{
+    static nf_context ctx[N];
+    static float u[2 * N], dir_g[3 * N], dir_v[3 * N], pdf_g[N], pdf_v[N], w[N];
+    random_inputs(99u, ctx, u, w);
     for (int preset = 0; preset < 2; ++preset) {
         for (int prior = 0; prior < 3; ++prior) {
             nf_model *g = make_model((nf_preset)preset, (nf_prior_kind)prior, NF_ISA_GENERIC);
@@ -156,14 +162,7 @@ static void test_fused_variants_agree_to_the_bit(void **state)
     (void)state;
     static nf_context ctx[N];
     static float u[2 * N], dir_a[3 * N], dir_b[3 * N], pdf_a[N], pdf_b[N], w[N];
-    nft_rng rng;
-    nft_rng_seed(&rng, 7u, 3u);
-    for (int i = 0; i < N; ++i) {
-        nft_random_context(&rng, &ctx[i]);
-        u[2 * i] = nft_rng_float(&rng);
-        u[2 * i + 1] = nft_rng_float(&rng);
-        w[i] = nft_rng_float(&rng);
-    }
+    random_inputs(7u, ctx, u, w);
     for (int preset = 0; preset < 2; ++preset) {
         for (int prior = 0; prior < 3; ++prior) {
             nf_model *a = make_model((nf_preset)preset, (nf_prior_kind)prior, NF_ISA_AVX2);
