@@ -34,9 +34,9 @@ typedef struct nf_spline_partials {
     float dl_dx, dl_dxk, dl_dwk, dl_dhk, dl_dd0, dl_dd1; /* dl/dyk = 0 */
 } nf_spline_partials;
 
-/* Knots 0 = t_0 < ... < t_K = 1 from K raw values, m + (1 - K m) softmax(raw). The exp loop
- * has no branch, no call and no sum, so it vectorizes over the bins; the sum follows in bin
- * order (a float sum in one loop with the exps kept GCC from vectorizing either). */
+/* Knots 0 = t_0 < ... < t_K = 1 from K raw values, m + (1 - K m) softmax(raw). The exps
+ * have a loop of their own, with no branch, call or sum to keep it from vectorizing over the
+ * bins; the sum follows in bin order, as the tile kernels sum. */
 static inline void nf_spline_knots(uint32_t bins, const float *raw, float *knots, float *soft)
 {
     float top = raw[0];
