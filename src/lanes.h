@@ -35,8 +35,9 @@ typedef struct nf_lanes {
 
 #if defined(NF_LANES_VECTOR) && defined(__AVX2__) && !defined(__AVX512F__)
 /* With AVX2, GCC 12 lowers comparisons and selects on 64-byte vectors to a scalar cmov per
- * lane (seen in perf: the bin selection's selects took 15 to 18 % of nf_pdf). The selecting operations below
- * therefore work on two 32-byte halves, which map onto AVX2 registers one to one. */
+ * lane (seen in perf: the bin selection's selects took 15 to 18 % of nf_pdf). The selecting
+ * operations below therefore work on two 32-byte halves, which map onto AVX2 registers one
+ * to one. */
 #define NF_LANES_HALVES 1
 typedef float nf_half __attribute__((vector_size(32)));
 typedef int32_t nf_half_i32 __attribute__((vector_size(32)));
@@ -67,8 +68,9 @@ static inline void nf_lanes_splat(nf_lanes *r, float s)
 /* acc += s * x, with one rounding (a fused multiply-add) in the kernels built for an
  * instruction set that has FMA, with two elsewhere. Within one build of the kernels every
  * caller rounds alike, which is what keeps the per-sample and tiled paths bit-identical; the
- * kernel variants differ from each other by one rounding per step (test_kernels: < 1e-4). Fused,
- * a conditioner's multiply-add chains are half as long and issue half the instructions. */
+ * generic kernels differ from the fused ones by one rounding per step (test_kernels bounds
+ * the difference at 1e-4). Fused, a conditioner's multiply-add chains are half as long and
+ * issue half the instructions. */
 static inline void nf_lanes_madd(nf_lanes *acc, float s, const nf_lanes *x)
 {
 #if defined(NF_LANES_VECTOR) && defined(__AVX512F__)
