@@ -29,11 +29,12 @@ static inline void nf_normalize3(const float v[3], float out[3])
     out[2] = (float)(z * inv);
 }
 
-static inline void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf_point *pt)
+static inline void nf_context_features(const nf_model *m, const nf_context *ctx, nf_point *pt)
 {
     const nf_config *cfg = &m->cfg;
     const uint32_t bins = cfg->oneblob_bins;
     pt->user = ctx;
+    pt->prior = &cfg->custom_prior;
     pt->ctx.position[0] = ctx->position[0];
     pt->ctx.position[1] = ctx->position[1];
     pt->ctx.position[2] = ctx->position[2];
@@ -53,17 +54,20 @@ static inline void nf_point_prepare(const nf_model *m, const nf_context *ctx, nf
     }
 }
 
-/* The first hidden layer of one sample before its ReLU: act[0..hp) = bias + the 12 one-blob
- * slots (rows/vals: three for the pass-through coordinate, then three per position axis) +
+/* The context's share of the first hidden layer of one sample, before its ReLU:
+ * ctx[0..hp) = bias + the 9 position one-blob slots (three per axis: rows/vals) +
  * sum_k sh[k * sh_stride] wd[k], k < dense (the SH inputs and their weight rows). hp is the
- * padded width. Four accumulators, one per encoded scalar and every fourth SH input, keep four
- * multiply-add chains in flight. The tile kernels and the per-sample kernels both call this, so a
- * sample's sums run in the same order whichever path evaluates it. */
-static inline void nf_input_layer_sums(const float *restrict w, const float *restrict bias,
-                                       uint32_t hp, const uint32_t rows[12],
-                                       const float vals[12], const float *restrict wd,
-                                       const float *restrict sh, size_t sh_stride,
-                                       uint32_t dense, float *restrict act)
+ * padded width. It depends on the shading context alone, so a shading point computes it once
+ * per coupling layer (point_eval.h) and each direction adds only the pass-through
+ * coordinate's slots (nf_input_layer_blob). Four accumulators, one per position axis plus the
+ * bias, each taking every fourth SH input, keep four multiply-add chains in flight. The tile,
+ * per-sample and shading-point kernels all call this, so a sample's sums run in the same
+ * order whichever path evaluates it. */
+static inline void nf_input_layer_context_sums(const float *restrict w, const float *restrict bias,
+                                               uint32_t hp, const uint32_t rows[9],
+                                               const float vals[9], const float *restrict wd,
+                                               const float *restrict sh, size_t sh_stride,
+                                               uint32_t dense, float *restrict ctx)
 {
     _Static_assert(NF_CHUNK == 16, "nf_lanes holds one chunk of units");
     for (uint32_t c = 0; c < hp; c += NF_CHUNK) {
@@ -74,13 +78,11 @@ static inline void nf_input_layer_sums(const float *restrict w, const float *res
         nf_lanes_splat(&a3, 0.0f);
         for (uint32_t s = 0; s < 3; ++s) {
             nf_lanes_load(&row, w + (size_t)rows[s] * hp + c);
-            nf_lanes_madd(&a0, vals[s], &row);
+            nf_lanes_madd(&a1, vals[s], &row);
             nf_lanes_load(&row, w + (size_t)rows[3 + s] * hp + c);
-            nf_lanes_madd(&a1, vals[3 + s], &row);
+            nf_lanes_madd(&a2, vals[3 + s], &row);
             nf_lanes_load(&row, w + (size_t)rows[6 + s] * hp + c);
-            nf_lanes_madd(&a2, vals[6 + s], &row);
-            nf_lanes_load(&row, w + (size_t)rows[9 + s] * hp + c);
-            nf_lanes_madd(&a3, vals[9 + s], &row);
+            nf_lanes_madd(&a3, vals[6 + s], &row);
         }
         uint32_t k = 0;
         for (; k + 4 <= dense; k += 4) {
@@ -101,23 +103,43 @@ static inline void nf_input_layer_sums(const float *restrict w, const float *res
         nf_lanes_add(&a0, &a1);
         nf_lanes_add(&a2, &a3);
         nf_lanes_add(&a0, &a2);
-        nf_lanes_store(act + c, &a0);
+        nf_lanes_store(ctx + c, &a0);
     }
 }
 
-static inline void nf_input_layer(const float *restrict w, const float *restrict bias,
-                                  uint32_t hp, const uint32_t rows[12], const float vals[12],
-                                  const float *restrict wd, const float *restrict sh,
-                                  size_t sh_stride, uint32_t dense, float *restrict act)
+static inline void nf_input_layer_context(const float *restrict w, const float *restrict bias,
+                                          uint32_t hp, const uint32_t rows[9],
+                                          const float vals[9], const float *restrict wd,
+                                          const float *restrict sh, size_t sh_stride,
+                                          uint32_t dense, float *restrict ctx)
 {
     /* The presets' shape (16 units, 4 SH bands: 32 SH inputs) with constant bounds: the
      * compiler unrolls the loops and addresses the rows at fixed offsets, instead of keeping
      * loop counters and row pointers in registers it then spills. Same operations, same
      * order. */
     if (hp == NF_CHUNK && dense == 32)
-        nf_input_layer_sums(w, bias, NF_CHUNK, rows, vals, wd, sh, sh_stride, 32, act);
+        nf_input_layer_context_sums(w, bias, NF_CHUNK, rows, vals, wd, sh, sh_stride, 32, ctx);
     else
-        nf_input_layer_sums(w, bias, hp, rows, vals, wd, sh, sh_stride, dense, act);
+        nf_input_layer_context_sums(w, bias, hp, rows, vals, wd, sh, sh_stride, dense, ctx);
+}
+
+/* The first hidden layer before its ReLU: act = ctx + the pass-through coordinate's three
+ * one-blob slots (rows/vals, rows of the input layer's weights w), added last and in slot
+ * order. ctx and act may be the same array. */
+static inline void nf_input_layer_blob(const float *ctx, const float *restrict w, uint32_t hp,
+                                       const uint32_t rows[3], const float vals[3], float *act)
+{
+    for (uint32_t c = 0; c < hp; c += NF_CHUNK) {
+        nf_lanes a, row;
+        nf_lanes_load(&a, ctx + c);
+        nf_lanes_load(&row, w + (size_t)rows[0] * hp + c);
+        nf_lanes_madd(&a, vals[0], &row);
+        nf_lanes_load(&row, w + (size_t)rows[1] * hp + c);
+        nf_lanes_madd(&a, vals[1], &row);
+        nf_lanes_load(&row, w + (size_t)rows[2] * hp + c);
+        nf_lanes_madd(&a, vals[2], &row);
+        nf_lanes_store(act + c, &a);
+    }
 }
 
 /* y[0..stride) = bias + sum_k x[k] W[k] for k ascending (stride a multiple of NF_CHUNK): per
@@ -177,16 +199,13 @@ static inline void nf_conditioner_forward(const nf_model *m, uint32_t layer, con
     const uint32_t bins = m->cfg.oneblob_bins, depth = m->cfg.hidden_layers;
     const uint32_t width = m->cfg.hidden_width, hp = lin[0].stride;
 
-    uint32_t rows[12];
-    float vals[12];
+    uint32_t rows[3];
+    float vals[3];
+    nf_input_layer_context(packed + lin[0].weight, packed + lin[0].bias, hp, pt->rows,
+                           pt->values, packed + lin[0].weight + (size_t)4u * bins * hp, pt->sh,
+                           1, 2u * m->cfg.sh_bands * m->cfg.sh_bands, act);
     nf_oneblob_slots(v, bins, 0, rows, vals);
-    for (uint32_t r = 0; r < 9; ++r) {
-        rows[3 + r] = pt->rows[r];
-        vals[3 + r] = pt->values[r];
-    }
-    nf_input_layer(packed + lin[0].weight, packed + lin[0].bias, hp, rows, vals,
-                   packed + lin[0].weight + (size_t)4u * bins * hp, pt->sh, 1,
-                   2u * m->cfg.sh_bands * m->cfg.sh_bands, act);
+    nf_input_layer_blob(act, packed + lin[0].weight, hp, rows, vals, act);
     nf_relu(act, hp);
     for (uint32_t l = 1; l < depth; ++l) {
         float *h = act + (size_t)l * hp;

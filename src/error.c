@@ -26,6 +26,7 @@ const char *nf_status_string(nf_status s)
     case NF_ERROR_IO: return "input/output error";
     case NF_ERROR_FORMAT: return "invalid model format";
     case NF_ERROR_NUMERIC: return "non-finite numeric result";
+    case NF_ERROR_STALE: return "stale shading point";
     }
     return "unknown status";
 }

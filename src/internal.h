@@ -67,6 +67,8 @@ struct nf_model {
     size_t param_count;     /* coupling_layers * layer_params                               */
     size_t packed_count;    /* floats in `packed`                                           */
     uint64_t step;          /* AdamW steps taken                                            */
+    uint64_t id;            /* unique among the models of this process (nf_model_allocate)  */
+    uint64_t generation;    /* counts changes of params; shading points record it           */
     const nf_kernels *kernels;
     /* [layer][j]: j = 0 input layer, j = hidden_layers output layer */
     nf_linear linear[NF_MAX_COUPLING_LAYERS][NF_MAX_HIDDEN_LAYERS + 1]; /* public layout */
@@ -110,6 +112,13 @@ struct nf_kernels {
                           const float *weight, double total, double *loss, float *grad);
     /* One AdamW step from parameters p and moments m, v with gradient g into p_new, m_new,
      * v_new (count floats each, no overlap); returns 0 if any new value is not finite. */
+    /* The shading-point API (point_eval.h): inputs validated by point.c. */
+    void (*point_prepare)(const nf_model *m, const nf_context *ctx,
+                          const nf_prior_callbacks *prior, nf_shading_point *point);
+    nf_status (*point_sample)(const nf_model *m, const nf_shading_point *point, size_t n,
+                              size_t stride, const float *u, float *dir, float *pdf);
+    nf_status (*point_pdf)(const nf_model *m, const nf_shading_point *point, size_t n,
+                           size_t stride, const float *dir, float *pdf);
     int (*adamw)(const nf_adamw_step *step, size_t count, const float *g, const float *p,
                  const float *m, const float *v, float *p_new, float *m_new, float *v_new);
 };
@@ -174,11 +183,27 @@ typedef struct nf_blob {
 /* A validated, normalized shading context and everything the conditioners share. */
 typedef struct nf_point {
     const nf_context *user;  /* the caller's context, passed on to custom prior callbacks */
+    const nf_prior_callbacks *prior; /* the custom prior's callbacks for this context      */
     nf_context ctx;          /* normal and wo normalized; position as given              */
     uint32_t rows[9];        /* input rows of the position one-blobs: 3 slots per axis   */
     float values[9];         /* (nf_oneblob_slots; 0 where a slot is outside)            */
     uint32_t row_count;      /* 9                                                        */
     float sh[2 * NF_MAX_SH]; /* SH of normal, then of wo                                 */
 } nf_point;
+
+/* ---- shading points (point.c, point_eval.h) ---------------------------------------------- */
+
+#define NF_POINT_MAGIC 0x4e465054u /* "NFPT" */
+
+/* A hash of a point's header, so that a point whose header was overwritten (or never
+ * written) is refused rather than read; multiplying by odd constants mixes every bit. */
+static inline uint32_t nf_point_hash(const nf_shading_point *p)
+{
+    uint64_t h = (uint64_t)p->magic_ * 0x9e3779b97f4a7c15u;
+    h ^= p->model_id_ * 0xbf58476d1ce4e5b9u;
+    h ^= p->generation_ * 0x94d049bb133111ebu;
+    h ^= (uint64_t)p->cached_ << 17;
+    return (uint32_t)(h ^ (h >> 32));
+}
 
 #endif /* NISFLOW_INTERNAL_H */

@@ -2,14 +2,16 @@
  * kernel.c - the batch kernels behind nf_sample, nf_pdf, nf_loss_gradient and the AdamW step.
  * CMake compiles this file once per instruction set with NF_KERNEL_ISA set to generic, avx2 or
  * avx512 (and the matching -m flags); each copy defines the table nf_kernels_<isa>. Inputs
- * arrive validated from flow.c and train.c. nf_sample and nf_pdf run on tiles of 16 samples
- * (tile_flow.h), or per sample for calls of 1 or 2; the gradient on tiles (tile_gradient.h),
+ * arrive validated from flow.c, point.c and train.c. nf_sample and nf_pdf run on tiles of 16
+ * samples (tile_flow.h), or through a shading point on the stack (point_eval.h) for calls of
+ * 1 or 2; the shading-point API always per direction; the gradient on tiles (tile_gradient.h),
  * or per sample for calls of 1 to 3.
  */
 #include <float.h>
 #include <math.h>
 
 #include "flow_eval.h"
+#include "point_eval.h"
 #include "tile_flow.h"
 #include "tile_gradient.h"
 #include "internal.h"
@@ -30,39 +32,69 @@
 /* The same for the gradient, whose per-sample code is cheaper up to this many samples. */
 #define NF_GRADIENT_TILED_FROM 4u
 
+/* A point prepared on the stack for one context of a small nf_sample / nf_pdf call: the
+ * shading-point path, with callbacks receiving the caller's own context as documented. */
 static nf_status nf_sample_one(const nf_model *m, const nf_context *ctx, const float u[2],
-                               float dir[3], float *pdf, nf_scratch *sc)
+                               float dir[3], float *pdf, nf_point_scratch *sc)
 {
-    nf_point pt;
-    nf_point_prepare(m, ctx, &pt);
-    float z[2], s[2], q;
-    nf_status st = nf_prior_sample(m, &pt, u[0], u[1], z, &q);
-    if (st != NF_OK)
-        return st;
-    double det = nf_flow_forward(m, &pt, z, s, sc);
-    /* The flow can round s1 up to exactly 1, i.e. phi = 2 pi, whose direction nf_pdf maps
-     * back to phi = 0: the other side of the seam, where the flow's density is a different
-     * one. One ulp below 1 keeps the sample on the side it came from, as nf_to_square does
-     * (sphere.h), so that nf_pdf agrees with the returned pdf. */
-    s[1] = nf_minf(s[1], 0x1.fffffep-1f);
-    nf_from_square(s, dir);
-    if (pdf)
-        *pdf = nf_solid_angle_pdf((double)q / det, s[0]);
-    return NF_OK;
+    nf_shading_point p;
+    nf_point_prepare_at(m, ctx, NULL, &p);
+    nf_point feat;
+    if (!p.cached_)
+        nf_context_features(m, ctx, &feat);
+    return nf_point_sample_one(m, &p, &feat, ctx, u, dir, pdf, sc);
 }
 
 static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const float dir[3],
-                            float *pdf, nf_scratch *sc)
+                            float *pdf, nf_point_scratch *sc)
 {
-    nf_point pt;
-    nf_point_prepare(m, ctx, &pt);
-    float s[2];
-    double p_s = 0.0;
-    nf_to_square(dir, s);
-    nf_status st = nf_flow_density(m, &pt, s, 0.0f, NULL, &p_s, NULL, sc);
-    if (st != NF_OK)
-        return st;
-    *pdf = nf_solid_angle_pdf(p_s, s[0]);
+    nf_shading_point p;
+    nf_point_prepare_at(m, ctx, NULL, &p);
+    nf_point feat;
+    if (!p.cached_)
+        nf_context_features(m, ctx, &feat);
+    return nf_point_pdf_one(m, &p, &feat, ctx, dir, pdf, sc);
+}
+
+/* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). The
+ * encodings of an uncached point are computed once per point. */
+static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points,
+                                        size_t n, size_t stride, const float *u, float *dir,
+                                        float *pdf)
+{
+    nf_point_scratch sc;
+    nf_point feat;
+    const nf_shading_point *featured = NULL;
+    for (size_t i = 0; i < n; ++i) {
+        const nf_shading_point *p = points + i * stride;
+        if (!p->cached_ && p != featured) {
+            nf_context_features(m, &p->context_, &feat);
+            featured = p;
+        }
+        nf_status st = nf_point_sample_one(m, p, &feat, &p->context_, u + 2 * i, dir + 3 * i,
+                                           pdf ? pdf + i : NULL, &sc);
+        if (st != NF_OK)
+            return st;
+    }
+    return NF_OK;
+}
+
+static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *points,
+                                     size_t n, size_t stride, const float *dir, float *pdf)
+{
+    nf_point_scratch sc;
+    nf_point feat;
+    const nf_shading_point *featured = NULL;
+    for (size_t i = 0; i < n; ++i) {
+        const nf_shading_point *p = points + i * stride;
+        if (!p->cached_ && p != featured) {
+            nf_context_features(m, &p->context_, &feat);
+            featured = p;
+        }
+        nf_status st = nf_point_pdf_one(m, p, &feat, &p->context_, dir + 3 * i, pdf + i, &sc);
+        if (st != NF_OK)
+            return st;
+    }
     return NF_OK;
 }
 
@@ -71,7 +103,7 @@ static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context 
                                   const float *u, float *dir, float *pdf)
 {
     if (n < NF_TILED_FROM) {
-        nf_scratch sc;
+        nf_point_scratch sc;
         for (size_t i = 0; i < n; ++i) {
             nf_status st = nf_sample_one(m, &ctx[i], u + 2 * i, dir + 3 * i,
                                          pdf ? pdf + i : NULL, &sc);
@@ -95,7 +127,7 @@ static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ct
                                const float *dir, float *pdf)
 {
     if (n < NF_TILED_FROM) {
-        nf_scratch sc;
+        nf_point_scratch sc;
         for (size_t i = 0; i < n; ++i) {
             nf_status st = nf_pdf_one(m, &ctx[i], dir + 3 * i, pdf + i, &sc);
             if (st != NF_OK)
@@ -124,7 +156,7 @@ static nf_status nf_gradient_per_sample(const nf_model *m, size_t n, const nf_co
         if (weight[i] == 0.0f)
             continue; /* contributes nothing, and its context need not be evaluated */
         nf_point pt;
-        nf_point_prepare(m, &ctx[i], &pt);
+        nf_context_features(m, &ctx[i], &pt);
         float s[2];
         double p_s = 0.0, log_p = 0.0, share = (double)weight[i] / total;
         nf_to_square(dir + 3 * i, s);
@@ -209,5 +241,6 @@ static int nf_kernel_adamw(const nf_adamw_step *step, size_t count, const float 
 }
 
 const nf_kernels NF_KERNEL_CAT(nf_kernels_, NF_KERNEL_ISA) = {
-    NF_KERNEL_STR(NF_KERNEL_ISA), nf_kernel_sample, nf_kernel_pdf, nf_kernel_gradient,
-    nf_kernel_adamw};
+    NF_KERNEL_STR(NF_KERNEL_ISA), nf_kernel_sample,         nf_kernel_pdf,
+    nf_kernel_gradient,           nf_point_prepare_at,      nf_kernel_point_sample,
+    nf_kernel_point_pdf,          nf_kernel_adamw};

@@ -3,6 +3,7 @@
  * initialisation.
  */
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -81,6 +82,11 @@ nf_status nf_model_allocate(const nf_config *cfg, nf_model **out)
     m->param_count = p;
     m->packed_count = packed;
     m->step = 0;
+    /* Shading points record the id of their model: a point used with another model, even one
+     * allocated at the same address after the first was destroyed, is refused. */
+    static atomic_uint_fast64_t next_id = 1;
+    m->id = (uint64_t)atomic_fetch_add(&next_id, 1);
+    m->generation = 0;
     m->kernels = kernels;
     float *arrays = (float *)(block + nf_header_bytes());
     m->params = arrays;
@@ -95,6 +101,7 @@ nf_status nf_model_allocate(const nf_config *cfg, nf_model **out)
 
 void nf_model_pack(nf_model *m)
 {
+    m->generation += 1; /* every prepared shading point is now stale */
     /* Padding columns stay zero from allocation; only the real columns are copied. */
     for (uint32_t layer = 0; layer < m->cfg.coupling_layers; ++layer) {
         for (uint32_t j = 0; j <= m->cfg.hidden_layers; ++j) {

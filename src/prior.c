@@ -17,7 +17,7 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
         nf_validate_directions("nf_prior_pdf", "dir", 1, dir) != NF_OK)
         return -1.0f;
     nf_point pt;
-    nf_point_prepare(m, ctx, &pt);
+    nf_context_features(m, ctx, &pt);
     float w[3];
     nf_normalize3(dir, w);
     float eps = m->cfg.prior_epsilon;
@@ -33,7 +33,7 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
     }
     case NF_PRIOR_CUSTOM: {
         float pc = 0.0f;
-        if (nf_custom_pdf(m, &pt, w, &pc) != NF_OK)
+        if (nf_custom_pdf(&pt, w, &pc) != NF_OK)
             return -1.0f;
         return (1.0f - eps) * pc + eps * NF_INV_FOUR_PI;
     }

@@ -53,10 +53,9 @@ static inline void nf_cosine_direction(const float n[3], float u0, float u1, flo
 }
 
 /* The solid-angle density of the custom prior's callbacks at w, checked. */
-static inline nf_status nf_custom_pdf(const nf_model *m, const nf_point *pt, const float w[3],
-                                      float *pdf)
+static inline nf_status nf_custom_pdf(const nf_point *pt, const float w[3], float *pdf)
 {
-    float p = m->cfg.custom_prior.pdf(m->cfg.custom_prior.user, pt->user, w);
+    float p = pt->prior->pdf(pt->prior->user, pt->user, w);
     *pdf = 0.0f;
     if (!(p >= 0.0f) || !isfinite(p))
         return nf_fail(NF_ERROR_NUMERIC, "custom prior pdf callback returned %g", (double)p);
@@ -70,7 +69,7 @@ static inline nf_status nf_custom_density(const nf_model *m, const nf_point *pt,
 {
     float w[3], pc;
     float sin_theta = nf_from_square(z, w);
-    nf_status st = nf_custom_pdf(m, pt, w, &pc);
+    nf_status st = nf_custom_pdf(pt, w, &pc);
     float eps = m->cfg.prior_epsilon;
     *q = ((1.0f - eps) * pc + eps * NF_INV_FOUR_PI) * NF_TWO_PI_SQUARED *
          nf_maxf(sin_theta, NF_SIN_THETA_MIN);
@@ -171,7 +170,7 @@ static inline nf_status nf_prior_sample(const nf_model *m, const nf_point *pt, f
     case NF_PRIOR_CUSTOM: {
         float w[3], pc = 0.0f;
         if (u0 < 1.0f - eps) {
-            pc = m->cfg.custom_prior.sample(m->cfg.custom_prior.user, pt->user,
+            pc = pt->prior->sample(pt->prior->user, pt->user,
                                             nf_clamp_unit(u0 / (1.0f - eps)), u1, w);
             if (!(pc > 0.0f) || !isfinite(pc) || !nf_all_finite(w, 3) ||
                 !(w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > 0.0f))
@@ -182,7 +181,7 @@ static inline nf_status nf_prior_sample(const nf_model *m, const nf_point *pt, f
         } else {
             nf_uniform_sphere_square(nf_clamp_unit((u0 - (1.0f - eps)) / eps), u1, z);
             nf_from_square(z, w);
-            nf_status st = nf_custom_pdf(m, pt, w, &pc);
+            nf_status st = nf_custom_pdf(pt, w, &pc);
             if (st != NF_OK)
                 return st;
         }

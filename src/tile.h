@@ -29,6 +29,7 @@ typedef struct nf_tile_blob {
 typedef struct nf_tile {
     uint32_t count;                     /* real samples, 1..NF_TILE                       */
     const nf_context *user[NF_TILE];    /* the caller's contexts, for custom priors       */
+    const nf_prior_callbacks *prior;    /* the model's custom prior callbacks             */
     float normal[3][NF_TILE];           /* unit normals                                   */
     nf_tile_blob position[3];           /* one-blob of each position axis                 */
     float sh[2 * NF_MAX_SH][NF_TILE];   /* SH of the normal (S^2 rows), then of wo        */
@@ -102,6 +103,7 @@ static inline void nf_tile_prepare_from(const nf_model *m, const nf_context *con
     const nf_config *cfg = &m->cfg;
     float position[3][NF_TILE], normal[3][NF_TILE], wo[3][NF_TILE];
     tile->count = count;
+    tile->prior = &cfg->custom_prior;
     for (uint32_t i = 0; i < NF_TILE; ++i) {
         const nf_context *c = ctx[i < count ? i : 0];
         tile->user[i] = c;

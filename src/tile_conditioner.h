@@ -23,7 +23,8 @@
 
 /* The first hidden layer of layer `layer`'s conditioner, with `vblob` the one-blob of the
  * pass-through coordinate, into out[unit][lane] (ReLU applied; rows up to the padded width
- * are written, the padding ones zero). One sample at a time through nf_input_layer, the same
+ * are written, the padding ones zero). One sample at a time through nf_input_layer_context and
+ * nf_input_layer_blob, the same
  * arithmetic as the per-sample kernels, then transposed into the tile layout. */
 static inline void nf_tile_input_layer(const nf_model *m, uint32_t layer, const nf_tile *tile,
                                        const nf_tile_blob *vblob, float (*out)[NF_TILE])
@@ -37,17 +38,19 @@ static inline void nf_tile_input_layer(const nf_model *m, uint32_t layer, const 
     float act[NF_PAD(NF_MAX_HIDDEN_WIDTH) / NF_CHUNK][NF_TILE][NF_CHUNK];
     float one[NF_PAD(NF_MAX_HIDDEN_WIDTH)];
     for (uint32_t i = 0; i < tile->count; ++i) {
-        uint32_t rows[12];
-        float vals[12];
+        uint32_t rows[9], vrows[3];
+        float vals[9], vvals[3];
         for (uint32_t s = 0; s < 3; ++s) {
-            rows[s] = vblob->row[s][i];
-            vals[s] = vblob->value[s][i];
+            vrows[s] = vblob->row[s][i];
+            vvals[s] = vblob->value[s][i];
             for (uint32_t a = 0; a < 3; ++a) {
-                rows[3 * (a + 1) + s] = tile->position[a].row[s][i];
-                vals[3 * (a + 1) + s] = tile->position[a].value[s][i];
+                rows[3 * a + s] = tile->position[a].row[s][i];
+                vals[3 * a + s] = tile->position[a].value[s][i];
             }
         }
-        nf_input_layer(w, bias, hp, rows, vals, wd, &tile->sh[0][i], NF_TILE, dense, one);
+        nf_input_layer_context(w, bias, hp, rows, vals, wd, &tile->sh[0][i], NF_TILE, dense,
+                               one);
+        nf_input_layer_blob(one, w, hp, vrows, vvals, one);
         for (uint32_t c = 0; c < hp; c += NF_CHUNK)
             memcpy(act[c / NF_CHUNK][i], one + c, sizeof act[0][0]);
     }

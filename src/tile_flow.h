@@ -27,6 +27,7 @@ typedef struct nf_tile_work {
 static inline void nf_tile_point(const nf_tile *tile, uint32_t i, nf_point *pt)
 {
     pt->user = tile->user[i];
+    pt->prior = tile->prior;
     for (uint32_t a = 0; a < 3; ++a)
         pt->ctx.normal[a] = tile->normal[a][i];
 }

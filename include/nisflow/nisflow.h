@@ -5,6 +5,7 @@
  *   version.h  version macros and nf_version_string
  *   status.h   nf_status codes and error messages
  *   model.h    configuration, model life cycle, nf_sample / nf_pdf
+ *   point.h    shading points: prepare a context once, sample and evaluate many directions
  *   train.h    loss, gradients, AdamW steps, parameter access
  *   io.h       save / load / serialize
  *   blocks.h   spline, encodings and direction <-> square maps
@@ -15,6 +16,7 @@
 #include "version.h"
 #include "status.h"
 #include "model.h"
+#include "point.h"
 #include "train.h"
 #include "io.h"
 #include "blocks.h"

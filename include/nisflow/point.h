@@ -1,0 +1,122 @@
+/*
+ * nisflow/point.h - the shading-point API: prepare a shading point once, then draw and
+ * evaluate any number of directions at it.
+ *
+ * A path tracer asks the guide several questions about one shading context: a direction drawn
+ * from the flow, the flow's density of the direction the BSDF drew, the flow's density of the
+ * light sample for MIS. nf_point_prepare does once everything that depends on the context
+ * alone: it validates and normalizes the context, encodes position, normal and wo, and runs
+ * the part of every conditioner's first layer that reads them. What remains per direction is
+ * the pass-through coordinate's one-blob (three weight rows), the rest of each small MLP, the
+ * splines and the map to the sphere. Results are bit-identical to nf_sample / nf_pdf for the
+ * same model, context and inputs (on every instruction set: both paths share their code).
+ *
+ * The recipe of a guided vertex (docs/integration.md has it in full):
+ *
+ *     nf_shading_point sp;
+ *     nf_point_prepare(model, &ctx, NULL, &sp);          once per vertex
+ *     nf_point_sample(model, &sp, 1, u, dir, &pdf);      or the BSDF's direction and
+ *     nf_point_pdf(model, &sp, 1, bsdf_dir, &pdf);       the flow's density of it
+ *     nf_point_pdf(model, &sp, 1, light_dir, &p_light);  MIS of the light sample
+ *
+ * Memory: an nf_shading_point is a plain struct (1,152 bytes on 64-bit targets) that the
+ * caller owns (stack, arrays, anything). Nothing is allocated and nothing needs freeing.
+ * Its fields are the library's: read or write none of them. 64-byte alignment of the struct
+ * is best for speed (its cache starts at offset 128) but not required.
+ *
+ * Validity: a prepared point belongs to the model it was prepared on and to that model's
+ * current parameters. Any change of the parameters (a training step, nf_set_params,
+ * nf_apply_gradient) makes every point prepared before it stale: using it then returns
+ * NF_ERROR_STALE and writes nothing; prepare it again. A point used with another model (a
+ * clone included) returns NF_ERROR_INVALID_ARGUMENT. Both checks cost two compares per call.
+ * A point may be copied with memcpy or assignment; a copy is as valid as the original.
+ *
+ * Thread-safety: every function here takes a const model and may run concurrently with the
+ * others and with nf_sample / nf_pdf, provided no thread changes the model meanwhile. A point
+ * is written by nf_point_prepare only; any number of threads may sample one prepared point at
+ * once. Nothing here allocates.
+ *
+ * Stack: each call uses at most 4 KiB of the caller's stack (measured with -fstack-usage;
+ * docs/performance.md), so renderers may call it from small fiber stacks.
+ */
+#ifndef NISFLOW_POINT_H
+#define NISFLOW_POINT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "model.h"
+#include "status.h"
+#include "version.h"
+
+NF_EXTERN_C_BEGIN
+
+/* The floats a point keeps of the first layers' context sums: coupling_layers times the
+ * hidden width rounded up to 16. Both presets fit (small 32, large 64); a model above it
+ * (for example 8 layers of 64 units) keeps the encodings instead and recomputes its first
+ * layers' context sums for each direction: same results, slower calls. */
+#define NF_SHADING_POINT_CACHE_FLOATS 256u
+
+/* A prepared shading point. Its layout is private: the names exist only to size it. */
+typedef struct nf_shading_point {
+    nf_context context_;            /* the context as given, passed to custom priors     */
+    uint32_t magic_;                /* marks a prepared point                              */
+    uint64_t model_id_;             /* the model it belongs to                             */
+    uint64_t generation_;           /* that model's parameter generation                   */
+    nf_prior_callbacks prior_;      /* the custom prior's callbacks at this point          */
+    float frame_[3];                /* the unit normal                                     */
+    uint32_t cached_;               /* 1: cache_ holds context sums; 0: encodings          */
+    uint32_t check_;                /* a hash of the fields above                          */
+    uint32_t reserved_[7];
+    float cache_[NF_SHADING_POINT_CACHE_FLOATS];
+} nf_shading_point;
+
+/* Prepares `point` for sampling and evaluating directions at the shading context `ctx` (the
+ * same rules as nf_sample: finite position, normal and wo with squared lengths above 1e-30).
+ *
+ * prior: NULL, or callbacks that replace the model's custom prior (NF_PRIOR_CUSTOM) for the
+ *        calls through this point: per-point data such as this shading point's BSDF travel in
+ *        prior->user, with no global or thread-local side channel. Both callbacks must be
+ *        non-NULL. They receive a pointer to the point's copy of `ctx` (not `ctx` itself), and
+ *        are called from whichever thread samples the point. Training still uses the model's
+ *        callbacks. A non-NULL prior on a model with another prior kind is refused.
+ *
+ * On any error (NF_ERROR_INVALID_ARGUMENT: NULL pointers, a bad context, a bad prior) the
+ * point is not written, so a point that was valid stays valid. Cost: about the price of one
+ * n = 1 nf_pdf's first layers (docs/performance.md has the figures).
+ * Thread-safe on a const model; writes only *point; never allocates; stack < 4 KiB. */
+NF_API nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
+                                  const nf_prior_callbacks *prior, nf_shading_point *point);
+
+/* Draws n directions at the prepared point: u[2i], u[2i+1] in [0,1) (values outside are
+ * clamped, as in nf_sample) give dir[3i..3i+2], a unit vector, and, if pdf is not NULL,
+ * pdf[i], its solid-angle density (per steradian), clamped to [FLT_MIN, FLT_MAX]. The same
+ * bits as nf_sample for the point's context. n = 0 is a no-op.
+ * Errors: NF_ERROR_INVALID_ARGUMENT (NULL, an unprepared or corrupted point, a point of
+ * another model, NaN or Inf in u) and NF_ERROR_STALE write nothing; NF_ERROR_NUMERIC (a
+ * custom prior callback returned an invalid value) may come after earlier directions were
+ * written. Thread-safe on a const model and point; never allocates; stack < 4 KiB. */
+NF_API nf_status nf_point_sample(const nf_model *m, const nf_shading_point *point, size_t n,
+                                 const float *u, float *dir, float *pdf);
+
+/* The solid-angle densities of n directions at the prepared point: pdf[i] for dir[3i..3i+2],
+ * which must be finite and non-zero (squared length above 1e-30) and is normalized by the
+ * library. The same bits as nf_pdf for the point's context. n = 0 is a no-op.
+ * Errors as nf_point_sample (a bad direction is NF_ERROR_INVALID_ARGUMENT, nothing written).
+ * Thread-safe on a const model and point; never allocates; stack < 4 KiB. */
+NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n,
+                              const float *dir, float *pdf);
+
+/* Batch forms for wavefront renderers: one direction per point. points[i] is prepared (each
+ * with its own context); u, dir and pdf as in nf_sample. Every point and input is checked
+ * before anything is written; NF_ERROR_NUMERIC from a custom prior may come mid-batch, after
+ * earlier entries were written. Thread-safe on a const model; never allocates; stack < 4 KiB.
+ */
+NF_API nf_status nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *points,
+                                  const float *u, float *dir, float *pdf);
+NF_API nf_status nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *points,
+                               const float *dir, float *pdf);
+
+NF_EXTERN_C_END
+
+#endif /* NISFLOW_POINT_H */

@@ -1,0 +1,132 @@
+/*
+ * point.c - the public shading-point API (nisflow/point.h): validation of points and inputs,
+ * then the kernels (point_eval.h, through kernel.c) of the model's instruction set.
+ */
+#include "internal.h"
+
+/* A point is usable with `m` when its header is intact, it was prepared on `m`, and m's
+ * parameters have not changed since. `i` names the point in messages (SIZE_MAX: the only
+ * one). */
+static nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_shading_point *p,
+                                 size_t i)
+{
+    const char *why;
+    nf_status st = NF_ERROR_INVALID_ARGUMENT;
+    if (p->magic_ != NF_POINT_MAGIC || p->check_ != nf_point_hash(p)) {
+        why = "is not a prepared shading point (never prepared, or overwritten): call "
+              "nf_point_prepare first";
+    } else if (p->model_id_ != m->id) {
+        why = "was prepared on another model";
+    } else if (p->generation_ != m->generation) {
+        why = "was prepared before the model's parameters last changed (a training step, "
+              "nf_set_params or nf_apply_gradient): prepare it again";
+        st = NF_ERROR_STALE;
+    } else {
+        return NF_OK;
+    }
+    if (i == SIZE_MAX)
+        return nf_fail(st, "%s: the point %s", fn, why);
+    return nf_fail(st, "%s: points[%zu] %s", fn, i, why);
+}
+
+nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
+                           const nf_prior_callbacks *prior, nf_shading_point *point)
+{
+    static const char fn[] = "nf_point_prepare";
+    if (!m || !ctx || !point)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, ctx or point", fn);
+    nf_status st = nf_validate_contexts(fn, 1, ctx);
+    if (st != NF_OK)
+        return st;
+    if (prior) {
+        if (m->cfg.prior != NF_PRIOR_CUSTOM)
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: per-point prior callbacks need a model with NF_PRIOR_CUSTOM "
+                           "(this one has prior %u)", fn, (unsigned)m->cfg.prior);
+        if (!prior->sample || !prior->pdf)
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: prior->sample or prior->pdf is NULL", fn);
+    }
+    /* Validated before anything is written: a failed call leaves a valid point valid. The
+     * context is copied first, so that ctx may alias the point's own copy. */
+    nf_context copy = *ctx;
+    m->kernels->point_prepare(m, &copy, prior, point);
+    return NF_OK;
+}
+
+nf_status nf_point_sample(const nf_model *m, const nf_shading_point *point, size_t n,
+                          const float *u, float *dir, float *pdf)
+{
+    static const char fn[] = "nf_point_sample";
+    if (n == 0)
+        return NF_OK;
+    if (!m || !point || !u || !dir)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, point, u or dir", fn);
+    nf_status st;
+    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+        (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK)
+        return st;
+    if (!nf_all_finite(u, 2 * n))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: u contains NaN or Inf", fn);
+    return m->kernels->point_sample(m, point, n, 0, u, dir, pdf);
+}
+
+nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n,
+                       const float *dir, float *pdf)
+{
+    static const char fn[] = "nf_point_pdf";
+    if (n == 0)
+        return NF_OK;
+    if (!m || !point || !dir || !pdf)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, point, dir or pdf", fn);
+    nf_status st;
+    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+        (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK ||
+        (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
+        return st;
+    return m->kernels->point_pdf(m, point, n, 0, dir, pdf);
+}
+
+static nf_status nf_points_usable(const char *fn, const nf_model *m, size_t n,
+                                  const nf_shading_point *points)
+{
+    for (size_t i = 0; i < n; ++i) {
+        nf_status st = nf_point_usable(fn, m, &points[i], i);
+        if (st != NF_OK)
+            return st;
+    }
+    return NF_OK;
+}
+
+nf_status nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *points,
+                           const float *u, float *dir, float *pdf)
+{
+    static const char fn[] = "nf_points_sample";
+    if (n == 0)
+        return NF_OK;
+    if (!m || !points || !u || !dir)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, points, u or dir", fn);
+    nf_status st;
+    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+        (st = nf_points_usable(fn, m, n, points)) != NF_OK)
+        return st;
+    if (!nf_all_finite(u, 2 * n))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: u contains NaN or Inf", fn);
+    return m->kernels->point_sample(m, points, n, 1, u, dir, pdf);
+}
+
+nf_status nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *points,
+                        const float *dir, float *pdf)
+{
+    static const char fn[] = "nf_points_pdf";
+    if (n == 0)
+        return NF_OK;
+    if (!m || !points || !dir || !pdf)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, points, dir or pdf", fn);
+    nf_status st;
+    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+        (st = nf_points_usable(fn, m, n, points)) != NF_OK ||
+        (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
+        return st;
+    return m->kernels->point_pdf(m, points, n, 1, dir, pdf);
+}
