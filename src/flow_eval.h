@@ -83,7 +83,9 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
         inv_det /= nf_layer_inverse(m, pt, i, x, sc, &bin);
     }
     float q, g[2] = {0.0f, 0.0f};
-    nf_status st = nf_prior_density(m, pt, x, &q, grad ? g : NULL);
+    nf_prior_point pp = {pt->user, pt->prior, {pt->ctx.normal[0], pt->ctx.normal[1],
+                                                pt->ctx.normal[2]}};
+    nf_status st = nf_prior_density(m, &pp, x, &q, grad ? g : NULL);
     if (st != NF_OK)
         return st;
     *p_s = (double)q * inv_det;

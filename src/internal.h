@@ -180,6 +180,14 @@ typedef struct nf_blob {
     float dvalue[3];
 } nf_blob;
 
+/* What a prior needs of a shading point: the context its callbacks receive, the callbacks,
+ * and the unit normal (the cosine prior). */
+typedef struct nf_prior_point {
+    const nf_context *user;
+    const nf_prior_callbacks *prior;
+    float normal[3];
+} nf_prior_point;
+
 /* A validated, normalized shading context and everything the conditioners share. */
 typedef struct nf_point {
     const nf_context *user;  /* the caller's context, passed on to custom prior callbacks */

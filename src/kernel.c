@@ -32,6 +32,76 @@
 /* The same for the gradient, whose per-sample code is cheaper up to this many samples. */
 #define NF_GRADIENT_TILED_FROM 4u
 
+#if defined(__GNUC__) || defined(__clang__)
+#define NF_FLATTEN __attribute__((flatten))
+#else
+#define NF_FLATTEN
+#endif
+
+/* The per-direction functions for one shape: flattened, so that the presets' constant shapes
+ * reach every inner loop (point_eval.h, nf_point_shape). */
+#define NF_POINT_VARIANT(suffix, SHAPE_EXPR)                                                   \
+    static NF_FLATTEN nf_status nf_point_sample_##suffix(                                      \
+        const nf_model *m, const nf_shading_point *p,                                          \
+        const nf_context *user, const float u[2], float dir[3], float *pdf,                    \
+        nf_point_scratch *sc)                                                                  \
+    {                                                                                          \
+        const nf_point_shape sh = SHAPE_EXPR;                                                  \
+        return nf_point_sample_one(m, sh, p, user, u, dir, pdf, sc);                           \
+    }                                                                                          \
+    static NF_FLATTEN nf_status nf_point_pdf_##suffix(                                         \
+        const nf_model *m, const nf_shading_point *p,                                          \
+        const nf_context *user, const float dir[3], float *pdf, nf_point_scratch *sc)          \
+    {                                                                                          \
+        const nf_point_shape sh = SHAPE_EXPR;                                                  \
+        return nf_point_pdf_one(m, sh, p, user, dir, pdf, sc);                                 \
+    }
+
+/* The generic kernels keep one variant: unrolled into 64-byte vectors that the baseline ISA
+ * holds in four registers each, the presets' copies spilled enough to need 2.9 KiB of stack,
+ * over the API's 4 KiB with the scratch. */
+#if defined(__AVX2__)
+NF_POINT_VARIANT(small, NF_POINT_SHAPE_SMALL)
+NF_POINT_VARIANT(large, NF_POINT_SHAPE_LARGE)
+#endif
+NF_POINT_VARIANT(any, nf_point_shape_of(m))
+#if !defined(__AVX2__)
+#define nf_point_sample_small nf_point_sample_any
+#define nf_point_sample_large nf_point_sample_any
+#define nf_point_pdf_small nf_point_pdf_any
+#define nf_point_pdf_large nf_point_pdf_any
+#endif
+
+typedef nf_status (*nf_point_sample_fn)(const nf_model *, const nf_shading_point *,
+                                        const nf_context *, const float *, float *, float *,
+                                        nf_point_scratch *);
+typedef nf_status (*nf_point_pdf_fn)(const nf_model *, const nf_shading_point *,
+                                     const nf_context *, const float *, float *,
+                                     nf_point_scratch *);
+
+/* The variant for the model's shape. Comparing the shape costs a few compares per call, far
+ * less than what the constants save. */
+static int nf_point_variant(const nf_model *m)
+{
+    const nf_point_shape small = NF_POINT_SHAPE_SMALL, large = NF_POINT_SHAPE_LARGE;
+    nf_point_shape sh = nf_point_shape_of(m);
+    return nf_point_shape_equal(sh, small) ? 1 : nf_point_shape_equal(sh, large) ? 2 : 0;
+}
+
+static nf_point_sample_fn nf_point_sampler(const nf_model *m)
+{
+    static const nf_point_sample_fn fns[3] = {nf_point_sample_any, nf_point_sample_small,
+                                              nf_point_sample_large};
+    return fns[nf_point_variant(m)];
+}
+
+static nf_point_pdf_fn nf_point_evaluator(const nf_model *m)
+{
+    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_any, nf_point_pdf_small,
+                                           nf_point_pdf_large};
+    return fns[nf_point_variant(m)];
+}
+
 /* A point prepared on the stack for one context of a small nf_sample / nf_pdf call: the
  * shading-point path, with callbacks receiving the caller's own context as documented. */
 static nf_status nf_sample_one(const nf_model *m, const nf_context *ctx, const float u[2],
@@ -39,10 +109,7 @@ static nf_status nf_sample_one(const nf_model *m, const nf_context *ctx, const f
 {
     nf_shading_point p;
     nf_point_prepare_at(m, ctx, NULL, &p);
-    nf_point feat;
-    if (!p.cached_)
-        nf_context_features(m, ctx, &feat);
-    return nf_point_sample_one(m, &p, &feat, ctx, u, dir, pdf, sc);
+    return nf_point_sampler(m)(m, &p, ctx, u, dir, pdf, sc);
 }
 
 static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const float dir[3],
@@ -50,29 +117,20 @@ static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const floa
 {
     nf_shading_point p;
     nf_point_prepare_at(m, ctx, NULL, &p);
-    nf_point feat;
-    if (!p.cached_)
-        nf_context_features(m, ctx, &feat);
-    return nf_point_pdf_one(m, &p, &feat, ctx, dir, pdf, sc);
+    return nf_point_evaluator(m)(m, &p, ctx, dir, pdf, sc);
 }
 
-/* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). The
- * encodings of an uncached point are computed once per point. */
+/* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). */
 static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points,
                                         size_t n, size_t stride, const float *u, float *dir,
                                         float *pdf)
 {
     nf_point_scratch sc;
-    nf_point feat;
-    const nf_shading_point *featured = NULL;
+    const nf_point_sample_fn sample = nf_point_sampler(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
-        if (!p->cached_ && p != featured) {
-            nf_context_features(m, &p->context_, &feat);
-            featured = p;
-        }
-        nf_status st = nf_point_sample_one(m, p, &feat, &p->context_, u + 2 * i, dir + 3 * i,
-                                           pdf ? pdf + i : NULL, &sc);
+        nf_status st = sample(m, p, &p->context_, u + 2 * i, dir + 3 * i,
+                              pdf ? pdf + i : NULL, &sc);
         if (st != NF_OK)
             return st;
     }
@@ -83,15 +141,10 @@ static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *
                                      size_t n, size_t stride, const float *dir, float *pdf)
 {
     nf_point_scratch sc;
-    nf_point feat;
-    const nf_shading_point *featured = NULL;
+    const nf_point_pdf_fn eval = nf_point_evaluator(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
-        if (!p->cached_ && p != featured) {
-            nf_context_features(m, &p->context_, &feat);
-            featured = p;
-        }
-        nf_status st = nf_point_pdf_one(m, p, &feat, &p->context_, dir + 3 * i, pdf + i, &sc);
+        nf_status st = eval(m, p, &p->context_, dir + 3 * i, pdf + i, &sc);
         if (st != NF_OK)
             return st;
     }

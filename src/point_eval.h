@@ -18,76 +18,136 @@
 #include "prior_eval.h"
 #include "spline_eval.h"
 
-/* What one direction needs beyond the point: two rows of hidden activations (ping-pong), the
- * raw spline parameters and the spline's knots, about 2.9 KiB at the configuration limits. */
+/* What one direction needs beyond the point, about 2.4 KiB at the configuration limits: the
+ * raw spline parameters, the knot derivatives, and either the hidden activations (two rows,
+ * ping-pong) or, once the conditioner is done with them, the spline's exps and knots. */
 typedef struct nf_point_scratch {
-    float act[2][NF_PAD(NF_MAX_HIDDEN_WIDTH)];
     float raw[NF_MAX_RAW_PADDED];
-    nf_spline spline;
+    float d[NF_MAX_SPLINE_BINS + 1], sd[NF_MAX_SPLINE_BINS + 1]; /* knot derivatives */
+    union {
+        float act[2][NF_PAD(NF_MAX_HIDDEN_WIDTH)];
+        struct {
+            float e[2 * NF_MAX_SPLINE_BINS];                    /* exps, then softmaxes */
+            float x[NF_MAX_SPLINE_BINS + 1], y[NF_MAX_SPLINE_BINS + 1]; /* the knots */
+        } spline;
+    } u;
 } nf_point_scratch;
 
-/* The context's first-layer sums of coupling layer `layer` from the encodings `feat`. */
-static inline void nf_point_layer_sums(const nf_model *m, const nf_point *feat, uint32_t layer,
+/* The spline of the raw parameters in sc->raw: knots and every knot derivative
+ * (nf_spline_build's and nf_spline_bin_at's values; the softmaxes, which only reverse mode
+ * reads, overwrite the exps). */
+static inline void nf_point_spline(uint32_t bins, nf_point_scratch *sc)
+{
+    float *e = sc->u.spline.e;
+    nf_spline_exps(bins, sc->raw, e);
+    nf_spline_knots_from_exps(bins, e, sc->u.spline.x, e);
+    nf_spline_knots_from_exps(bins, e + bins, sc->u.spline.y, e + bins);
+    nf_spline_derivatives(bins, sc->raw + 2 * bins, sc->d, sc->sd);
+}
+
+static inline void nf_point_bin(const nf_point_scratch *sc, uint32_t k, nf_spline_bin *bin)
+{
+    nf_spline_bin_with(sc->u.spline.x, sc->u.spline.y, k, sc->d[k], sc->sd[k], sc->d[k + 1],
+                       sc->sd[k + 1], bin);
+}
+
+/* The architecture's sizes. The presets' shapes are passed as constants to flattened copies
+ * of the per-direction functions (kernel.c), so that every loop over bins and units has a
+ * constant trip count the compiler unrolls; other configurations read them from the model.
+ * Same operations in the same order either way. */
+typedef struct nf_point_shape {
+    uint32_t layers;     /* coupling layers                          */
+    uint32_t bins;       /* spline bins K                            */
+    uint32_t blob_bins;  /* one-blob bins B                          */
+    uint32_t depth;      /* hidden layers                            */
+    uint32_t width;      /* hidden units                             */
+    uint32_t hp;         /* hidden units padded to NF_CHUNK          */
+    uint32_t raw;        /* 3K + 1                                   */
+    uint32_t raw_stride; /* 3K + 1 padded to NF_CHUNK                */
+} nf_point_shape;
+
+static inline nf_point_shape nf_point_shape_of(const nf_model *m)
+{
+    nf_point_shape s = {m->cfg.coupling_layers, m->cfg.spline_bins, m->cfg.oneblob_bins,
+                        m->cfg.hidden_layers,   m->cfg.hidden_width, NF_PAD(m->cfg.hidden_width),
+                        m->raw_dim,             NF_PAD(m->raw_dim)};
+    return s;
+}
+
+/* The context's first-layer sums of coupling layer `layer` from its encodings: rows and
+ * values of the 9 position one-blob slots and the 2 S^2 SH values. */
+static inline void nf_point_layer_sums(const nf_model *m, const uint32_t rows[9],
+                                       const float values[9], const float *sh, uint32_t layer,
                                        float *into)
 {
     const nf_linear *lin = &m->packed_linear[layer][0];
     const uint32_t hp = lin->stride;
     const float *w = m->packed + lin->weight;
-    nf_input_layer_context(w, m->packed + lin->bias, hp, feat->rows, feat->values,
-                           w + (size_t)4u * m->cfg.oneblob_bins * hp, feat->sh, 1,
+    nf_input_layer_context(w, m->packed + lin->bias, hp, rows, values,
+                           w + (size_t)4u * m->cfg.oneblob_bins * hp, sh, 1,
                            2u * m->cfg.sh_bands * m->cfg.sh_bands, into);
 }
 
-/* The same sums from the point's cache, or computed into `into` from `feat` when the model
- * is too large for the cache. */
+/* A point too large for its cache keeps the encodings there instead: the 9 slots' rows (as
+ * floats, exact below 2^24), their values, then the SH. 18 + 72 floats at most. */
+#define NF_POINT_ROWS 0u
+#define NF_POINT_VALUES 9u
+#define NF_POINT_SH 18u
+_Static_assert(NF_POINT_SH + 2u * NF_MAX_SH <= NF_SHADING_POINT_CACHE_FLOATS,
+               "the encodings fit the point's cache");
+
+/* The same sums from the point's cache, or computed into `into` from the encodings it keeps
+ * when the model is too large to cache them. */
 static inline const float *nf_point_context_sums(const nf_model *m, const nf_shading_point *p,
-                                                 const nf_point *feat, uint32_t layer,
-                                                 float *into)
+                                                 uint32_t layer, float *into)
 {
     if (p->cached_)
         return p->cache_ + (size_t)layer * m->packed_linear[layer][0].stride;
-    nf_point_layer_sums(m, feat, layer, into);
+    uint32_t rows[9];
+    for (uint32_t r = 0; r < 9; ++r)
+        rows[r] = (uint32_t)p->cache_[NF_POINT_ROWS + r];
+    nf_point_layer_sums(m, rows, p->cache_ + NF_POINT_VALUES, p->cache_ + NF_POINT_SH, layer,
+                        into);
     return into;
 }
 
 /* Raw spline parameters of coupling layer `layer` into sc->raw, from the pass-through
  * coordinate v: nf_conditioner_forward with the context's share read from the point. */
-static inline void nf_point_conditioner(const nf_model *m, const nf_shading_point *p,
-                                        const nf_point *feat, uint32_t layer, float v,
+static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
+                                        const nf_shading_point *p, uint32_t layer, float v,
                                         nf_point_scratch *sc)
 {
     const nf_linear *lin = m->packed_linear[layer];
     const float *packed = m->packed;
-    const uint32_t depth = m->cfg.hidden_layers, width = m->cfg.hidden_width;
-    const uint32_t hp = lin[0].stride;
-    const float *ctx = nf_point_context_sums(m, p, feat, layer, sc->act[0]);
+    const uint32_t hp = sh.hp;
+    const float *ctx = nf_point_context_sums(m, p, layer, sc->u.act[0]);
     uint32_t rows[3];
     float vals[3];
-    nf_oneblob_slots(v, m->cfg.oneblob_bins, 0, rows, vals);
-    nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc->act[0]);
-    nf_relu(sc->act[0], hp);
-    const float *h = sc->act[0];
-    for (uint32_t l = 1; l < depth; ++l) {
-        float *o = sc->act[l & 1u];
-        nf_dense_one(o, packed + lin[l].weight, hp, packed + lin[l].bias, h, width);
+    nf_oneblob_slots(v, sh.blob_bins, 0, rows, vals);
+    nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc->u.act[0]);
+    nf_relu(sc->u.act[0], hp);
+    const float *h = sc->u.act[0];
+    for (uint32_t l = 1; l < sh.depth; ++l) {
+        float *o = sc->u.act[l & 1u];
+        nf_dense_one(o, packed + lin[l].weight, hp, packed + lin[l].bias, h, sh.width);
         nf_relu(o, hp);
         h = o;
     }
-    nf_dense_one(sc->raw, packed + lin[depth].weight, lin[depth].stride,
-                 packed + lin[depth].bias, h, width);
-    for (uint32_t r = 0; r < m->raw_dim; ++r)
+    nf_dense_one(sc->raw, packed + lin[sh.depth].weight, sh.raw_stride,
+                 packed + lin[sh.depth].bias, h, sh.width);
+    for (uint32_t r = 0; r < sh.raw; ++r)
         sc->raw[r] = nf_clampf(sc->raw[r], -NF_RAW_LIMIT, NF_RAW_LIMIT);
 }
 
 /* The prior's view of the point (nf_prior_sample and nf_prior_density read the unit normal,
  * the context handed to callbacks and the callbacks). */
 static inline void nf_point_prior_view(const nf_shading_point *p, const nf_context *user,
-                                       nf_point *view)
+                                       nf_prior_point *view)
 {
     view->user = user;
     view->prior = &p->prior_;
     for (uint32_t a = 0; a < 3; ++a)
-        view->ctx.normal[a] = p->frame_[a];
+        view->normal[a] = p->frame_[a];
 }
 
 /* Writes the point for a validated context; prior NULL keeps the model's callbacks. */
@@ -108,33 +168,40 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
     for (uint32_t r = 0; r < sizeof p->reserved_ / sizeof p->reserved_[0]; ++r)
         p->reserved_[r] = 0;
     p->check_ = nf_point_hash(p);
-    if (!p->cached_)
+    if (p->cached_) {
+        for (uint32_t i = 0; i < layers; ++i)
+            nf_point_layer_sums(m, feat.rows, feat.values, feat.sh, i,
+                                p->cache_ + (size_t)i * hp);
         return;
-    for (uint32_t i = 0; i < layers; ++i)
-        nf_point_layer_sums(m, &feat, i, p->cache_ + (size_t)i * hp);
+    }
+    for (uint32_t r = 0; r < 9; ++r) {
+        p->cache_[NF_POINT_ROWS + r] = (float)feat.rows[r];
+        p->cache_[NF_POINT_VALUES + r] = feat.values[r];
+    }
+    for (uint32_t k = 0; k < 2u * m->cfg.sh_bands * m->cfg.sh_bands; ++k)
+        p->cache_[NF_POINT_SH + k] = feat.sh[k];
 }
 
 /* One direction drawn at the point (nf_sample_one's arithmetic). `user` is the context that
  * custom prior callbacks receive. */
-static inline nf_status nf_point_sample_one(const nf_model *m, const nf_shading_point *p,
-                                            const nf_point *feat, const nf_context *user,
-                                            const float u[2], float dir[3], float *pdf,
-                                            nf_point_scratch *sc)
+static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh,
+                                            const nf_shading_point *p,
+                                            const nf_context *user, const float u[2],
+                                            float dir[3], float *pdf, nf_point_scratch *sc)
 {
-    nf_point view;
+    nf_prior_point view;
     nf_point_prior_view(p, user, &view);
-    float x[2], q;
+    float x[2] = {0.0f, 0.0f}, q = 1.0f; /* set by nf_prior_sample; GCC cannot see it */
     nf_status st = nf_prior_sample(m, &view, u[0], u[1], x, &q);
     if (st != NF_OK)
         return st;
     double det = 1.0;
-    for (uint32_t i = 0; i < m->cfg.coupling_layers; ++i) {
+    for (uint32_t i = 0; i < sh.layers; ++i) {
         uint32_t t = nf_transformed(i);
-        nf_point_conditioner(m, p, feat, i, x[1 - t], sc);
-        nf_spline_build(&sc->spline, m->cfg.spline_bins, sc->raw);
+        nf_point_conditioner(m, sh, p, i, x[1 - t], sc);
+        nf_point_spline(sh.bins, sc);
         nf_spline_bin bin;
-        nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.x, m->cfg.spline_bins, x[t]),
-                         &bin);
+        nf_point_bin(sc, nf_spline_find(sc->u.spline.x, sh.bins, x[t]), &bin);
         float slope;
         x[t] = nf_spline_bin_eval(&bin, x[t], &slope);
         det *= slope;
@@ -148,28 +215,28 @@ static inline nf_status nf_point_sample_one(const nf_model *m, const nf_shading_
 }
 
 /* The solid-angle density of one direction at the point (nf_pdf_one's arithmetic). */
-static inline nf_status nf_point_pdf_one(const nf_model *m, const nf_shading_point *p,
-                                         const nf_point *feat, const nf_context *user,
-                                         const float dir[3], float *pdf, nf_point_scratch *sc)
+static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
+                                         const nf_shading_point *p,
+                                         const nf_context *user, const float dir[3], float *pdf,
+                                         nf_point_scratch *sc)
 {
     float s[2], x[2];
     nf_to_square(dir, s);
     x[0] = s[0];
     x[1] = s[1];
     double inv_det = 1.0;
-    for (uint32_t i = m->cfg.coupling_layers; i-- > 0;) {
+    for (uint32_t i = sh.layers; i-- > 0;) {
         uint32_t t = nf_transformed(i);
-        nf_point_conditioner(m, p, feat, i, x[1 - t], sc);
-        nf_spline_build(&sc->spline, m->cfg.spline_bins, sc->raw);
+        nf_point_conditioner(m, sh, p, i, x[1 - t], sc);
+        nf_point_spline(sh.bins, sc);
         nf_spline_bin bin;
-        nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.y, m->cfg.spline_bins, x[t]),
-                         &bin);
+        nf_point_bin(sc, nf_spline_find(sc->u.spline.y, sh.bins, x[t]), &bin);
         float solved = nf_spline_bin_solve(&bin, x[t]), slope;
         nf_spline_bin_eval(&bin, solved, &slope);
         x[t] = solved;
         inv_det /= slope;
     }
-    nf_point view;
+    nf_prior_point view;
     nf_point_prior_view(p, user, &view);
     float q;
     nf_status st = nf_prior_density(m, &view, x, &q, NULL);
@@ -177,6 +244,17 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, const nf_shading_poi
         return st;
     *pdf = nf_solid_angle_pdf((double)q * inv_det, s[0]);
     return NF_OK;
+}
+
+/* The presets' shapes (nisflow/model.h: NF_PRESET_SMALL, NF_PRESET_LARGE). */
+#define NF_POINT_SHAPE_SMALL {2u, 8u, 32u, 1u, 16u, 16u, 25u, 32u}
+#define NF_POINT_SHAPE_LARGE {4u, 16u, 32u, 2u, 16u, 16u, 49u, 64u}
+
+static inline int nf_point_shape_equal(nf_point_shape a, nf_point_shape b)
+{
+    return a.layers == b.layers && a.bins == b.bins && a.blob_bins == b.blob_bins &&
+           a.depth == b.depth && a.width == b.width && a.hp == b.hp && a.raw == b.raw &&
+           a.raw_stride == b.raw_stride;
 }
 
 #endif /* NISFLOW_POINT_EVAL_H */

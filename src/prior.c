@@ -33,7 +33,8 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
     }
     case NF_PRIOR_CUSTOM: {
         float pc = 0.0f;
-        if (nf_custom_pdf(&pt, w, &pc) != NF_OK)
+        nf_prior_point pp = {pt.user, pt.prior, {0.0f, 0.0f, 0.0f}};
+        if (nf_custom_pdf(&pp, w, &pc) != NF_OK)
             return -1.0f;
         return (1.0f - eps) * pc + eps * NF_INV_FOUR_PI;
     }

@@ -53,7 +53,7 @@ static inline void nf_cosine_direction(const float n[3], float u0, float u1, flo
 }
 
 /* The solid-angle density of the custom prior's callbacks at w, checked. */
-static inline nf_status nf_custom_pdf(const nf_point *pt, const float w[3], float *pdf)
+static inline nf_status nf_custom_pdf(const nf_prior_point *pt, const float w[3], float *pdf)
 {
     float p = pt->prior->pdf(pt->prior->user, pt->user, w);
     *pdf = 0.0f;
@@ -64,7 +64,7 @@ static inline nf_status nf_custom_pdf(const nf_point *pt, const float w[3], floa
 }
 
 /* The eps-mixed custom density on the square at z (no gradient). */
-static inline nf_status nf_custom_density(const nf_model *m, const nf_point *pt,
+static inline nf_status nf_custom_density(const nf_model *m, const nf_prior_point *pt,
                                           const float z[2], float *q)
 {
     float w[3], pc;
@@ -78,7 +78,7 @@ static inline nf_status nf_custom_density(const nf_model *m, const nf_point *pt,
 
 /* The prior's density on the square at z, q_s(z) > 0, and (if grad != NULL) the gradient of
  * log q_s in z. For custom priors NF_ERROR_NUMERIC if a callback returns a bad value. */
-static inline nf_status nf_prior_density(const nf_model *m, const nf_point *pt, const float z[2],
+static inline nf_status nf_prior_density(const nf_model *m, const nf_prior_point *pt, const float z[2],
                                          float *q, float grad[2])
 {
     if (m->cfg.prior == NF_PRIOR_UNIFORM_ANGLE) {
@@ -121,7 +121,7 @@ static inline nf_status nf_prior_density(const nf_model *m, const nf_point *pt, 
         return NF_OK;
     }
     /* cosine: q_s = sin(theta) ((1 - eps) 2 pi max(0, n.w) + eps pi / 2) */
-    const float eps = m->cfg.prior_epsilon, *n = pt->ctx.normal;
+    const float eps = m->cfg.prior_epsilon, *n = pt->normal;
     float c = n[0] * w[0] + n[1] * w[1] + n[2] * w[2];
     float g = (1.0f - eps) * NF_TWO_PI * nf_maxf(c, 0.0f) + eps * NF_HALF_PI;
     *q = sin_theta * g;
@@ -143,7 +143,7 @@ static inline nf_status nf_prior_density(const nf_model *m, const nf_point *pt, 
 }
 
 /* Draws a latent point z on the square and returns its density q_s(z) in *q. */
-static inline nf_status nf_prior_sample(const nf_model *m, const nf_point *pt, float u0, float u1,
+static inline nf_status nf_prior_sample(const nf_model *m, const nf_prior_point *pt, float u0, float u1,
                                         float z[2], float *q)
 {
     u0 = nf_clamp_unit(u0);
@@ -161,7 +161,7 @@ static inline nf_status nf_prior_sample(const nf_model *m, const nf_point *pt, f
         /* u0 picks the mixture component and is rescaled, so u -> z stays deterministic. */
         if (u0 < 1.0f - eps) {
             float w[3];
-            nf_cosine_direction(pt->ctx.normal, nf_clamp_unit(u0 / (1.0f - eps)), u1, w);
+            nf_cosine_direction(pt->normal, nf_clamp_unit(u0 / (1.0f - eps)), u1, w);
             nf_to_square(w, z);
         } else {
             nf_uniform_sphere_square(nf_clamp_unit((u0 - (1.0f - eps)) / eps), u1, z);

@@ -24,12 +24,12 @@ typedef struct nf_tile_work {
 
 /* The per-sample view of lane i that custom prior callbacks need (the caller's context and
  * the unit normal); the encodings are not filled. */
-static inline void nf_tile_point(const nf_tile *tile, uint32_t i, nf_point *pt)
+static inline void nf_tile_point(const nf_tile *tile, uint32_t i, nf_prior_point *pt)
 {
     pt->user = tile->user[i];
     pt->prior = tile->prior;
     for (uint32_t a = 0; a < 3; ++a)
-        pt->ctx.normal[a] = tile->normal[a][i];
+        pt->normal[a] = tile->normal[a][i];
 }
 
 /* Custom prior, lane by lane: z[.][i] and q[i] from u for the real samples; padding lanes
@@ -45,7 +45,7 @@ static inline nf_status nf_tile_custom_sample(const nf_model *m, const nf_tile *
             q[i] = q[0];
             continue;
         }
-        nf_point pt;
+        nf_prior_point pt;
         float zi[2];
         nf_tile_point(tile, i, &pt);
         nf_status st = nf_prior_sample(m, &pt, u0[i], u1[i], zi, &q[i]);
@@ -87,7 +87,7 @@ static inline nf_status nf_tile_prior_density(const nf_model *m, const nf_tile *
         break;
     }
     for (uint32_t i = 0; i < tile->count; ++i) {
-        nf_point pt;
+        nf_prior_point pt;
         float zi[2] = {z[0][i], z[1][i]};
         nf_tile_point(tile, i, &pt);
         nf_status st = nf_prior_density(m, &pt, zi, &q[i], NULL);

@@ -123,7 +123,7 @@ static inline nf_status nf_tile_gradient(const nf_model *m, const nf_context *co
             g[0][i] = g[1][i] = 0.0f;
             continue;
         }
-        nf_point pt;
+        nf_prior_point pt;
         float z[2] = {x[0][i], x[1][i]}, gz[2] = {0.0f, 0.0f};
         nf_tile_point(&w->tile, i, &pt);
         nf_status st = nf_prior_density(m, &pt, z, &q[i], gz);

@@ -8,16 +8,10 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* The shading points the callbacks of this thread may be asked about: one while rendering,
- * a whole batch (sorted, searched by bisection) while training. */
+/* The shading points the callbacks of this thread may be asked about while training: the
+ * whole batch, sorted and searched by bisection. */
 static _Thread_local const guide_point *tls_points;
 static _Thread_local size_t tls_count;
-
-void guide_begin_point(const guide_point *p)
-{
-    tls_points = p;
-    tls_count = 1;
-}
 
 static int compare_position(const float a[3], const float b[3])
 {
@@ -81,14 +75,20 @@ static const guide_point *find_point(const float position[3])
 
 /* ---- The BSDF prior ------------------------------------------------------------------------ */
 
+/* The shading point of a callback: its own (user, from guide_point_callbacks) when the call
+ * comes through a prepared nf_shading_point, else the table's (training). */
+static const guide_point *point_of(void *user, const nf_context *ctx)
+{
+    return user ? (const guide_point *)user : find_point(ctx->position);
+}
+
 static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
                                float dir[3])
 {
-    (void)user;
     vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
     frame f = frame_from_normal(n);
     vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
-    const guide_point *p = find_point(ctx->position);
+    const guide_point *p = point_of(user, ctx);
     vec3 wi;
     float pdf;
     if (p) {
@@ -106,12 +106,11 @@ static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, floa
 
 static float bsdf_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
 {
-    (void)user;
     vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
     frame f = frame_from_normal(n);
     vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
     vec3 wi = v3_normalize(frame_to_local(&f, v3(dir[0], dir[1], dir[2])));
-    const guide_point *p = find_point(ctx->position);
+    const guide_point *p = point_of(user, ctx);
     return p ? bsdf_lobe_pdf(&p->bp, wo, wi) : pdf_cosine_hemisphere(wi);
 }
 
@@ -121,6 +120,13 @@ nf_prior_callbacks guide_bsdf_callbacks(void)
     cb.sample = bsdf_prior_sample;
     cb.pdf = bsdf_prior_pdf;
     cb.user = NULL;
+    return cb;
+}
+
+nf_prior_callbacks guide_point_callbacks(const guide_point *p)
+{
+    nf_prior_callbacks cb = guide_bsdf_callbacks();
+    cb.user = (void *)(uintptr_t)p; /* read only: the callbacks take it back as const */
     return cb;
 }
 

@@ -3,15 +3,15 @@
  * the BSDF prior (--prior bsdf) and the table that lets its callbacks find the material of
  * a shading context.
  *
- * Why a table: nf_prior_callbacks receive only an nf_context (position, normal, wo) and one
- * model-wide user pointer, but the BSDF prior needs the material at that point. The library
- * passes the context's position through unchanged (it normalizes only normal and wo), so the
- * callbacks look the material up by the exact bits of the position in a thread-local table:
+ * While rendering, the BSDF prior needs no table: each guided vertex prepares an
+ * nf_shading_point with callbacks bound to its own material (guide_point_callbacks).
  *
- *   - while rendering, each thread publishes the one shading point it is about to call
- *     nf_sample / nf_pdf for (guide_begin_point);
- *   - while training, the single training thread publishes the whole batch
- *     (guide_begin_batch) before nf_train_step, which calls the prior for every record.
+ * Why a table while training: the model's nf_prior_callbacks receive only an nf_context
+ * (position, normal, wo) and one model-wide user pointer, but the BSDF prior needs the
+ * material at that point. The library passes the context's position through unchanged (it
+ * normalizes only normal and wo), so the callbacks look the material up by the exact bits of
+ * the position in a thread-local table: the single training thread publishes the whole batch
+ * (guide_begin_batch) before nf_train_step, which calls the prior for every record.
  *
  * The table is thread-local, so render threads never see each other's points, and it is
  * only read inside the library calls it was published for. A lookup that fails (which no
@@ -43,8 +43,13 @@ typedef struct guide_point {
     bsdf_point bp;
 } guide_point;
 
-/* The callbacks of the BSDF prior (for nf_config.custom_prior and nf_model_load). */
+/* The callbacks of the BSDF prior (for nf_config.custom_prior and nf_model_load): they find
+ * the material in the thread's published table (training). */
 nf_prior_callbacks guide_bsdf_callbacks(void);
+
+/* The same callbacks bound to one shading point, for nf_point_prepare: they read `p` (which
+ * must outlive the prepared point's use) and need no table. */
+nf_prior_callbacks guide_point_callbacks(const guide_point *p);
 
 /* What a new model is made of. */
 typedef struct guide_settings {
@@ -66,8 +71,6 @@ int guide_create(const scene *s, const guide_settings *settings, nf_model **out,
 /* Loads a model saved with --save-model; the BSDF prior's callbacks are supplied. */
 int guide_load(const char *path, nf_model **out, tr_error *err);
 
-/* Publishes the shading point for the next nf_sample / nf_pdf calls of this thread. */
-void guide_begin_point(const guide_point *p);
 /* Publishes a batch of n points (sorted in place by position) for nf_train_step; the
  * array must stay alive until guide_end(). */
 void guide_begin_batch(guide_point *points, size_t n);

@@ -146,14 +146,12 @@ static rgb shading_eval(const shading *sh, vec3 wi, vec3 *wi_l)
     return bsdf_eval(&sh->bp, sh->wo_l, *wi_l);
 }
 
-static int flow_pdf(const tracer *t, const nf_context *ctx, const guide_point *gp, vec3 w,
-                    float *pdf, path_stats *st)
+/* The flow's density of w at the vertex's prepared shading point. */
+static int flow_pdf(const tracer *t, const nf_shading_point *sp, vec3 w, float *pdf,
+                    path_stats *st)
 {
     float d[3] = {w.x, w.y, w.z};
-    if (t->bsdf_prior)
-        guide_begin_point(gp);
-    nf_status status = nf_pdf(t->model, 1, ctx, d, pdf);
-    if (status != NF_OK) {
+    if (nf_point_pdf(t->model, sp, 1, d, pdf) != NF_OK) {
         st->nf_errors++;
         return 0;
     }
@@ -162,8 +160,8 @@ static int flow_pdf(const tracer *t, const nf_context *ctx, const guide_point *g
 
 /* The MIS-weighted next-event estimate at a vertex (without the path throughput): one light
  * sample, weighed against the density of the scattering technique, p_mix. g = 0: no flow. */
-static rgb next_event(const tracer *t, const shading *sh, const surface *sf, const nf_context *ctx,
-                      const guide_point *gp, float g, rng *r, path_stats *st)
+static rgb next_event(const tracer *t, const shading *sh, const surface *sf,
+                      const nf_shading_point *sp, float g, rng *r, path_stats *st)
 {
     const scene *s = t->s;
     rgb zero = rgb_gray(0.0f);
@@ -185,7 +183,7 @@ static rgb next_event(const tracer *t, const shading *sh, const surface *sf, con
     float p_mix = bsdf_pdf(&sh->bp, sh->wo_l, wi_l);
     if (g > 0.0f) {
         float p_flow;
-        if (!flow_pdf(t, ctx, gp, ls.wi, &p_flow, st))
+        if (!flow_pdf(t, sp, ls.wi, &p_flow, st))
             return zero;
         p_mix = g * p_flow + (1.0f - g) * p_mix;
     }
@@ -205,17 +203,15 @@ typedef struct scattered {
  * g and from the BSDF otherwise; either way the weight uses the mixture density
  * p_mix = g p_flow + (1 - g) p_bsdf. With g = 0, from the BSDF alone. Returns 0 when the
  * path ends here (failed sample, direction through the geometry, zero contribution). */
-static int scatter(const tracer *t, const shading *sh, const nf_context *ctx,
-                   const guide_point *gp, float g, rng *r, path_stats *st, scattered *out)
+static int scatter(const tracer *t, const shading *sh, const nf_shading_point *sp, float g,
+                   rng *r, path_stats *st, scattered *out)
 {
     float u_sel = rng_next(r), u_lobe = rng_next(r), u0 = rng_next(r), u1 = rng_next(r);
     float p_flow = 0.0f, p_bsdf = 0.0f;
     out->delta = 0;
     if (g > 0.0f && u_sel < g) {
         float u[2] = {u0, u1}, d[3];
-        if (t->bsdf_prior)
-            guide_begin_point(gp);
-        if (nf_sample(t->model, 1, ctx, u, d, &p_flow) != NF_OK) {
+        if (nf_point_sample(t->model, sp, 1, u, d, &p_flow) != NF_OK) {
             st->nf_errors++;
             return 0;
         }
@@ -236,7 +232,7 @@ static int scatter(const tracer *t, const shading *sh, const nf_context *ctx,
             return 1;
         }
         p_bsdf = bs.pdf;
-        if (g > 0.0f && !flow_pdf(t, ctx, gp, out->wi, &p_flow, st))
+        if (g > 0.0f && !flow_pdf(t, sp, out->wi, &p_flow, st))
             return 0;
     }
     vec3 wi_l;
@@ -329,12 +325,26 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         ctx.wo[1] = wo.y;
         ctx.wo[2] = wo.z;
         gp.bp = sh.bp;
-        if (guided)
-            st->guided_vertices++;
+
+        /* A guided vertex prepares the flow's shading point once; the light sample's density
+         * and the scattering below both use it (docs/integration.md). The BSDF prior gets
+         * this vertex's material through the point's own callbacks. */
+        nf_shading_point sp;
+        float gv = 0.0f; /* this vertex's guiding probability */
+        if (guided) {
+            nf_prior_callbacks bsdf_prior = guide_point_callbacks(&gp);
+            if (nf_point_prepare(t->model, &ctx, t->bsdf_prior ? &bsdf_prior : NULL, &sp) ==
+                NF_OK) {
+                gv = g;
+                st->guided_vertices++;
+            } else {
+                st->nf_errors++;
+            }
+        }
 
         /* Next-event estimation. */
         if (smooth && s->has_lights) {
-            rgb d = next_event(t, &sh, &sf, &ctx, &gp, guided ? g : 0.0f, r, st);
+            rgb d = next_event(t, &sh, &sf, &sp, gv, r, st);
             L = rgb_add(L, rgb_mul(throughput, d));
             if (v)
                 v->direct = d;
@@ -352,14 +362,14 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
 
         /* Scattering: flow or BSDF, weighted by the mixture density. */
         scattered sc;
-        if (!scatter(t, &sh, &ctx, &gp, guided ? g : 0.0f, r, st, &sc))
+        if (!scatter(t, &sh, &sp, gv, r, st, &sc))
             break;
         if (!rgb_is_finite(sc.weight) || rgb_is_black(sc.weight))
             break;
         throughput = rgb_mul(throughput, rgb_scale(sc.weight, rr));
         if (v) {
             v->beta = rgb_scale(sc.weight, rr);
-            if (guided && !sc.delta) { /* the flow can only learn non-delta directions */
+            if (gv > 0.0f && !sc.delta) { /* the flow can only learn non-delta directions */
                 v->guided = 1;
                 v->f_over_p = sc.weight;
                 v->ctx = ctx;
