@@ -39,45 +39,40 @@
 #endif
 
 /* The per-direction functions for one shape: flattened, so that the presets' constant shapes
- * reach every inner loop (point_eval.h, nf_point_shape). */
-#define NF_POINT_VARIANT(suffix, SHAPE_EXPR)                                                   \
+ * reach every inner loop (point_eval.h, nf_point_shape), with scratch sized for the shape. */
+#define NF_POINT_VARIANT(suffix, SHAPE_EXPR, WORK_FLOATS)                                     \
     static NF_FLATTEN nf_status nf_point_sample_##suffix(                                      \
-        const nf_model *m, const nf_shading_point *p,                                          \
-        const nf_context *user, const float u[2], float dir[3], float *pdf,                    \
-        nf_point_scratch *sc)                                                                  \
+        const nf_model *m, const nf_shading_point *p, const nf_context *user,                  \
+        const float u[2], float dir[3], float *pdf)                                            \
     {                                                                                          \
         const nf_point_shape sh = SHAPE_EXPR;                                                  \
-        return nf_point_sample_one(m, sh, p, user, u, dir, pdf, sc);                           \
+        float work[WORK_FLOATS];                                                               \
+        nf_point_scratch sc;                                                                   \
+        nf_point_scratch_in(work, sh, &sc);                                                    \
+        return nf_point_sample_one(m, sh, p, user, u, dir, pdf, &sc);                          \
     }                                                                                          \
-    static NF_FLATTEN nf_status nf_point_pdf_##suffix(                                         \
-        const nf_model *m, const nf_shading_point *p,                                          \
-        const nf_context *user, const float dir[3], float *pdf, nf_point_scratch *sc)          \
+    static NF_FLATTEN nf_status nf_point_pdf_##suffix(const nf_model *m,                       \
+                                                      const nf_shading_point *p,               \
+                                                      const nf_context *user,                  \
+                                                      const float dir[3], float *pdf)          \
     {                                                                                          \
         const nf_point_shape sh = SHAPE_EXPR;                                                  \
-        return nf_point_pdf_one(m, sh, p, user, dir, pdf, sc);                                 \
+        float work[WORK_FLOATS];                                                               \
+        nf_point_scratch sc;                                                                   \
+        nf_point_scratch_in(work, sh, &sc);                                                    \
+        return nf_point_pdf_one(m, sh, p, user, dir, pdf, &sc);                                \
     }
 
-/* The generic kernels keep one variant: unrolled into 64-byte vectors that the baseline ISA
- * holds in four registers each, the presets' copies spilled enough to need 2.9 KiB of stack,
- * over the API's 4 KiB with the scratch. */
-#if defined(__AVX2__)
-NF_POINT_VARIANT(small, NF_POINT_SHAPE_SMALL)
-NF_POINT_VARIANT(large, NF_POINT_SHAPE_LARGE)
-#endif
-NF_POINT_VARIANT(any, nf_point_shape_of(m))
-#if !defined(__AVX2__)
-#define nf_point_sample_small nf_point_sample_any
-#define nf_point_sample_large nf_point_sample_any
-#define nf_point_pdf_small nf_point_pdf_any
-#define nf_point_pdf_large nf_point_pdf_any
-#endif
+NF_POINT_VARIANT(small, NF_POINT_SHAPE_SMALL, NF_POINT_WORK_FLOATS(32u, 8u, 16u))
+NF_POINT_VARIANT(large, NF_POINT_SHAPE_LARGE, NF_POINT_WORK_FLOATS(64u, 16u, 16u))
+NF_POINT_VARIANT(any, nf_point_shape_of(m),
+                 NF_POINT_WORK_FLOATS(NF_MAX_RAW_PADDED, NF_MAX_SPLINE_BINS,
+                                      NF_PAD(NF_MAX_HIDDEN_WIDTH)))
 
 typedef nf_status (*nf_point_sample_fn)(const nf_model *, const nf_shading_point *,
-                                        const nf_context *, const float *, float *, float *,
-                                        nf_point_scratch *);
+                                        const nf_context *, const float *, float *, float *);
 typedef nf_status (*nf_point_pdf_fn)(const nf_model *, const nf_shading_point *,
-                                     const nf_context *, const float *, float *,
-                                     nf_point_scratch *);
+                                     const nf_context *, const float *, float *);
 
 /* The variant for the model's shape. Comparing the shape costs a few compares per call, far
  * less than what the constants save. */
@@ -105,19 +100,19 @@ static nf_point_pdf_fn nf_point_evaluator(const nf_model *m)
 /* A point prepared on the stack for one context of a small nf_sample / nf_pdf call: the
  * shading-point path, with callbacks receiving the caller's own context as documented. */
 static nf_status nf_sample_one(const nf_model *m, const nf_context *ctx, const float u[2],
-                               float dir[3], float *pdf, nf_point_scratch *sc)
+                               float dir[3], float *pdf)
 {
     nf_shading_point p;
     nf_point_prepare_at(m, ctx, NULL, &p);
-    return nf_point_sampler(m)(m, &p, ctx, u, dir, pdf, sc);
+    return nf_point_sampler(m)(m, &p, ctx, u, dir, pdf);
 }
 
 static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const float dir[3],
-                            float *pdf, nf_point_scratch *sc)
+                            float *pdf)
 {
     nf_shading_point p;
     nf_point_prepare_at(m, ctx, NULL, &p);
-    return nf_point_evaluator(m)(m, &p, ctx, dir, pdf, sc);
+    return nf_point_evaluator(m)(m, &p, ctx, dir, pdf);
 }
 
 /* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). */
@@ -125,12 +120,11 @@ static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_poin
                                         size_t n, size_t stride, const float *u, float *dir,
                                         float *pdf)
 {
-    nf_point_scratch sc;
     const nf_point_sample_fn sample = nf_point_sampler(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
         nf_status st = sample(m, p, &p->context_, u + 2 * i, dir + 3 * i,
-                              pdf ? pdf + i : NULL, &sc);
+                              pdf ? pdf + i : NULL);
         if (st != NF_OK)
             return st;
     }
@@ -140,11 +134,10 @@ static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_poin
 static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *points,
                                      size_t n, size_t stride, const float *dir, float *pdf)
 {
-    nf_point_scratch sc;
     const nf_point_pdf_fn eval = nf_point_evaluator(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
-        nf_status st = eval(m, p, &p->context_, dir + 3 * i, pdf + i, &sc);
+        nf_status st = eval(m, p, &p->context_, dir + 3 * i, pdf + i);
         if (st != NF_OK)
             return st;
     }
@@ -156,10 +149,9 @@ static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context 
                                   const float *u, float *dir, float *pdf)
 {
     if (n < NF_TILED_FROM) {
-        nf_point_scratch sc;
         for (size_t i = 0; i < n; ++i) {
             nf_status st = nf_sample_one(m, &ctx[i], u + 2 * i, dir + 3 * i,
-                                         pdf ? pdf + i : NULL, &sc);
+                                         pdf ? pdf + i : NULL);
             if (st != NF_OK)
                 return st;
         }
@@ -180,9 +172,8 @@ static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ct
                                const float *dir, float *pdf)
 {
     if (n < NF_TILED_FROM) {
-        nf_point_scratch sc;
         for (size_t i = 0; i < n; ++i) {
-            nf_status st = nf_pdf_one(m, &ctx[i], dir + 3 * i, pdf + i, &sc);
+            nf_status st = nf_pdf_one(m, &ctx[i], dir + 3 * i, pdf + i);
             if (st != NF_OK)
                 return st;
         }

@@ -18,39 +18,6 @@
 #include "prior_eval.h"
 #include "spline_eval.h"
 
-/* What one direction needs beyond the point, about 2.4 KiB at the configuration limits: the
- * raw spline parameters, the knot derivatives, and either the hidden activations (two rows,
- * ping-pong) or, once the conditioner is done with them, the spline's exps and knots. */
-typedef struct nf_point_scratch {
-    float raw[NF_MAX_RAW_PADDED];
-    float d[NF_MAX_SPLINE_BINS + 1], sd[NF_MAX_SPLINE_BINS + 1]; /* knot derivatives */
-    union {
-        float act[2][NF_PAD(NF_MAX_HIDDEN_WIDTH)];
-        struct {
-            float e[2 * NF_MAX_SPLINE_BINS];                    /* exps, then softmaxes */
-            float x[NF_MAX_SPLINE_BINS + 1], y[NF_MAX_SPLINE_BINS + 1]; /* the knots */
-        } spline;
-    } u;
-} nf_point_scratch;
-
-/* The spline of the raw parameters in sc->raw: knots and every knot derivative
- * (nf_spline_build's and nf_spline_bin_at's values; the softmaxes, which only reverse mode
- * reads, overwrite the exps). */
-static inline void nf_point_spline(uint32_t bins, nf_point_scratch *sc)
-{
-    float *e = sc->u.spline.e;
-    nf_spline_exps(bins, sc->raw, e);
-    nf_spline_knots_from_exps(bins, e, sc->u.spline.x, e);
-    nf_spline_knots_from_exps(bins, e + bins, sc->u.spline.y, e + bins);
-    nf_spline_derivatives(bins, sc->raw + 2 * bins, sc->d, sc->sd);
-}
-
-static inline void nf_point_bin(const nf_point_scratch *sc, uint32_t k, nf_spline_bin *bin)
-{
-    nf_spline_bin_with(sc->u.spline.x, sc->u.spline.y, k, sc->d[k], sc->sd[k], sc->d[k + 1],
-                       sc->sd[k + 1], bin);
-}
-
 /* The architecture's sizes. The presets' shapes are passed as constants to flattened copies
  * of the per-direction functions (kernel.c), so that every loop over bins and units has a
  * constant trip count the compiler unrolls; other configurations read them from the model.
@@ -72,6 +39,52 @@ static inline nf_point_shape nf_point_shape_of(const nf_model *m)
                         m->cfg.hidden_layers,   m->cfg.hidden_width, NF_PAD(m->cfg.hidden_width),
                         m->raw_dim,             NF_PAD(m->raw_dim)};
     return s;
+}
+
+/* What one direction needs beyond the point, as views into one array of floats that the
+ * caller sizes for the shape (NF_POINT_WORK_FLOATS): the raw spline parameters, the knot
+ * derivatives, and either the hidden activations (two rows, ping-pong) or, once the
+ * conditioner is done with them, the spline's exps and knots. The presets need 84 and 148
+ * floats, the configuration limits 596 (2.4 KiB). */
+typedef struct nf_point_scratch {
+    float *raw;    /* raw_stride                                   */
+    float *d, *sd; /* bins + 1 each: knot derivatives, their slopes */
+    float *act[2]; /* hp each                                       */
+    float *e;      /* 2 bins: exps, then softmaxes (over act)       */
+    float *x, *y;  /* bins + 1 each: the knots (over act)           */
+} nf_point_scratch;
+
+#define NF_POINT_MAX2(a, b) ((a) > (b) ? (a) : (b))
+#define NF_POINT_WORK_FLOATS(raw_stride, bins, hp)                                            \
+    ((raw_stride) + 2u * ((bins) + 1u) + NF_POINT_MAX2(2u * (hp), 4u * (bins) + 2u))
+
+static inline void nf_point_scratch_in(float *work, nf_point_shape sh, nf_point_scratch *sc)
+{
+    sc->raw = work;
+    sc->d = work + sh.raw_stride;
+    sc->sd = sc->d + sh.bins + 1;
+    float *shared = sc->sd + sh.bins + 1;
+    sc->act[0] = shared;
+    sc->act[1] = shared + sh.hp;
+    sc->e = shared;
+    sc->x = shared + 2 * sh.bins;
+    sc->y = sc->x + sh.bins + 1;
+}
+
+/* The spline of the raw parameters in sc->raw: knots and every knot derivative
+ * (nf_spline_build's and nf_spline_bin_at's values; the softmaxes, which only reverse mode
+ * reads, overwrite the exps). */
+static inline void nf_point_spline(uint32_t bins, const nf_point_scratch *sc)
+{
+    nf_spline_exps(bins, sc->raw, sc->e);
+    nf_spline_knots_from_exps(bins, sc->e, sc->x, sc->e);
+    nf_spline_knots_from_exps(bins, sc->e + bins, sc->y, sc->e + bins);
+    nf_spline_derivatives(bins, sc->raw + 2 * bins, sc->d, sc->sd);
+}
+
+static inline void nf_point_bin(const nf_point_scratch *sc, uint32_t k, nf_spline_bin *bin)
+{
+    nf_spline_bin_with(sc->x, sc->y, k, sc->d[k], sc->sd[k], sc->d[k + 1], sc->sd[k + 1], bin);
 }
 
 /* The context's first-layer sums of coupling layer `layer` from its encodings: rows and
@@ -115,20 +128,20 @@ static inline const float *nf_point_context_sums(const nf_model *m, const nf_sha
  * coordinate v: nf_conditioner_forward with the context's share read from the point. */
 static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
                                         const nf_shading_point *p, uint32_t layer, float v,
-                                        nf_point_scratch *sc)
+                                        const nf_point_scratch *sc)
 {
     const nf_linear *lin = m->packed_linear[layer];
     const float *packed = m->packed;
     const uint32_t hp = sh.hp;
-    const float *ctx = nf_point_context_sums(m, p, layer, sc->u.act[0]);
+    const float *ctx = nf_point_context_sums(m, p, layer, sc->act[0]);
     uint32_t rows[3];
     float vals[3];
     nf_oneblob_slots(v, sh.blob_bins, 0, rows, vals);
-    nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc->u.act[0]);
-    nf_relu(sc->u.act[0], hp);
-    const float *h = sc->u.act[0];
+    nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc->act[0]);
+    nf_relu(sc->act[0], hp);
+    const float *h = sc->act[0];
     for (uint32_t l = 1; l < sh.depth; ++l) {
-        float *o = sc->u.act[l & 1u];
+        float *o = sc->act[l & 1u];
         nf_dense_one(o, packed + lin[l].weight, hp, packed + lin[l].bias, h, sh.width);
         nf_relu(o, hp);
         h = o;
@@ -187,7 +200,7 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
 static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh,
                                             const nf_shading_point *p,
                                             const nf_context *user, const float u[2],
-                                            float dir[3], float *pdf, nf_point_scratch *sc)
+                                            float dir[3], float *pdf, const nf_point_scratch *sc)
 {
     nf_prior_point view;
     nf_point_prior_view(p, user, &view);
@@ -201,7 +214,7 @@ static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh
         nf_point_conditioner(m, sh, p, i, x[1 - t], sc);
         nf_point_spline(sh.bins, sc);
         nf_spline_bin bin;
-        nf_point_bin(sc, nf_spline_find(sc->u.spline.x, sh.bins, x[t]), &bin);
+        nf_point_bin(sc, nf_spline_find(sc->x, sh.bins, x[t]), &bin);
         float slope;
         x[t] = nf_spline_bin_eval(&bin, x[t], &slope);
         det *= slope;
@@ -218,7 +231,7 @@ static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh
 static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
                                          const nf_shading_point *p,
                                          const nf_context *user, const float dir[3], float *pdf,
-                                         nf_point_scratch *sc)
+                                         const nf_point_scratch *sc)
 {
     float s[2], x[2];
     nf_to_square(dir, s);
@@ -230,7 +243,7 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
         nf_point_conditioner(m, sh, p, i, x[1 - t], sc);
         nf_point_spline(sh.bins, sc);
         nf_spline_bin bin;
-        nf_point_bin(sc, nf_spline_find(sc->u.spline.y, sh.bins, x[t]), &bin);
+        nf_point_bin(sc, nf_spline_find(sc->y, sh.bins, x[t]), &bin);
         float solved = nf_spline_bin_solve(&bin, x[t]), slope;
         nf_spline_bin_eval(&bin, solved, &slope);
         x[t] = solved;

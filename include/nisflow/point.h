@@ -36,10 +36,10 @@
  * is written by nf_point_prepare only; any number of threads may sample one prepared point at
  * once. Nothing here allocates.
  *
- * Stack: measured with GCC 12's -fstack-usage, nf_point_sample / nf_point_pdf use about
- * 3.1 KiB of the caller's stack with the AVX-512 kernels, 3.9 KiB (small preset) to 4.6 KiB
- * (large) with AVX2 and 4.2 KiB with the generic ones; nf_point_prepare 1.9 KiB at most.
- * Renderers that shade on fiber stacks should allow 8 KiB per call.
+ * Stack: measured with GCC 12's -fstack-usage, each call uses at most 1.5 KiB of the
+ * caller's stack with the AVX-512 kernels, 2.8 KiB with AVX2 and 3.4 KiB with the generic
+ * ones for the presets' shapes; other shapes up to the configuration limits take up to
+ * 4.4 KiB (nf_point_prepare: 2.3 KiB at most).
  */
 #ifndef NISFLOW_POINT_H
 #define NISFLOW_POINT_H
