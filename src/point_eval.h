@@ -195,35 +195,121 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
         p->cache_[NF_POINT_SH + k] = feat.sh[k];
 }
 
-/* One direction drawn at the point (nf_sample_one's arithmetic). `user` is the context that
- * custom prior callbacks receive. */
+/* A walk through the flow for one direction: forward from a latent point (sampling) or
+ * inverse from a direction's point on the square (density), a coupling layer per step. */
+typedef struct nf_point_walk {
+    const nf_shading_point *p;
+    const nf_context *user; /* the context custom prior callbacks receive */
+    float x[2];             /* the point being mapped                     */
+    float s0;               /* inverse: theta / pi of the direction       */
+    float q;                /* forward: the prior's density at the start  */
+    double det;             /* forward: |det J|; inverse: 1 / |det J|     */
+} nf_point_walk;
+
+/* Starts a forward walk at the prior's sample for u. */
+static inline nf_status nf_point_walk_sample(const nf_model *m, const nf_shading_point *p,
+                                             const nf_context *user, const float u[2],
+                                             nf_point_walk *w)
+{
+    nf_prior_point view;
+    nf_point_prior_view(p, user, &view);
+    w->p = p;
+    w->user = user;
+    w->x[0] = w->x[1] = 0.0f; /* set by nf_prior_sample; GCC cannot see it */
+    w->q = 1.0f;
+    w->det = 1.0;
+    return nf_prior_sample(m, &view, u[0], u[1], w->x, &w->q);
+}
+
+/* Starts an inverse walk at dir's point on the square. */
+static inline void nf_point_walk_pdf(const nf_shading_point *p, const nf_context *user,
+                                     const float dir[3], nf_point_walk *w)
+{
+    float s[2];
+    nf_to_square(dir, s);
+    w->p = p;
+    w->user = user;
+    w->x[0] = s[0];
+    w->x[1] = s[1];
+    w->s0 = s[0];
+    w->det = 1.0;
+}
+
+/* The coupling layer that step j of a walk applies. */
+static inline uint32_t nf_point_walk_layer(nf_point_shape sh, int inverse, uint32_t j)
+{
+    return inverse ? sh.layers - 1u - j : j;
+}
+
+/* The first half of step j: conditioner and spline into sc. */
+static inline void nf_point_walk_spline(const nf_model *m, nf_point_shape sh, int inverse,
+                                        uint32_t j, const nf_point_walk *w,
+                                        const nf_point_scratch *sc)
+{
+    uint32_t i = nf_point_walk_layer(sh, inverse, j), t = nf_transformed(i);
+    nf_point_conditioner(m, sh, w->p, i, w->x[1 - t], sc);
+    nf_point_spline(sh.bins, sc);
+}
+
+/* The second half of step j: the spline applied (forward) or inverted (inverse). */
+static inline void nf_point_walk_map(nf_point_shape sh, int inverse, uint32_t j,
+                                     nf_point_walk *w, const nf_point_scratch *sc)
+{
+    uint32_t t = nf_transformed(nf_point_walk_layer(sh, inverse, j));
+    nf_spline_bin bin;
+    float slope;
+    if (!inverse) {
+        nf_point_bin(sc, nf_spline_find(sc->x, sh.bins, w->x[t]), &bin);
+        w->x[t] = nf_spline_bin_eval(&bin, w->x[t], &slope);
+        w->det *= slope;
+    } else {
+        nf_point_bin(sc, nf_spline_find(sc->y, sh.bins, w->x[t]), &bin);
+        float solved = nf_spline_bin_solve(&bin, w->x[t]);
+        nf_spline_bin_eval(&bin, solved, &slope);
+        w->x[t] = solved;
+        w->det /= slope;
+    }
+}
+
+/* Ends a forward walk: the direction and its density. */
+static inline void nf_point_walk_sampled(nf_point_walk *w, float dir[3], float *pdf)
+{
+    /* One ulp below 1, as nf_sample: phi = 2 pi would map back across the seam. */
+    w->x[1] = nf_minf(w->x[1], 0x1.fffffep-1f);
+    nf_from_square(w->x, dir);
+    if (pdf)
+        *pdf = nf_solid_angle_pdf((double)w->q / w->det, w->x[0]);
+}
+
+/* Ends an inverse walk: the prior's density at the latent point, then the direction's. */
+static inline nf_status nf_point_walk_density(const nf_model *m, const nf_point_walk *w,
+                                              float *pdf)
+{
+    nf_prior_point view;
+    nf_point_prior_view(w->p, w->user, &view);
+    float q;
+    nf_status st = nf_prior_density(m, &view, w->x, &q, NULL);
+    if (st != NF_OK)
+        return st;
+    *pdf = nf_solid_angle_pdf((double)q * w->det, w->s0);
+    return NF_OK;
+}
+
+/* One direction drawn at the point (nf_sample_one's arithmetic). */
 static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh,
                                             const nf_shading_point *p,
                                             const nf_context *user, const float u[2],
                                             float dir[3], float *pdf, const nf_point_scratch *sc)
 {
-    nf_prior_point view;
-    nf_point_prior_view(p, user, &view);
-    float x[2] = {0.0f, 0.0f}, q = 1.0f; /* set by nf_prior_sample; GCC cannot see it */
-    nf_status st = nf_prior_sample(m, &view, u[0], u[1], x, &q);
+    nf_point_walk w;
+    nf_status st = nf_point_walk_sample(m, p, user, u, &w);
     if (st != NF_OK)
         return st;
-    double det = 1.0;
-    for (uint32_t i = 0; i < sh.layers; ++i) {
-        uint32_t t = nf_transformed(i);
-        nf_point_conditioner(m, sh, p, i, x[1 - t], sc);
-        nf_point_spline(sh.bins, sc);
-        nf_spline_bin bin;
-        nf_point_bin(sc, nf_spline_find(sc->x, sh.bins, x[t]), &bin);
-        float slope;
-        x[t] = nf_spline_bin_eval(&bin, x[t], &slope);
-        det *= slope;
+    for (uint32_t j = 0; j < sh.layers; ++j) {
+        nf_point_walk_spline(m, sh, 0, j, &w, sc);
+        nf_point_walk_map(sh, 0, j, &w, sc);
     }
-    /* One ulp below 1, as nf_sample: phi = 2 pi would map back across the seam. */
-    x[1] = nf_minf(x[1], 0x1.fffffep-1f);
-    nf_from_square(x, dir);
-    if (pdf)
-        *pdf = nf_solid_angle_pdf((double)q / det, x[0]);
+    nf_point_walk_sampled(&w, dir, pdf);
     return NF_OK;
 }
 
@@ -233,30 +319,13 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
                                          const nf_context *user, const float dir[3], float *pdf,
                                          const nf_point_scratch *sc)
 {
-    float s[2], x[2];
-    nf_to_square(dir, s);
-    x[0] = s[0];
-    x[1] = s[1];
-    double inv_det = 1.0;
-    for (uint32_t i = sh.layers; i-- > 0;) {
-        uint32_t t = nf_transformed(i);
-        nf_point_conditioner(m, sh, p, i, x[1 - t], sc);
-        nf_point_spline(sh.bins, sc);
-        nf_spline_bin bin;
-        nf_point_bin(sc, nf_spline_find(sc->y, sh.bins, x[t]), &bin);
-        float solved = nf_spline_bin_solve(&bin, x[t]), slope;
-        nf_spline_bin_eval(&bin, solved, &slope);
-        x[t] = solved;
-        inv_det /= slope;
+    nf_point_walk w;
+    nf_point_walk_pdf(p, user, dir, &w);
+    for (uint32_t j = 0; j < sh.layers; ++j) {
+        nf_point_walk_spline(m, sh, 1, j, &w, sc);
+        nf_point_walk_map(sh, 1, j, &w, sc);
     }
-    nf_prior_point view;
-    nf_point_prior_view(p, user, &view);
-    float q;
-    nf_status st = nf_prior_density(m, &view, x, &q, NULL);
-    if (st != NF_OK)
-        return st;
-    *pdf = nf_solid_angle_pdf((double)q * inv_det, s[0]);
-    return NF_OK;
+    return nf_point_walk_density(m, &w, pdf);
 }
 
 /* The presets' shapes (nisflow/model.h: NF_PRESET_SMALL, NF_PRESET_LARGE). */
