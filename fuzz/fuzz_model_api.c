@@ -9,8 +9,14 @@
  *   - nf_loss_gradient gives a finite loss and gradient, or NF_ERROR_NUMERIC;
  *   - nf_train_step succeeds with finite parameters, or is refused with NF_ERROR_NUMERIC and
  *     leaves the model bit-identical;
- *   - nf_model_clone and a save / load round trip give identical bytes.
+ *   - nf_model_clone and a save / load round trip give identical bytes;
+ *   - shading points (point.h) prepared at every context give the same bits as nf_sample
+ *     and nf_pdf (the batch of 24 runs tiled; the points one by one and as a batch), with the
+ *     model's prior callbacks or per-point ones; after an accepted training step they are
+ *     NF_ERROR_STALE and write nothing, after a refused one they still give the same bits;
+ *     the clone refuses them with NF_ERROR_INVALID_ARGUMENT.
  * The parameters are whatever the input holds: any finite float, up to +-FLT_MAX.
+ * (fuzz_point.c drives the shading-point API with hostile contexts and points.)
  */
 #include <float.h>
 
@@ -60,13 +66,62 @@ static void check_finite_positive(float v, const char *what, int i)
     NF_FUZZ_CHECK(isfinite(v) && v > 0.0f, "%s[%d] = %g", what, i, (double)v);
 }
 
+/* The shading points of the batch's contexts against the batch calls' bits: dir_ref and
+ * pdf_ref from nf_sample(u), eval_ref from nf_pdf(dir). */
+static void check_points(const nf_model *m, const nf_shading_point *pts, const float *u,
+                         const float *dir, const float *dir_ref, const float *pdf_ref,
+                         const float *eval_ref)
+{
+    float d[3 * N], p[N], e[N];
+    for (int i = 0; i < N; ++i) {
+        NF_FUZZ_CHECK(nf_point_sample(m, &pts[i], 1, u + 2 * i, d + 3 * i, p + i) == NF_OK,
+                      "nf_point_sample %d", i);
+        NF_FUZZ_CHECK(nf_point_pdf(m, &pts[i], 1, dir + 3 * i, e + i) == NF_OK,
+                      "nf_point_pdf %d", i);
+    }
+    NF_FUZZ_CHECK(memcmp(d, dir_ref, sizeof d) == 0 && memcmp(p, pdf_ref, sizeof p) == 0,
+                  "nf_point_sample differs from nf_sample");
+    NF_FUZZ_CHECK(memcmp(e, eval_ref, sizeof e) == 0, "nf_point_pdf differs from nf_pdf");
+    NF_FUZZ_CHECK(nf_points_sample(m, N, pts, u, d, p) == NF_OK, "nf_points_sample");
+    NF_FUZZ_CHECK(nf_points_pdf(m, N, pts, dir, e) == NF_OK, "nf_points_pdf");
+    NF_FUZZ_CHECK(memcmp(d, dir_ref, sizeof d) == 0 && memcmp(p, pdf_ref, sizeof p) == 0,
+                  "nf_points_sample differs from nf_sample");
+    NF_FUZZ_CHECK(memcmp(e, eval_ref, sizeof e) == 0, "nf_points_pdf differs from nf_pdf");
+}
+
+/* Every function refuses the points on `m` with `expected` and writes nothing. */
+static void check_points_refused(const nf_model *m, const nf_shading_point *pts,
+                                 const float *u, const float *dir, nf_status expected)
+{
+    const float sentinel = -3.5e33f;
+    float d[3 * N], p[N];
+    for (int i = 0; i < 3 * N; ++i)
+        d[i] = sentinel;
+    for (int i = 0; i < N; ++i)
+        p[i] = sentinel;
+    nf_status st[4] = {nf_point_sample(m, &pts[N - 1], N, u, d, p),
+                       nf_point_pdf(m, &pts[0], N, dir, p), nf_points_sample(m, N, pts, u, d, p),
+                       nf_points_pdf(m, N, pts, dir, p)};
+    for (int k = 0; k < 4; ++k)
+        NF_FUZZ_CHECK(st[k] == expected, "point call %d: status %d, expected %d", k, (int)st[k],
+                      (int)expected);
+    for (int i = 0; i < 3 * N; ++i)
+        NF_FUZZ_CHECK(memcmp(&d[i], &sentinel, sizeof sentinel) == 0, "a refused call wrote");
+    for (int i = 0; i < N; ++i)
+        NF_FUZZ_CHECK(memcmp(&p[i], &sentinel, sizeof sentinel) == 0, "a refused call wrote");
+}
+
 static void exercise(nf_model *m, const uint8_t *data, size_t size)
 {
     nf_context ctx[N];
     float u[2 * N], dir[3 * N], w[N], out_dir[3 * N], pdf[N];
+    float ref_dir[3 * N], ref_pdf[N], ref_eval[N];
+    static nf_shading_point pts[N];
     make_batch(data, size, ctx, u, dir, w);
 
     NF_FUZZ_CHECK(nf_sample(m, N, ctx, u, out_dir, pdf) == NF_OK, "nf_sample");
+    memcpy(ref_dir, out_dir, sizeof ref_dir);
+    memcpy(ref_pdf, pdf, sizeof ref_pdf);
     for (int i = 0; i < N; ++i) {
         const float *d = out_dir + 3 * i;
         double len = sqrt((double)d[0] * d[0] + (double)d[1] * d[1] + (double)d[2] * d[2]);
@@ -82,6 +137,20 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
         check_finite_positive(pdf[i], "pdf", i);
         check_finite_positive(nf_prior_pdf(m, &ctx[i], dir + 3 * i), "prior pdf", i);
     }
+    memcpy(ref_eval, pdf, sizeof ref_eval);
+
+    /* Shading points at every context; on a custom-prior model every other one with
+     * per-point callbacks (the same functions with a user pointer of their own). */
+    nf_config cfg;
+    NF_FUZZ_CHECK(nf_model_config(m, &cfg) == NF_OK, "nf_model_config");
+    nf_prior_callbacks own = nf_fuzz_callbacks();
+    own.user = pts;
+    for (int i = 0; i < N; ++i) {
+        const nf_prior_callbacks *prior = cfg.prior == NF_PRIOR_CUSTOM && i % 2 ? &own : NULL;
+        NF_FUZZ_CHECK(nf_point_prepare(m, &ctx[i], prior, &pts[i]) == NF_OK,
+                      "nf_point_prepare %d", i);
+    }
+    check_points(m, pts, u, dir, ref_dir, ref_pdf, ref_eval);
 
     const size_t count = nf_param_count(m);
     float *grad = (float *)malloc(count * sizeof *grad);
@@ -106,9 +175,12 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
         NF_FUZZ_CHECK(nf_get_params(m, grad) == NF_OK, "get params");
         for (size_t i = 0; i < count; ++i)
             NF_FUZZ_CHECK(isfinite(grad[i]), "param[%zu] = %g after a step", i, (double)grad[i]);
+        /* A step with positive weights changed the parameters: the points are stale. */
+        check_points_refused(m, pts, u, dir, NF_ERROR_STALE);
     } else {
         NF_FUZZ_CHECK(st == NF_ERROR_NUMERIC, "nf_train_step status %d", (int)st);
         NF_FUZZ_CHECK(memcmp(before, after, before_size) == 0, "a refused step changed the model");
+        check_points(m, pts, u, dir, ref_dir, ref_pdf, ref_eval);
     }
     free(grad);
 
@@ -119,6 +191,7 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
     unsigned char *copy_bytes = nf_fuzz_serialize(copy, &copy_size);
     NF_FUZZ_CHECK(copy_bytes && copy_size == after_size &&
                       memcmp(copy_bytes, after, after_size) == 0, "the clone differs");
+    check_points_refused(copy, pts, u, dir, NF_ERROR_INVALID_ARGUMENT);
     const nf_prior_callbacks cb = nf_fuzz_callbacks();
     nf_model *back = NULL;
     NF_FUZZ_CHECK(nf_model_deserialize(after, after_size, &cb, &back) == NF_OK, "reload");

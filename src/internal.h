@@ -203,14 +203,36 @@ typedef struct nf_point {
 
 #define NF_POINT_MAGIC 0x4e465054u /* "NFPT" */
 
-/* A hash of a point's header, so that a point whose header was overwritten (or never
- * written) is refused rather than read; multiplying by odd constants mixes every bit. */
+/* A hash of every field of a point before check_ (context, identity, prior callbacks, normal,
+ * cache mode), so that a point whose header was overwritten (or never written) is refused
+ * rather than read with a wrong normal, context or callback. A sum of the fields' 32-bit
+ * words times distinct odd constants: any change of a single word changes it, and the
+ * multiplies are independent, so checking costs a few cycles of latency per call. Field by
+ * field rather than over the bytes: struct padding (on targets with 4-byte pointers) need not
+ * survive a copy. */
 static inline uint32_t nf_point_hash(const nf_shading_point *p)
 {
-    uint64_t h = (uint64_t)p->magic_ * 0x9e3779b97f4a7c15u;
-    h ^= p->model_id_ * 0xbf58476d1ce4e5b9u;
-    h ^= p->generation_ * 0x94d049bb133111ebu;
-    h ^= (uint64_t)p->cached_ << 17;
+    uint32_t w[32];
+    uint32_t n = 0;
+    memcpy(w, &p->context_, sizeof p->context_); /* 9 floats */
+    n = (uint32_t)(sizeof p->context_ / sizeof w[0]);
+    w[n++] = p->magic_;
+    w[n++] = (uint32_t)p->model_id_;
+    w[n++] = (uint32_t)(p->model_id_ >> 32);
+    w[n++] = (uint32_t)p->generation_;
+    w[n++] = (uint32_t)(p->generation_ >> 32);
+    uintptr_t ptr[3] = {(uintptr_t)p->prior_.sample, (uintptr_t)p->prior_.pdf,
+                        (uintptr_t)p->prior_.user};
+    for (int i = 0; i < 3; ++i) {
+        w[n++] = (uint32_t)ptr[i];
+        w[n++] = (uint32_t)((uint64_t)ptr[i] >> 32);
+    }
+    memcpy(w + n, p->frame_, sizeof p->frame_);
+    n += 3;
+    w[n++] = p->cached_;
+    uint64_t h = 0;
+    for (uint32_t i = 0; i < n; ++i)
+        h += (uint64_t)w[i] * (0x9e3779b97f4a7c15u + 2u * (uint64_t)i * 0x6a09e667f3bcc909u);
     return (uint32_t)(h ^ (h >> 32));
 }
 

@@ -14,6 +14,9 @@
  * injected with an address-space limit (setrlimit RLIMIT_AS) in a forked child on Linux, and
  * the leak check uses glibc's mallinfo2; under the sanitizers (which reserve terabytes of
  * address space) that part is skipped.
+ * The shading-point API never allocates (point.h): with the allocator armed to fail, no call
+ * of nf_point_prepare / nf_point_sample / nf_point_pdf / nf_points_* reaches it, whether the
+ * call succeeds, is refused or finds its point stale.
  */
 #define _POSIX_C_SOURCE 200809L /* fork, waitpid, getpid, setrlimit */
 
@@ -23,6 +26,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -550,6 +554,85 @@ static void test_load_and_deserialize(void **state)
 #endif
 }
 
+/* ---- the shading-point API ----------------------------------------------------------------- */
+
+/* point.h: "Nothing here allocates." The library allocates only through the model's
+ * allocator (model.h), so that is what can be watched: armed to fail its next call, it must
+ * receive none during any number of point calls, on a cached and an uncached (8 x 64 >
+ * NF_SHADING_POINT_CACHE_FLOATS) model with a custom prior, per-point callbacks included. */
+static void test_shading_points_never_allocate(void **state)
+{
+    (void)state;
+    enum { P = 8, D = 20 };
+    for (int big = 0; big < 2; ++big) {
+        failing f;
+        memset(&f, 0, sizeof f);
+        nf_config cfg = failing_config(&f, NF_PRESET_SMALL, NF_PRIOR_CUSTOM);
+        if (big) {
+            cfg.coupling_layers = 8;
+            cfg.hidden_width = 64;
+        }
+        nf_model *m = NULL;
+        assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+        assert_true(f.calls > 0); /* the allocator is the one the library uses */
+        train(m, 2, 5u);
+        const unsigned long calls = f.calls;
+        const long live = f.live;
+        fail_in(&f, 0);
+
+        nf_context ctx[P];
+        nf_shading_point pts[P];
+        float u[2 * D], din[3 * D], dir[3 * D], pdf[D];
+        nft_rng r;
+        nft_rng_seed(&r, 6u, 1u);
+        for (int i = 0; i < P; ++i)
+            nft_random_context(&r, &ctx[i]);
+        for (int i = 0; i < D; ++i) {
+            u[2 * i] = nft_rng_float(&r);
+            u[2 * i + 1] = nft_rng_float(&r);
+            nft_random_unit_vector(&r, din + 3 * i);
+        }
+        const nf_prior_callbacks own = nft_phong_callbacks();
+        for (int round = 0; round < 2; ++round) {
+            for (int i = 0; i < P; ++i) {
+                assert_int_equal(nf_point_prepare(m, &ctx[i], i % 2 ? &own : NULL, &pts[i]),
+                                 NF_OK);
+                assert_int_equal(nf_point_sample(m, &pts[i], D, u, dir, pdf), NF_OK);
+                assert_int_equal(nf_point_sample(m, &pts[i], 1, u, dir, NULL), NF_OK);
+                assert_int_equal(nf_point_pdf(m, &pts[i], D, din, pdf), NF_OK);
+            }
+            assert_int_equal(nf_points_sample(m, P, pts, u, dir, pdf), NF_OK);
+            assert_int_equal(nf_points_pdf(m, P, pts, din, pdf), NF_OK);
+            /* Refused calls. */
+            nf_context bad = ctx[0];
+            bad.normal[1] = NAN;
+            assert_int_equal(nf_point_prepare(m, &bad, NULL, &pts[0]),
+                             NF_ERROR_INVALID_ARGUMENT);
+            nf_shading_point junk;
+            memset(&junk, 0, sizeof junk);
+            assert_int_equal(nf_point_sample(m, &junk, D, u, dir, pdf),
+                             NF_ERROR_INVALID_ARGUMENT);
+            assert_int_equal(nf_points_pdf(m, 1, &junk, din, pdf), NF_ERROR_INVALID_ARGUMENT);
+            /* Stale points (the training step itself does not allocate either: train.h). */
+            if (round == 0) {
+                f.fail_at = 0;
+                train(m, 1, 7u);
+                fail_in(&f, 0);
+                assert_int_equal(nf_point_pdf(m, &pts[1], D, din, pdf), NF_ERROR_STALE);
+                assert_int_equal(nf_points_sample(m, P, pts, u, dir, pdf), NF_ERROR_STALE);
+            }
+        }
+        /* Not one call reached the allocator, and nothing was freed. */
+        assert_int_equal(f.calls, calls);
+        assert_int_equal(f.failed, 0);
+        assert_int_equal(f.live, live);
+        never_fail(&f);
+        nf_model_destroy(m);
+        assert_int_equal(f.live, 0);
+        assert_int_equal(f.bad_free, 0);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -558,6 +641,7 @@ int main(void)
         cmocka_unit_test(test_save),
         cmocka_unit_test(test_scenario),
         cmocka_unit_test(test_load_and_deserialize),
+        cmocka_unit_test(test_shading_points_never_allocate),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

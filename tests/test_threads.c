@@ -3,8 +3,11 @@
  * (model.h: "functions taking a const nf_model * may run concurrently on one model").
  *
  * Several threads work on disjoint slices of one batch, all released at once by a barrier,
- * for many rounds; every result must be bit-identical to a single-threaded run. Also the
- * error message is thread-local (status.h).
+ * for many rounds; every result must be bit-identical to a single-threaded run. Shading points
+ * (point.h: "any number of threads may sample one prepared point at once") are shared: all
+ * threads sample and evaluate the same prepared points at once, while nf_sample / nf_pdf and
+ * nf_point_prepare of private points run beside them. Also the error message is thread-local
+ * (status.h).
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -266,6 +269,205 @@ static void test_concurrent_loss_gradient(void **state)
     check_loss_gradient(NF_PRIOR_CUSTOM);
 }
 
+/* ---- shared shading points ------------------------------------------------------------------- */
+
+#define POINTS 32     /* prepared points, shared by every thread                */
+#define POINT_DIRS 16 /* directions per point and call                          */
+#define POINT_ROUNDS 6
+
+/* What one thread computes in one round: per point, POINT_DIRS samples (dir, pdf) and
+ * densities through nf_point_sample / nf_point_pdf, then one direction per point through
+ * nf_points_sample / nf_points_pdf. */
+enum {
+    PR_DIR = 0,
+    PR_PDF = PR_DIR + 3 * POINTS * POINT_DIRS,
+    PR_EVAL = PR_PDF + POINTS * POINT_DIRS,
+    PR_BDIR = PR_EVAL + POINTS * POINT_DIRS,
+    PR_BPDF = PR_BDIR + 3 * POINTS,
+    PR_BEVAL = PR_BPDF + POINTS,
+    PR_FLOATS = PR_BEVAL + POINTS
+};
+
+typedef struct point_shared {
+    const nf_model *model;
+    const nf_shading_point *points; /* POINTS, prepared once, read by every thread        */
+    const nf_context *ctx;          /* their contexts                                      */
+    const float *u;                 /* 2 * POINTS * POINT_DIRS                              */
+    const float *dir_in;            /* 3 * POINTS * POINT_DIRS                              */
+    const float *ref;               /* PR_FLOATS, the single-threaded results              */
+    const float *batch_ref;         /* nf_sample dir (3 POINTS), pdf, nf_pdf (POINTS each) */
+    float *out;                     /* THREADS * POINT_ROUNDS * PR_FLOATS                  */
+    pthread_barrier_t barrier;
+    nf_status status[THREADS];
+    int mismatch[THREADS]; /* side work that differed from the reference */
+} point_shared;
+
+typedef struct point_worker {
+    point_shared *s;
+    int index;
+} point_worker;
+
+/* One round of the shared work into out (PR_FLOATS floats). */
+static nf_status point_round(const point_shared *s, float *out)
+{
+    nf_status st = NF_OK;
+    for (int p = 0; p < POINTS && st == NF_OK; ++p) {
+        size_t o = (size_t)p * POINT_DIRS;
+        st = nf_point_sample(s->model, &s->points[p], POINT_DIRS, s->u + 2 * o,
+                             out + PR_DIR + 3 * o, out + PR_PDF + o);
+        if (st == NF_OK)
+            st = nf_point_pdf(s->model, &s->points[p], POINT_DIRS, s->dir_in + 3 * o,
+                              out + PR_EVAL + o);
+    }
+    /* One direction per point: the first u pair and direction of each point. */
+    float u1[2 * POINTS], d1[3 * POINTS];
+    for (int p = 0; p < POINTS; ++p) {
+        memcpy(u1 + 2 * p, s->u + 2 * (size_t)p * POINT_DIRS, 2 * sizeof(float));
+        memcpy(d1 + 3 * p, s->dir_in + 3 * (size_t)p * POINT_DIRS, 3 * sizeof(float));
+    }
+    if (st == NF_OK)
+        st = nf_points_sample(s->model, POINTS, s->points, u1, out + PR_BDIR, out + PR_BPDF);
+    if (st == NF_OK)
+        st = nf_points_pdf(s->model, POINTS, s->points, d1, out + PR_BEVAL);
+    return st;
+}
+
+/* Beside the shared points: thread 1 runs the batch calls on the points' contexts, thread 2
+ * prepares points of its own; both check their results against the references. */
+static int side_work(const point_shared *s, int index)
+{
+    float u1[2 * POINTS], d1[3 * POINTS], dir[3 * POINTS], pdf[POINTS], eval[POINTS];
+    for (int p = 0; p < POINTS; ++p) {
+        memcpy(u1 + 2 * p, s->u + 2 * (size_t)p * POINT_DIRS, 2 * sizeof(float));
+        memcpy(d1 + 3 * p, s->dir_in + 3 * (size_t)p * POINT_DIRS, 3 * sizeof(float));
+    }
+    if (index == 1) {
+        if (nf_sample(s->model, POINTS, s->ctx, u1, dir, pdf) != NF_OK ||
+            nf_pdf(s->model, POINTS, s->ctx, d1, eval) != NF_OK)
+            return 1;
+    } else {
+        for (int p = 0; p < POINTS; ++p) {
+            nf_shading_point own;
+            if (nf_point_prepare(s->model, &s->ctx[p], NULL, &own) != NF_OK ||
+                nf_point_sample(s->model, &own, 1, u1 + 2 * p, dir + 3 * p, pdf + p) != NF_OK ||
+                nf_point_pdf(s->model, &own, 1, d1 + 3 * p, eval + p) != NF_OK)
+                return 1;
+        }
+    }
+    return memcmp(dir, s->ref + PR_BDIR, sizeof dir) != 0 ||
+           memcmp(pdf, s->ref + PR_BPDF, sizeof pdf) != 0 ||
+           memcmp(eval, s->ref + PR_BEVAL, sizeof eval) != 0;
+}
+
+static void *point_work(void *arg)
+{
+    point_worker *w = arg;
+    point_shared *s = w->s;
+    nf_status st = NF_OK;
+    for (int round = 0; round < POINT_ROUNDS; ++round) {
+        pthread_barrier_wait(&s->barrier);
+        if (st != NF_OK)
+            continue;
+        float *out = s->out + ((size_t)w->index * POINT_ROUNDS + (size_t)round) * PR_FLOATS;
+        /* Threads 1 and 2 do their side work first in odd rounds, last in even ones, so it
+         * overlaps the others' shared work either way. */
+        if ((w->index == 1 || w->index == 2) && round % 2 == 1)
+            s->mismatch[w->index] += side_work(s, w->index);
+        st = point_round(s, out);
+        if ((w->index == 1 || w->index == 2) && round % 2 == 0)
+            s->mismatch[w->index] += side_work(s, w->index);
+    }
+    s->status[w->index] = st;
+    return NULL;
+}
+
+static void check_shared_points(nf_model *m, const char *what)
+{
+    nf_context ctx[POINTS];
+    static nf_shading_point points[POINTS];
+    const size_t dirs = (size_t)POINTS * POINT_DIRS;
+    float *u = malloc(2 * dirs * sizeof *u), *dir_in = malloc(3 * dirs * sizeof *dir_in);
+    float *ref = malloc(PR_FLOATS * sizeof *ref);
+    float *out = calloc((size_t)THREADS * POINT_ROUNDS * PR_FLOATS, sizeof *out);
+    assert_true(u && dir_in && ref && out);
+    nft_rng r;
+    nft_rng_seed(&r, 6000u, 3u);
+    for (int p = 0; p < POINTS; ++p) {
+        nft_random_context(&r, &ctx[p]);
+        assert_int_equal(nf_point_prepare(m, &ctx[p], NULL, &points[p]), NF_OK);
+    }
+    for (size_t i = 0; i < dirs; ++i) {
+        u[2 * i] = nft_rng_float(&r);
+        u[2 * i + 1] = nft_rng_float(&r);
+        nft_random_unit_vector(&r, dir_in + 3 * i);
+    }
+    point_shared s;
+    memset(&s, 0, sizeof s);
+    s.model = m;
+    s.points = points;
+    s.ctx = ctx;
+    s.u = u;
+    s.dir_in = dir_in;
+    s.ref = ref;
+    s.out = out;
+    /* The single-threaded reference, which must itself be meaningful. */
+    assert_int_equal(point_round(&s, ref), NF_OK);
+    for (size_t i = 0; i < dirs; ++i)
+        assert_true(isfinite(ref[PR_PDF + i]) && ref[PR_PDF + i] > 0.0f &&
+                    isfinite(ref[PR_EVAL + i]) && ref[PR_EVAL + i] > 0.0f);
+    /* ... and equal to the batch calls (test_point.c checks this thoroughly). */
+    assert_int_equal(side_work(&s, 1), 0);
+
+    pthread_t t[THREADS];
+    point_worker w[THREADS];
+    assert_int_equal(pthread_barrier_init(&s.barrier, NULL, THREADS), 0);
+    for (int i = 0; i < THREADS; ++i) {
+        w[i].s = &s;
+        w[i].index = i;
+        s.status[i] = NF_ERROR_NUMERIC;
+        assert_int_equal(pthread_create(&t[i], NULL, point_work, &w[i]), 0);
+    }
+    for (int i = 0; i < THREADS; ++i)
+        assert_int_equal(pthread_join(t[i], NULL), 0);
+    pthread_barrier_destroy(&s.barrier);
+    for (int i = 0; i < THREADS; ++i) {
+        if (s.status[i] != NF_OK)
+            fail_msg("%s: thread %d: %s", what, i, nf_status_string(s.status[i]));
+        if (s.mismatch[i])
+            fail_msg("%s: thread %d: side work differed from the reference", what, i);
+        for (int round = 0; round < POINT_ROUNDS; ++round) {
+            const float *o = out + ((size_t)i * POINT_ROUNDS + (size_t)round) * PR_FLOATS;
+            if (memcmp(o, ref, PR_FLOATS * sizeof *ref) != 0)
+                fail_msg("%s: thread %d, round %d differs from the single-threaded run", what,
+                         i, round);
+        }
+    }
+    free(u);
+    free(dir_in);
+    free(ref);
+    free(out);
+}
+
+static void test_concurrent_shared_points(void **state)
+{
+    (void)state;
+    /* The custom prior's callbacks run on the worker threads too. */
+    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_CUSTOM);
+    assert_non_null(m);
+    assert_int_equal(nft_randomize_params(m, 1.0f, 2100u), NF_OK);
+    check_shared_points(m, "small custom");
+    nf_model_destroy(m);
+    /* Too large for the point's cache (8 x 64 > NF_SHADING_POINT_CACHE_FLOATS): every call
+     * recomputes the context's share on its own stack. */
+    nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    cfg.coupling_layers = 8;
+    cfg.hidden_width = 64;
+    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    assert_int_equal(nft_randomize_params(m, 0.3f, 2101u), NF_OK);
+    check_shared_points(m, "8 x 64 cosine");
+    nf_model_destroy(m);
+}
+
 /* ---- thread-local error messages ------------------------------------------------------------- */
 
 typedef struct message_check {
@@ -331,6 +533,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_concurrent_sample_pdf),
         cmocka_unit_test(test_concurrent_loss_gradient),
+        cmocka_unit_test(test_concurrent_shared_points),
         cmocka_unit_test(test_error_message_is_thread_local),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
