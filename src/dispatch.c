@@ -3,6 +3,7 @@
  * run, so one binary of the library is fast on every x86-64 without -march=native.
  */
 #include "internal.h"
+#include "kernels/kernels.h"
 
 #if defined(NF_HAVE_X86_KERNELS)
 static int nf_cpu_has_avx2(void)

@@ -3,6 +3,7 @@
  * (kernel.c) for the model's instruction set.
  */
 #include "internal.h"
+#include "kernels/kernels.h"
 
 nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
                     float *dir, float *pdf)

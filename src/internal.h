@@ -2,9 +2,11 @@
  * internal.h - the model's memory layout and the interfaces between the library's modules.
  * Nothing here is installed; users see only include/nisflow/.
  *
- * The hot path (encodings, conditioners, splines, priors, the flow) is inline code in
- * encoding.h, conditioner.h, spline_eval.h, prior_eval.h and flow_eval.h, compiled once per
- * instruction set by kernel.c; dispatch.c picks the variant the CPU supports.
+ * The hot path (encodings, conditioners, splines, priors, the flow, shading points) is inline
+ * code in src/kernels/, compiled once per instruction set by kernels/kernel.c; dispatch.c
+ * picks the variant the CPU supports (docs/architecture.md draws the layers).
+ *
+ * Words: a pdf is per steradian (what crosses the API); a density is on the unit square.
  */
 #ifndef NISFLOW_INTERNAL_H
 #define NISFLOW_INTERNAL_H
@@ -20,7 +22,7 @@
 #define NF_HALF_PI 1.57079632679489661923f
 #define NF_INV_FOUR_PI 0.0795774715459476679f
 #define NF_TWO_PI_SQUARED 19.7392088021787172f
-#define NF_SPLINE_MIN 1e-3f /* m in SPEC section 3: smallest bin width, height, derivative */
+#define NF_SPLINE_MIN 1e-3f /* m in docs/theory.md section 3: smallest bin width, height, derivative */
 /* The conditioners' raw spline parameters are clamped to [-NF_RAW_LIMIT, NF_RAW_LIMIT] (NaN,
  * which an overflowing MLP can produce from extreme but finite weights, becomes the lower
  * bound). Widths and heights saturate long before (softmax differences beyond ~87 are
@@ -51,7 +53,7 @@ typedef struct nf_linear {
 
 typedef struct nf_kernels nf_kernels;
 
-/* The constants of one AdamW step (SPEC section 6), computed by nf_apply_gradient. */
+/* The constants of one AdamW step (docs/theory.md section 6), computed by nf_apply_gradient. */
 typedef struct nf_adamw_step {
     float beta1, beta2, epsilon;
     float step_size;      /* learning_rate / (1 - beta1^t)     */
@@ -97,42 +99,6 @@ nf_status nf_model_allocate(const nf_config *cfg, nf_model **out);
 /* Rebuilds the packed weights from params; every change of params must call it. */
 void nf_model_pack(nf_model *m);
 
-/* ---- kernels (kernel.c, one copy per instruction set; dispatch.c) ------------------------ */
-
-struct nf_kernels {
-    const char *name;
-    /* Inputs already validated by the public entry points. */
-    nf_status (*sample)(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
-                        float *dir, float *pdf);
-    nf_status (*pdf)(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
-                     float *pdf);
-    /* Adds the gradient of the loss (weights normalized by `total` > 0) into grad and returns
-     * the loss in *loss. */
-    nf_status (*gradient)(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
-                          const float *weight, double total, double *loss, float *grad);
-    /* One AdamW step from parameters p and moments m, v with gradient g into p_new, m_new,
-     * v_new (count floats each, no overlap); returns 0 if any new value is not finite. */
-    /* The shading-point API (point_eval.h): inputs validated by point.c. */
-    void (*point_prepare)(const nf_model *m, const nf_context *ctx,
-                          const nf_prior_callbacks *prior, nf_shading_point *point);
-    nf_status (*point_sample)(const nf_model *m, const nf_shading_point *point, size_t n,
-                              size_t stride, const float *u, float *dir, float *pdf);
-    nf_status (*point_pdf)(const nf_model *m, const nf_shading_point *point, size_t n,
-                           size_t stride, const float *dir, float *pdf);
-    int (*adamw)(const nf_adamw_step *step, size_t count, const float *g, const float *p,
-                 const float *m, const float *v, float *p_new, float *m_new, float *v_new);
-};
-
-extern const nf_kernels nf_kernels_generic;
-#if defined(NF_HAVE_X86_KERNELS)
-extern const nf_kernels nf_kernels_avx2;
-extern const nf_kernels nf_kernels_avx512;
-#endif
-
-/* The kernels for a requested instruction set, or NULL (with a message) if this CPU or build
- * lacks it. */
-const nf_kernels *nf_select_kernels(nf_isa isa, const char *fn);
-
 /* ---- errors ----------------------------------------------------------------------------- */
 
 /* Records a printf-style message for nf_last_error_message and returns `status`. */
@@ -148,8 +114,8 @@ int nf_all_finite(const float *v, size_t n);
 
 /* nf_all_finite's test, inline for the kernels (which compile it per instruction set). A float
  * is NaN or Inf exactly when its exponent bits are all ones; OR-ing that test over the array
- * is associative, so the loop vectorizes. (A float sum of v[i] * 0, used before, could not be
- * reordered and ran at one add latency per element: 37% of single-sample training.) */
+ * is associative, so the loop vectorizes, where a float sum of v[i] * 0 could not be reordered
+ * and runs at one add latency per element. */
 static inline int nf_floats_finite(const float *v, size_t n)
 {
     uint32_t bad = 0;
@@ -199,7 +165,7 @@ typedef struct nf_point {
     float sh[2 * NF_MAX_SH]; /* SH of normal, then of wo                                 */
 } nf_point;
 
-/* ---- shading points (point.c, point_eval.h) ---------------------------------------------- */
+/* ---- shading points (point.c, point.h) ---------------------------------------------- */
 
 #define NF_POINT_MAGIC 0x4e465054u /* "NFPT" */
 

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "internal.h"
+#include "kernels/kernels.h"
 
 static void *nf_default_alloc(void *user, size_t size)
 {

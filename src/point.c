@@ -1,8 +1,9 @@
 /*
  * point.c - the public shading-point API (nisflow/point.h): validation of points and inputs,
- * then the kernels (point_eval.h, through kernel.c) of the model's instruction set.
+ * then the kernels (point.h, through kernel.c) of the model's instruction set.
  */
 #include "internal.h"
+#include "kernels/kernels.h"
 
 /* A point is usable with `m` when its header is intact, it was prepared on `m`, and m's
  * parameters have not changed since. `i` names the point in messages (SIZE_MAX: the only

@@ -1,11 +1,11 @@
 /*
  * prior.c - the public nf_prior_pdf: the prior's solid-angle density, computed directly in
- * solid-angle terms (the kernels work on the square; see prior_eval.h).
+ * solid-angle terms (the kernels work on the square; see prior.h).
  */
 #include <math.h>
 
-#include "conditioner.h"
-#include "prior_eval.h"
+#include "kernels/conditioner.h"
+#include "kernels/prior.h"
 
 float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
 {

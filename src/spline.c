@@ -1,10 +1,10 @@
 /*
  * spline.c - the public nf_spline_forward / nf_spline_inverse over the kernels' inline spline
- * (spline_eval.h), with argument checking.
+ * (spline.h), with argument checking.
  */
 #include <math.h>
 
-#include "spline_eval.h"
+#include "kernels/spline.h"
 
 static nf_status nf_spline_check(const char *fn, uint32_t bins, const float *raw, float v,
                                  const void *out)

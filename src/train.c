@@ -1,11 +1,12 @@
 /*
- * train.c - the weighted negative log-likelihood (SPEC section 6), its gradient, AdamW, and
+ * train.c - the weighted negative log-likelihood (docs/theory.md section 6), its gradient, AdamW, and
  * parameter access.
  */
 #include <math.h>
 #include <string.h>
 
 #include "internal.h"
+#include "kernels/kernels.h"
 
 /* Validates a training batch and returns the sum of its weights in *total. */
 static nf_status nf_validate_training(const char *fn, const nf_model *m, size_t n,

@@ -1,6 +1,6 @@
 /*
  * test_encoding.c - the conditioner's input encodings and the direction <-> square map
- * (SPEC sections 1 and 5) through nf_encode_oneblob, nf_encode_sh, nf_direction_to_square
+ * (docs/theory.md sections 1 and 5) through nf_encode_oneblob, nf_encode_sh, nf_direction_to_square
  * and nf_square_to_direction, against formulas written here in double.
  */
 #include <stdarg.h>
@@ -22,7 +22,7 @@
 
 /* ---- one-blob ------------------------------------------------------------------------------ */
 
-/* Q of SPEC section 5, in double. */
+/* Q of docs/theory.md section 5, in double. */
 static double ref_q(double t, double bins)
 {
     double u = fmin(fmax(t * bins, -1.0), 1.0);
@@ -346,7 +346,7 @@ static void test_square_round_trip(void **state)
         nft_random_unit_vector(&r, d);
         nf_direction_to_square(d, s);
         assert_true(s[0] >= 0.0f && s[0] <= 1.0f && s[1] >= 0.0f && s[1] < 1.0f);
-        /* s against SPEC section 1 in double: theta/pi within a few float roundings of
+        /* s against docs/theory.md section 1 in double: theta/pi within a few float roundings of
          * values <= 1 (hypotf, atan2f, the division): 4 2^-24 absolute; phi/(2 pi) also goes
          * through the wrap phi + 2 pi, a rounding of values up to 2 pi (~1.3 2^-24 of s1 by
          * itself): 8 2^-24. Values wrapped across the seam (s1 near 0 vs 1) compare mod 1. */

@@ -1,5 +1,5 @@
 /*
- * test_fastmath.c - the error bounds that src/fastmath.h documents, measured against
+ * test_fastmath.c - the error bounds that src/kernels/fastmath.h documents, measured against
  * double-precision libm over each function's stated domain. fastmath.h is header-only and
  * internal, so this test includes it directly.
  */
@@ -11,7 +11,7 @@
 #include <cmocka.h>
 #include <math.h>
 
-#include "../src/fastmath.h"
+#include "../src/kernels/fastmath.h"
 
 #define PI 3.14159265358979323846
 

@@ -1,5 +1,5 @@
 /*
- * test_flow.c - the coupling flow of SPEC section 4 through the public API, on models with
+ * test_flow.c - the coupling flow of docs/theory.md section 4 through the public API, on models with
  * random parameters (initial + N(0, sigma^2): sigma 0.15 gives moderately curved flows,
  * sigma 0.3 wild ones whose features are ~1e-3 wide, so finite differences need steps of
  * ~1e-4 and one-sided fallbacks at kinks).
@@ -186,7 +186,7 @@ static int compare_doubles(const void *a, const void *b)
 
 /* nf_pdf at the sampled directions against the sampled pdfs, for every prior and both
  * of the first `presets` presets, with parameters initial + N(0, sigma^2). Counts the samples (away from the poles)
- * whose relative difference exceeds 1e-4 (the SPEC's bound) and checks that none exceeds
+ * whose relative difference exceeds 1e-4 (docs/theory.md section 1's bound) and checks that none exceeds
  * `max_rel`; returns nothing, fails if more than `max_outside` of them exceed 1e-4. */
 static void check_sample_pdf(int presets, double sigma, double max_outside, double max_rel)
 {
@@ -212,7 +212,7 @@ static void check_sample_pdf(int presets, double sigma, double max_outside, doub
                 assert_true(isfinite(pdf_s[i]) && pdf_s[i] > 0.0f);
                 assert_true(fabs(nft_length3f(dir + 3 * i) - 1.0) < 1e-6);
                 if (nft_sin_theta(dir + 3 * i) < 0.01)
-                    continue; /* the SPEC's 1e-4 holds away from the poles */
+                    continue; /* docs/theory.md's 1e-4 holds away from the poles */
                 ++checked;
                 double rel = fabs((double)pdf_e[i] - pdf_s[i]) / pdf_s[i];
                 worst = fmax(worst, rel);
@@ -236,7 +236,7 @@ static void check_sample_pdf(int presets, double sigma, double max_outside, doub
 }
 
 /* Moderately random flows (sigma 0.15: densities varying by factors of ~10 across the
- * square) meet the SPEC's relative 1e-4 at every sample away from the poles. */
+ * square) meet docs/theory.md's relative 1e-4 at every sample away from the poles. */
 static void test_sample_pdf_consistent(void **state)
 {
     (void)state;
@@ -244,7 +244,7 @@ static void test_sample_pdf_consistent(void **state)
 }
 
 /* Wild flows (small preset, sigma 0.3: the flow contracts by factors of ~300 in places,
- * |det J_F| down to ~0.003) lose the SPEC's 1e-4 at some samples through float conditioning
+ * |det J_F| down to ~0.003) lose docs/theory.md's 1e-4 at some samples through float conditioning
  * alone: a float s determines z = F^-1(s) only to within F^-1's stretch of an ulp (hundreds of
  * ulps of z), and the log-determinant's slope turns that into ~1e-4..1e-3 relative (measured:
  * at most 2.6e-3, at <= 1.8% of samples). The worst sample (cosine, index 518) is worse

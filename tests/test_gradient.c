@@ -312,8 +312,8 @@ static void test_zero_weights(void **state)
     nf_model_destroy(m);
 }
 
-/* Batches of 4 or more samples run on tiles of 16 (src/tile_gradient.h), single samples on the
- * per-sample code (src/flow_eval.h): two implementations of the same reverse mode. A batch of
+/* Batches of 4 or more samples run on tiles of 16 (src/kernels/flow_tile_backward.h), single samples on the
+ * per-sample code (src/kernels/flow.h): two implementations of the same reverse mode. A batch of
  * 37 with every fifth weight zero (so tiles are compacted and the last one is partial) must
  * give the weighted sum of its samples' single-sample gradients, for every prior including a
  * custom one, on both presets and on a deep, wide network whose layers do not all fit on the

@@ -1,6 +1,6 @@
 /*
  * test_numeric_robustness.c - valid but awkward inputs give finite, positive densities and
- * unit directions everywhere (docs/robustness.md, issue 5):
+ * unit directions everywhere (docs/robustness.md):
  *
  *   - directions and normals on the poles, on the phi seam (phi = 0 and just below 2 pi),
  *     along every axis, with signed zeros and denormal components, and of any length;
@@ -34,7 +34,7 @@
 #include "nf_test_support.h"
 
 /* nf_square_to_direction builds (sin t cos p, sin t sin p, cos t) from the fast sin/cos of
- * src/fastmath.h, each within 3e-7 absolutely (asserted by test_fastmath), plus one float
+ * src/kernels/fastmath.h, each within 3e-7 absolutely (asserted by test_fastmath), plus one float
  * rounding per product: the length is within ~1e-6 of 1. 2e-6 leaves a factor of two and
  * still catches any real error (a wrong component is off by far more). */
 #define UNIT_TOLERANCE 2e-6
@@ -190,7 +190,7 @@ static void test_pdf_special_directions(void **state)
  * well-conditioned flows and ~2e-3 for sharp ones; the randomized models here (scale 0.5,
  * extreme contexts) lie in between, so the bound is the sharp one, 2e-3. A sample that lands
  * on the wrong side of the seam or of a domain boundary is off by far more (66% before the
- * fix in src/kernel.c). */
+ * fix in src/kernels/kernel.c). */
 static void test_sample_special_u(void **state)
 {
     (void)state;
@@ -552,7 +552,7 @@ static void fill_raw(float *raw, uint32_t bins, int kind, nft_rng *r)
 }
 enum { RAW_KINDS = 8 * 4 };
 
-/* The spline's knots in double (SPEC section 3); only used to probe near them. */
+/* The spline's knots in double (docs/theory.md section 3); only used to probe near them. */
 static void approx_knots(uint32_t bins, const float *raw, double *knots)
 {
     double top = -INFINITY, sum = 0.0, w[NF_MAX_SPLINE_BINS];

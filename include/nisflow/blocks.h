@@ -13,7 +13,7 @@
 
 NF_EXTERN_C_BEGIN
 
-/* The monotone rational-quadratic spline of SPEC section 3 on [0,1] with `bins` bins
+/* The monotone rational-quadratic spline of docs/theory.md section 3 on [0,1] with `bins` bins
  * (2..NF_MAX_SPLINE_BINS). `raw` holds 3*bins+1 raw parameters: bins raw widths, bins raw
  * heights, bins+1 raw derivatives. All raw zeros give the identity. x is clamped to [0,1];
  * *y receives the spline's value in [0,1] and *dydx (if not NULL) its derivative, > 0.
@@ -26,7 +26,7 @@ NF_API nf_status nf_spline_forward(uint32_t bins, const float *raw, float x, flo
 NF_API nf_status nf_spline_inverse(uint32_t bins, const float *raw, float y, float *x,
                                    float *dydx);
 
-/* One-blob encoding of v in [0,1] (clamped) into `bins` floats (SPEC section 5): bin j gets
+/* One-blob encoding of v in [0,1] (clamped) into `bins` floats (docs/theory.md section 5): bin j gets
  * Q((j+1)/B - v) - Q(j/B - v) with Q the CDF of a quartic kernel of radius 1/B. At most three
  * entries are non-zero and they sum to 1 inside the domain. bins 0 or out NULL: no-op. */
 NF_API void nf_encode_oneblob(float v, uint32_t bins, float *out);

@@ -52,7 +52,7 @@ typedef enum nf_prior_kind {
     NF_PRIOR_CUSTOM = 3             /* user callbacks (for example a BSDF lobe), eps-mixed    */
 } nf_prior_kind;
 
-/* A user prior in solid-angle terms (SPEC section 2). The library mixes it with the uniform
+/* A user prior in solid-angle terms (docs/theory.md section 2). The library mixes it with the uniform
  * direction density: q = (1 - eps) q_custom + eps / (4 pi), eps = nf_config.prior_epsilon.
  *
  * sample: maps (u0, u1) in [0,1)^2 deterministically to a direction `dir` (unit length, world
@@ -89,7 +89,7 @@ typedef struct nf_allocator {
     void *user;
 } nf_allocator;
 
-/* Model presets (SPEC section 7). Values are explicit and never renumbered. */
+/* Model presets (docs/theory.md section 7). Values are explicit and never renumbered. */
 typedef enum nf_preset {
     NF_PRESET_SMALL = 0, /* the paper's model: 2 coupling layers, 8 bins, 1 hidden layer of 16 */
     NF_PRESET_LARGE = 1  /* 4 coupling layers, 16 bins, 2 hidden layers of 16                  */

@@ -4,7 +4,7 @@
  *
  * A training sample is (context, direction w, weight f >= 0) where f is the renderer's
  * estimate of f_s(wo, x, w) L_i(x, w) |cos| divided by the density it sampled w with. The
- * loss of a batch is  - sum_i f_i log p(w_i | ctx_i) / sum_i f_i  (SPEC section 6).
+ * loss of a batch is  - sum_i f_i log p(w_i | ctx_i) / sum_i f_i  (docs/theory.md section 6).
  *
  * Sharded training (several threads or machines): each shard k calls nf_loss_gradient on a
  * const model with its own gradient buffer g_k and knows its weight sum F_k = sum of its

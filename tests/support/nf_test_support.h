@@ -84,7 +84,7 @@ nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed);
 /* A short name of a prior, for messages. */
 const char *nft_prior_name(nf_prior_kind prior);
 
-/* The analytic solid-angle density of SPEC section 2 (with the eps mixture for cosine and
+/* The analytic solid-angle density of docs/theory.md section 2 (with the eps mixture for cosine and
  * custom), in double, at a direction of any positive length; ctx vectors normalized here. */
 double nft_prior_density(nf_prior_kind prior, float eps, const nf_context *ctx,
                          const float dir[3]);

@@ -1,10 +1,10 @@
 /*
- * prior_eval.h - the latent densities of SPEC section 2 on the unit square as inline code for
+ * prior.h - the latent densities of docs/theory.md section 2 on the unit square as inline code for
  * the kernels: sampling, density, and the gradient of its log (which reverse mode needs
  * because z = F^-1(s) depends on the parameters).
  */
-#ifndef NISFLOW_PRIOR_EVAL_H
-#define NISFLOW_PRIOR_EVAL_H
+#ifndef NISFLOW_KERNELS_PRIOR_H
+#define NISFLOW_KERNELS_PRIOR_H
 
 #include <math.h>
 
@@ -193,4 +193,4 @@ static inline nf_status nf_prior_sample(const nf_model *m, const nf_prior_point 
     return nf_prior_density(m, pt, z, q, NULL);
 }
 
-#endif /* NISFLOW_PRIOR_EVAL_H */
+#endif /* NISFLOW_KERNELS_PRIOR_H */

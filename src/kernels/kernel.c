@@ -3,18 +3,19 @@
  * CMake compiles this file once per instruction set with NF_KERNEL_ISA set to generic, avx2 or
  * avx512 (and the matching -m flags); each copy defines the table nf_kernels_<isa>. Inputs
  * arrive validated from flow.c, point.c and train.c. nf_sample and nf_pdf run on tiles of 16
- * samples (tile_flow.h), or through a shading point on the stack (point_eval.h) for calls of
- * 1 or 2; the shading-point API always per direction; the gradient on tiles (tile_gradient.h),
+ * samples (flow_tile.h), or through a shading point on the stack (point.h) for calls of
+ * 1 or 2; the shading-point API always per direction; the gradient on tiles (flow_tile_backward.h),
  * or per sample for calls of 1 to 3.
  */
 #include <float.h>
 #include <math.h>
 
-#include "flow_eval.h"
-#include "point_eval.h"
-#include "tile_flow.h"
-#include "tile_gradient.h"
+#include "flow.h"
+#include "flow_tile.h"
+#include "flow_tile_backward.h"
 #include "internal.h"
+#include "kernels.h"
+#include "point.h"
 
 #ifndef NF_KERNEL_ISA
 #define NF_KERNEL_ISA generic
@@ -24,9 +25,9 @@
 #define NF_KERNEL_STR2(a) #a
 #define NF_KERNEL_STR(a) NF_KERNEL_STR2(a)
 
-/* Calls with fewer samples than this take the per-sample path (flow_eval.h): a tile costs
- * nearly as much for one sample as for sixteen, since its vector loops run over all lanes,
- * and the per-sample code is cheaper up to two samples (measured with nf_bench, batch 1). */
+/* Calls with fewer samples than this go through a shading point on the stack (point.h): a
+ * tile costs nearly as much for one sample as for sixteen, since its vector loops run over
+ * all lanes, and the per-sample code is cheaper up to two samples (nf_bench, batch 1). */
 #define NF_TILED_FROM 3u
 
 /* The same for the gradient, whose per-sample code is cheaper up to this many samples. */
@@ -39,7 +40,7 @@
 #endif
 
 /* The per-direction functions for one shape: flattened, so that the presets' constant shapes
- * reach every inner loop (point_eval.h, nf_point_shape), with scratch sized for the shape. */
+ * reach every inner loop (point.h, nf_point_shape), with scratch sized for the shape. */
 #define NF_POINT_VARIANT(suffix, SHAPE_EXPR, WORK_FLOATS)                                     \
     static NF_FLATTEN nf_status nf_point_sample_##suffix(                                      \
         const nf_model *m, const nf_shading_point *p, const nf_context *user,                  \
@@ -144,7 +145,7 @@ static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *
     return NF_OK;
 }
 
-/* Tiles of NF_TILE samples (tile_flow.h): the scratch is declared once per call. */
+/* Tiles of NF_TILE samples (flow_tile.h): the scratch is declared once per call. */
 static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *u, float *dir, float *pdf)
 {
@@ -189,7 +190,7 @@ static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ct
     return NF_OK;
 }
 
-/* The per-sample gradient of flow_eval.h, for calls too small to fill a tile. */
+/* The per-sample gradient of flow.h, for calls too small to fill a tile. */
 static nf_status nf_gradient_per_sample(const nf_model *m, size_t n, const nf_context *ctx,
                                         const float *dir, const float *weight, double total,
                                         double *loss, float *grad)

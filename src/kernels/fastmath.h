@@ -13,8 +13,8 @@
  * The exp, log and atan coefficients are Cephes' single-precision minimax fits (S. Moshier);
  * sin and cos use their Taylor series, short enough on the reduced range.
  */
-#ifndef NISFLOW_FASTMATH_H
-#define NISFLOW_FASTMATH_H
+#ifndef NISFLOW_KERNELS_FASTMATH_H
+#define NISFLOW_KERNELS_FASTMATH_H
 
 #include <stdint.h>
 #include <string.h>
@@ -129,4 +129,4 @@ static inline float nf_fast_atan2(float y, float x)
     return y < 0.0f ? -r : r;
 }
 
-#endif /* NISFLOW_FASTMATH_H */
+#endif /* NISFLOW_KERNELS_FASTMATH_H */

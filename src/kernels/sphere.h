@@ -1,10 +1,10 @@
 /*
- * sphere.h - the map between unit directions and the unit square (SPEC section 1) as inline
- * code on the fast trigonometry of fastmath.h. square.c wraps it for the public API, so the
+ * sphere.h - the map between unit directions and the unit square (docs/theory.md section 1) as inline
+ * code on the fast trigonometry of fastmath.h. sphere.c wraps it for the public API, so the
  * library has exactly one definition of the parameterization.
  */
-#ifndef NISFLOW_SPHERE_H
-#define NISFLOW_SPHERE_H
+#ifndef NISFLOW_KERNELS_SPHERE_H
+#define NISFLOW_KERNELS_SPHERE_H
 
 #include <math.h>
 
@@ -65,4 +65,4 @@ static inline float nf_from_square(const float s[2], float dir[3])
     return sin_theta;
 }
 
-#endif /* NISFLOW_SPHERE_H */
+#endif /* NISFLOW_KERNELS_SPHERE_H */

@@ -1,16 +1,16 @@
 /*
- * tile_spline_backward.h - reverse mode of the tile splines (tile_spline.h): the gradient of
+ * spline_tile_backward.h - reverse mode of the tile splines (spline_tile.h): the gradient of
  * a y + b log(dy/dx) at each lane's point with respect to that lane's raw spline parameters.
- * The per-lane arithmetic is spline_eval.h's (nf_spline_partials_at, and nf_knots_backward's
+ * The per-lane arithmetic is spline.h's (nf_spline_partials_at, and nf_knots_backward's
  * sums in the same order), with the lane's bin index turned into comparisons over the bins so
  * that every loop runs across the lanes.
  */
-#ifndef NISFLOW_TILE_SPLINE_BACKWARD_H
-#define NISFLOW_TILE_SPLINE_BACKWARD_H
+#ifndef NISFLOW_KERNELS_SPLINE_TILE_BACKWARD_H
+#define NISFLOW_KERNELS_SPLINE_TILE_BACKWARD_H
 
 #include "lanes.h"
-#include "spline_eval.h"
-#include "tile_spline.h"
+#include "spline.h"
+#include "spline_tile.h"
 
 /* nf_spline_partials per lane. */
 typedef struct nf_tile_partials {
@@ -125,4 +125,4 @@ static inline void nf_tile_spline_raw_backward(const nf_tile_spline *s, uint32_t
     }
 }
 
-#endif /* NISFLOW_TILE_SPLINE_BACKWARD_H */
+#endif /* NISFLOW_KERNELS_SPLINE_TILE_BACKWARD_H */

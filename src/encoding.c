@@ -1,12 +1,12 @@
 /*
- * encode.c - the public encodings (nf_encode_oneblob, nf_encode_sh) over the kernels' inline
+ * encoding.c - the public encodings (nf_encode_oneblob, nf_encode_sh) over the kernels' inline
  * versions (encoding.h), so the API and the conditioners compute identical values.
  */
 #include <math.h>
 #include <string.h>
 
-#include "conditioner.h"
-#include "encoding.h"
+#include "kernels/conditioner.h"
+#include "kernels/encoding.h"
 
 void nf_encode_oneblob(float v, uint32_t bins, float *out)
 {

@@ -1,5 +1,5 @@
 /*
- * point_eval.h - the shading-point kernels behind nisflow/point.h, as inline code that
+ * point.h - the shading-point kernels behind nisflow/point.h, as inline code that
  * kernel.c compiles once per instruction set: prepare a point, then draw and evaluate single
  * directions at it.
  *
@@ -9,14 +9,14 @@
  * the rest of the conditioner, the spline and the maps of sphere.h: the same functions, in the
  * same order, as the per-sample and tile paths, so the results are the same bits.
  */
-#ifndef NISFLOW_POINT_EVAL_H
-#define NISFLOW_POINT_EVAL_H
+#ifndef NISFLOW_KERNELS_POINT_H
+#define NISFLOW_KERNELS_POINT_H
 
 #include "conditioner.h"
-#include "flow_eval.h"
+#include "flow.h"
 #include "internal.h"
-#include "prior_eval.h"
-#include "spline_eval.h"
+#include "prior.h"
+#include "spline.h"
 
 /* The architecture's sizes. The presets' shapes are passed as constants to flattened copies
  * of the per-direction functions (kernel.c), so that every loop over bins and units has a
@@ -339,4 +339,4 @@ static inline int nf_point_shape_equal(nf_point_shape a, nf_point_shape b)
            a.raw_stride == b.raw_stride;
 }
 
-#endif /* NISFLOW_POINT_EVAL_H */
+#endif /* NISFLOW_KERNELS_POINT_H */

@@ -1,8 +1,8 @@
 /*
- * square.c - the public map between directions and the unit square (SPEC section 1), over
+ * sphere.c - the public map between directions and the unit square (docs/theory.md section 1), over
  * the one definition in sphere.h.
  */
-#include "sphere.h"
+#include "kernels/sphere.h"
 
 void nf_direction_to_square(const float dir[3], float s[2])
 {

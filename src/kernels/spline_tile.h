@@ -1,15 +1,15 @@
 /*
- * tile_spline.h - the rational-quadratic splines of SPEC section 3 for a tile of samples: one
- * spline per lane, every loop across the lanes. The per-lane arithmetic is spline_eval.h's
+ * spline_tile.h - the rational-quadratic splines of docs/theory.md section 3 for a tile of samples: one
+ * spline per lane, every loop across the lanes. The per-lane arithmetic is spline.h's
  * own inline functions, so a tile computes exactly what the per-sample code computes; only the
  * knot search and the bin's quantities are gathered differently (by comparison and select
  * over the bins instead of indexing, which would not vectorize).
  */
-#ifndef NISFLOW_TILE_SPLINE_H
-#define NISFLOW_TILE_SPLINE_H
+#ifndef NISFLOW_KERNELS_SPLINE_TILE_H
+#define NISFLOW_KERNELS_SPLINE_TILE_H
 
 #include "lanes.h"
-#include "spline_eval.h"
+#include "spline.h"
 #include "tile.h"
 
 /* The knots of a tile's splines, [knot][lane], and their softmaxes (kept for gradients). */
@@ -94,7 +94,7 @@ static inline void nf_tile_bin_select(const nf_tile_spline *s, uint32_t bins,
     /* The bin's knots and raw derivatives by compare-and-select over the bins: gathers
      * would need AVX2 and GCC does not emit them for generic tuning. Two passes of three
      * selections: six at once, with the index and the candidate, need more than AVX2's 16
-     * registers (two per lanes value); the passes took nf_pdf there from 640 to 540 ns. */
+     * registers (two per lanes value), and spill (docs/performance.md has the measurement). */
     nf_lanes xk, x1, yk, y1, r0, r1, t;
     nf_lanes_load(&xk, s->x[0]);
     nf_lanes_load(&x1, s->x[1]);
@@ -138,7 +138,7 @@ static inline void nf_tile_bin_select(const nf_tile_spline *s, uint32_t bins,
     }
 }
 
-/* Lane i of a tile bin as the per-sample struct, for spline_eval.h's arithmetic. */
+/* Lane i of a tile bin as the per-sample struct, for spline.h's arithmetic. */
 static inline nf_spline_bin nf_tile_bin_lane(const nf_tile_bin *b, uint32_t i)
 {
     nf_spline_bin bin;
@@ -182,4 +182,4 @@ static inline void nf_tile_spline_inverse(const nf_tile_spline *s, uint32_t bins
     }
 }
 
-#endif /* NISFLOW_TILE_SPLINE_H */
+#endif /* NISFLOW_KERNELS_SPLINE_TILE_H */

@@ -1,15 +1,15 @@
 /*
- * encoding.h - the conditioner's input encodings (SPEC section 5) as inline code for the
- * kernels: sparse one-blob and real spherical harmonics. encode.c wraps them for the API.
+ * encoding.h - the conditioner's input encodings (docs/theory.md section 5) as inline code for the
+ * kernels: sparse one-blob and real spherical harmonics. encoding.c wraps them for the API.
  */
-#ifndef NISFLOW_ENCODING_H
-#define NISFLOW_ENCODING_H
+#ifndef NISFLOW_KERNELS_ENCODING_H
+#define NISFLOW_KERNELS_ENCODING_H
 
 #include <math.h>
 
 #include "internal.h"
 
-/* Q of SPEC section 5, the CDF of a quartic kernel, with its argument already scaled:
+/* Q of docs/theory.md section 5, the CDF of a quartic kernel, with its argument already scaled:
  * tb = t * B. */
 static inline float nf_quartic_cdf(float tb)
 {
@@ -146,4 +146,4 @@ static inline void nf_sh_unit(const float d[3], uint32_t bands, float *out)
         out[i] = v[i];
 }
 
-#endif /* NISFLOW_ENCODING_H */
+#endif /* NISFLOW_KERNELS_ENCODING_H */

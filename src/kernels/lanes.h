@@ -4,14 +4,14 @@
  *
  * Why: a loop `for k: for i: acc[i] += w[k] * x[k][i]` vectorizes over i, but GCC and Clang
  * then keep the array acc in memory between iterations of k, which puts a store-to-load round
- * trip on every step of the dependency chain (measured with nf_bench, small preset, batch
- * 4096: moving the knots and the bin selection into this type took nf_pdf from 262 to
- * 203 ns/sample). With GNU C vector types the accumulator is one variable that
- * lives in registers (one zmm, two ymm or four xmm). Other compilers get a plain struct and
+ * trip on every step of the dependency chain (docs/performance.md, "Measurements behind the
+ * kernels", has what moving the knots and the bin selection into this type saved). With GNU C
+ * vector types the accumulator is one variable that lives in registers (one zmm, two ymm or
+ * four xmm). Other compilers get a plain struct and
  * loops with the same results.
  */
-#ifndef NISFLOW_LANES_H
-#define NISFLOW_LANES_H
+#ifndef NISFLOW_KERNELS_LANES_H
+#define NISFLOW_KERNELS_LANES_H
 
 #include <string.h>
 
@@ -22,6 +22,10 @@
 #include <immintrin.h>
 #endif
 #endif
+
+/* A tile (tile.h) is one nf_lanes of samples: 16 lanes, one AVX-512 register of floats, two
+ * AVX2 ones. */
+#define NF_TILE 16u
 
 #if defined(__GNUC__) || defined(__clang__)
 #define NF_LANES_VECTOR 1
@@ -35,7 +39,7 @@ typedef struct nf_lanes {
 
 #if defined(NF_LANES_VECTOR) && defined(__AVX2__) && !defined(__AVX512F__)
 /* With AVX2, GCC 12 lowers comparisons and selects on 64-byte vectors to a scalar cmov per
- * lane (seen in perf: the bin selection's selects took 15 to 18 % of nf_pdf). The selecting
+ * lane (seen in perf profiles of nf_pdf; docs/performance.md). The selecting
  * operations below therefore work on two 32-byte halves, which map onto AVX2 registers one
  * to one. */
 #define NF_LANES_HALVES 1
@@ -284,4 +288,4 @@ static inline void nf_lanes_relu_backward(nf_lanes *g, const nf_lanes *a)
 #endif
 }
 
-#endif /* NISFLOW_LANES_H */
+#endif /* NISFLOW_KERNELS_LANES_H */

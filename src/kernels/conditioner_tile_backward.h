@@ -1,5 +1,5 @@
 /*
- * tile_conditioner_backward.h - reverse mode of the tile conditioners (tile_conditioner.h):
+ * conditioner_tile_backward.h - reverse mode of the tile conditioners (conditioner_tile.h):
  * from d loss / d raw for every lane, the gradients of one coupling layer's MLP parameters
  * (added into the public layout) and d loss / d v, v the lane's pass-through coordinate.
  *
@@ -9,12 +9,12 @@
  * (gt[lane][unit]), 16 outputs per vector, so that one broadcast activation multiplies a whole
  * row. The one-blob rows of the input layer differ per sample and are added lane by lane.
  */
-#ifndef NISFLOW_TILE_CONDITIONER_BACKWARD_H
-#define NISFLOW_TILE_CONDITIONER_BACKWARD_H
+#ifndef NISFLOW_KERNELS_CONDITIONER_TILE_BACKWARD_H
+#define NISFLOW_KERNELS_CONDITIONER_TILE_BACKWARD_H
 
 #include "conditioner.h"
 #include "lanes.h"
-#include "tile_conditioner.h"
+#include "conditioner_tile.h"
 
 /* Columns of a lane-major gradient: the widest of an output layer and a hidden layer. */
 #define NF_TILE_GT_COLUMNS                                                                    \
@@ -198,4 +198,4 @@ static inline void nf_tile_conditioner_backward(const nf_model *m, uint32_t laye
         g_v[i] = 0.0f;
 }
 
-#endif /* NISFLOW_TILE_CONDITIONER_BACKWARD_H */
+#endif /* NISFLOW_KERNELS_CONDITIONER_TILE_BACKWARD_H */

@@ -1,13 +1,13 @@
 /*
- * tile_conditioner.h - the conditioner MLPs (SPEC sections 4-5) for a tile of samples.
+ * conditioner_tile.h - the conditioner MLPs (docs/theory.md sections 4-5) for a tile of samples.
  *
  * The input layer runs per sample: its one-blob rows differ from sample to sample, so it
  * gathers weight rows (input-major, NF_CHUNK outputs per vector) as conditioner.h does. Its
  * activations are then transposed into the tile layout, where the remaining layers are dense
  * products whose loops run across the lanes, with one broadcast weight per step.
  */
-#ifndef NISFLOW_TILE_CONDITIONER_H
-#define NISFLOW_TILE_CONDITIONER_H
+#ifndef NISFLOW_KERNELS_CONDITIONER_TILE_H
+#define NISFLOW_KERNELS_CONDITIONER_TILE_H
 
 #include <string.h>
 
@@ -156,4 +156,4 @@ static inline void nf_tile_conditioner_forward(const nf_model *m, uint32_t layer
             raw[r][i] = nf_clampf(raw[r][i], -NF_RAW_LIMIT, NF_RAW_LIMIT);
 }
 
-#endif /* NISFLOW_TILE_CONDITIONER_H */
+#endif /* NISFLOW_KERNELS_CONDITIONER_TILE_H */

@@ -1,7 +1,7 @@
 /*
- * tile_gradient.h - the loss gradient of SPEC section 6 for a tile of training samples: the
+ * flow_tile_backward.h - the loss gradient of docs/theory.md section 6 for a tile of training samples: the
  * inverse flow of nf_tile_pdf, then reverse mode from the prior back through the coupling
- * layers (the tile form of nf_flow_density with a gradient, flow_eval.h).
+ * layers (the tile form of nf_flow_density with a gradient, flow.h).
  *
  * The forward pass records what the reverse pass needs on a tape: every coupling layer's
  * hidden activations and raw spline parameters, and its bins, solutions and slopes. When the
@@ -9,15 +9,15 @@
  * one layer and the reverse pass recomputes each conditioner from the recorded inputs, as the
  * per-sample code always does.
  */
-#ifndef NISFLOW_TILE_GRADIENT_H
-#define NISFLOW_TILE_GRADIENT_H
+#ifndef NISFLOW_KERNELS_FLOW_TILE_BACKWARD_H
+#define NISFLOW_KERNELS_FLOW_TILE_BACKWARD_H
 
 #include <math.h>
 
-#include "flow_eval.h"
-#include "tile_conditioner_backward.h"
-#include "tile_flow.h"
-#include "tile_spline_backward.h"
+#include "flow.h"
+#include "conditioner_tile_backward.h"
+#include "flow_tile.h"
+#include "spline_tile_backward.h"
 
 /* Rows of the tape: the largest single coupling layer (NF_MAX_HIDDEN_LAYERS hidden layers of
  * NF_MAX_HIDDEN_WIDTH units and NF_MAX_RAW_PADDED raw rows), about 77 KiB. The presets' layers
@@ -181,4 +181,4 @@ static inline nf_status nf_tile_gradient(const nf_model *m, const nf_context *co
     return NF_OK;
 }
 
-#endif /* NISFLOW_TILE_GRADIENT_H */
+#endif /* NISFLOW_KERNELS_FLOW_TILE_BACKWARD_H */

@@ -1,5 +1,5 @@
 /*
- * conditioner.h - the per-layer MLPs that predict spline parameters (SPEC sections 4-5) as
+ * conditioner.h - the per-layer MLPs that predict spline parameters (docs/theory.md sections 4-5) as
  * inline code for the kernels: shading-point features, forward pass and reverse mode.
  *
  * The input vector of layer i is [one-blob(v) | one-blob(position) | SH(normal) | SH(wo)].
@@ -9,8 +9,8 @@
  * time in a fixed-size local array, which the compiler keeps in vector registers. Gradients
  * are written in the public (unpadded) parameter layout.
  */
-#ifndef NISFLOW_CONDITIONER_H
-#define NISFLOW_CONDITIONER_H
+#ifndef NISFLOW_KERNELS_CONDITIONER_H
+#define NISFLOW_KERNELS_CONDITIONER_H
 
 #include <math.h>
 
@@ -58,7 +58,7 @@ static inline void nf_context_features(const nf_model *m, const nf_context *ctx,
  * ctx[0..hp) = bias + the 9 position one-blob slots (three per axis: rows/vals) +
  * sum_k sh[k * sh_stride] wd[k], k < dense (the SH inputs and their weight rows). hp is the
  * padded width. It depends on the shading context alone, so a shading point computes it once
- * per coupling layer (point_eval.h) and each direction adds only the pass-through
+ * per coupling layer (point.h) and each direction adds only the pass-through
  * coordinate's slots (nf_input_layer_blob). Four accumulators, one per position axis plus the
  * bias, each taking every fourth SH input, keep four multiply-add chains in flight. The tile,
  * per-sample and shading-point kernels all call this, so a sample's sums run in the same
@@ -276,4 +276,4 @@ static inline float nf_conditioner_backward(const nf_model *m, uint32_t layer,
     return g_v;
 }
 
-#endif /* NISFLOW_CONDITIONER_H */
+#endif /* NISFLOW_KERNELS_CONDITIONER_H */

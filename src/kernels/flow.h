@@ -1,18 +1,18 @@
 /*
- * flow_eval.h - the coupling flow F = G_{L-1} o ... o G_0 (SPEC section 4) as inline code for
+ * flow.h - the coupling flow F = G_{L-1} o ... o G_0 (docs/theory.md section 4) as inline code for
  * the kernels. Layer i transforms s1 conditioned on s0 when i is even, s0 conditioned on s1
  * when i is odd. All scratch is on the stack: no allocation, no shared state.
  */
-#ifndef NISFLOW_FLOW_EVAL_H
-#define NISFLOW_FLOW_EVAL_H
+#ifndef NISFLOW_KERNELS_FLOW_H
+#define NISFLOW_KERNELS_FLOW_H
 
 #include <float.h>
 #include <math.h>
 
 #include "conditioner.h"
 #include "internal.h"
-#include "prior_eval.h"
-#include "spline_eval.h"
+#include "prior.h"
+#include "spline.h"
 
 /* The coordinate that layer i transforms; the other one passes through. */
 static inline uint32_t nf_transformed(uint32_t layer)
@@ -120,7 +120,7 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
     return NF_OK;
 }
 
-/* Density on the square -> solid-angle density at s (SPEC section 1). Extreme parameters can
+/* Density on the square -> solid-angle density at s (docs/theory.md section 1). Extreme parameters can
  * make a density (correctly) exceed the float range; it is clamped to [FLT_MIN, FLT_MAX] so
  * that both the density and its reciprocal are finite and positive (a renderer divides by
  * it). Ordinary densities are untouched; NaN, which cannot arise, would pass through. */
@@ -131,4 +131,4 @@ static inline float nf_solid_angle_pdf(double p_s, float s0)
     return (float)(p < (double)FLT_MIN ? (double)FLT_MIN : p);
 }
 
-#endif /* NISFLOW_FLOW_EVAL_H */
+#endif /* NISFLOW_KERNELS_FLOW_H */

@@ -1,10 +1,10 @@
 /*
- * spline_eval.h - the rational-quadratic spline of SPEC section 3 as inline code for the
+ * spline.h - the rational-quadratic spline of docs/theory.md section 3 as inline code for the
  * kernels: knots from raw parameters, bin search, evaluation, inversion, and the partial
  * derivatives reverse mode needs. spline.c wraps it for the public API.
  */
-#ifndef NISFLOW_SPLINE_EVAL_H
-#define NISFLOW_SPLINE_EVAL_H
+#ifndef NISFLOW_KERNELS_SPLINE_H
+#define NISFLOW_KERNELS_SPLINE_H
 
 #include "fastmath.h"
 #include "internal.h"
@@ -254,4 +254,4 @@ static inline void nf_spline_raw_backward(const nf_spline *s, const nf_spline_bi
     raw_grad[2 * bins + k + 1] += (a * p->dy_dd1 + b * p->dl_dd1) * bin->sd1;
 }
 
-#endif /* NISFLOW_SPLINE_EVAL_H */
+#endif /* NISFLOW_KERNELS_SPLINE_H */

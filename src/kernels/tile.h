@@ -1,6 +1,7 @@
 /*
  * tile.h - a tile of up to NF_TILE samples in structure-of-arrays layout, the unit of work of
- * the batch kernels (kernel.c), and its shading-point features (SPEC section 5).
+ * the batch kernels (kernel.c), and its shading-point features (docs/theory.md section 5,
+ * encoded by encoding_tile.h).
  *
  * Element [q][i] of a tile array is quantity q of sample (lane) i, so every loop over the
  * lanes of a tile is a loop over contiguous floats that the compiler vectorizes across
@@ -8,22 +9,12 @@
  * count repeat sample 0: they compute finite values that are never stored, and no callback
  * is ever made for them.
  */
-#ifndef NISFLOW_TILE_H
-#define NISFLOW_TILE_H
+#ifndef NISFLOW_KERNELS_TILE_H
+#define NISFLOW_KERNELS_TILE_H
 
 #include "conditioner.h"
-#include "encoding.h"
+#include "encoding_tile.h"
 #include "internal.h"
-
-/* 16 lanes: one AVX-512 register of floats, two AVX2 ones. */
-#define NF_TILE 16u
-_Static_assert(NF_TILE == 16, "lanes.h holds 16 floats per tile");
-
-/* The one-blob encoding of one scalar per lane as the three slots of nf_oneblob_slots. */
-typedef struct nf_tile_blob {
-    uint32_t row[3][NF_TILE]; /* row of the input layer's weights (encoding offset added) */
-    float value[3][NF_TILE];
-} nf_tile_blob;
 
 /* The shading points of a tile: everything the conditioners share across layers. */
 typedef struct nf_tile {
@@ -34,66 +25,6 @@ typedef struct nf_tile {
     nf_tile_blob position[3];           /* one-blob of each position axis                 */
     float sh[2 * NF_MAX_SH][NF_TILE];   /* SH of the normal (S^2 rows), then of wo        */
 } nf_tile;
-
-/* The one-blob of v[lane] (clamped to [0,1]) with B bins; rows are offset by row_offset. */
-static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_offset,
-                                   nf_tile_blob *out)
-{
-    /* nf_oneblob_slots' arithmetic with the slot loop outermost, so that the lane loops
-     * vectorize; the results are the same bits. */
-    for (uint32_t c = 0; c < 3; ++c)
-        for (uint32_t i = 0; i < NF_TILE; ++i) {
-            float vb = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
-            int j = (int)vb - 1 + (int)c;
-            int inside = (j >= 0) & (j < (int)bins);
-            float hi = (float)(j + 1) - vb, lo = (float)j - vb;
-            float q = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
-            out->row[c][i] = row_offset + (uint32_t)(inside ? j : 0);
-            out->value[c][i] = inside ? q : 0.0f;
-        }
-}
-
-/* d value / d v of the three slots of nf_tile_oneblob (0 for a slot outside the encoding), as
- * nf_oneblob_sparse's dvalue, for the reverse pass. */
-static inline void nf_tile_oneblob_slopes(const float *v, uint32_t bins, float (*slope)[NF_TILE])
-{
-    for (uint32_t c = 0; c < 3; ++c)
-        for (uint32_t i = 0; i < NF_TILE; ++i) {
-            float vb = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
-            int j = (int)vb - 1 + (int)c;
-            int inside = (j >= 0) & (j < (int)bins);
-            float hi = (float)(j + 1) - vb, lo = (float)j - vb;
-            float d = (float)bins * (nf_quartic_kernel(lo) - nf_quartic_kernel(hi));
-            slope[c][i] = inside ? d : 0.0f;
-        }
-}
-
-/* Real SH of the unit vectors d[.][i] into out[row][i] (S^2 rows). */
-static inline void nf_tile_sh(const float (*d)[NF_TILE], uint32_t bands,
-                              float (*out)[NF_TILE])
-{
-    float v[16][NF_TILE];
-    for (uint32_t i = 0; i < NF_TILE; ++i) {
-        float lane[16];
-        nf_sh4(d[0][i], d[1][i], d[2][i], lane);
-        for (uint32_t k = 0; k < 16; ++k)
-            v[k][i] = lane[k];
-    }
-    uint32_t count = bands < 4 ? bands * bands : 16;
-    for (uint32_t k = 0; k < count; ++k)
-        for (uint32_t i = 0; i < NF_TILE; ++i)
-            out[k][i] = v[k][i];
-    if (bands > 4) {
-        /* Bands 5 and 6 take the general recurrence, one lane at a time; the first 16 values
-         * stay nf_sh4's (the recurrence's agree with them to float rounding). */
-        for (uint32_t i = 0; i < NF_TILE; ++i) {
-            float dir[3] = {d[0][i], d[1][i], d[2][i]}, all[NF_MAX_SH];
-            nf_sh_recurrence(dir, bands, all);
-            for (uint32_t k = 16; k < bands * bands; ++k)
-                out[k][i] = all[k];
-        }
-    }
-}
 
 /* Loads the contexts *ctx[0..count) (count in 1..NF_TILE, inputs validated) into a tile. The
  * pointers are kept for custom prior callbacks, which receive the caller's own context. */
@@ -147,4 +78,4 @@ static inline void nf_tile_prepare(const nf_model *m, const nf_context *ctx, uin
     nf_tile_prepare_from(m, each, count, tile);
 }
 
-#endif /* NISFLOW_TILE_H */
+#endif /* NISFLOW_KERNELS_TILE_H */
