@@ -54,8 +54,7 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn)
     if ((st = nf_check_range(fn, "coupling_layers", cfg->coupling_layers, 1,
                              NF_MAX_COUPLING_LAYERS)) ||
         (st = nf_check_range(fn, "spline_bins", cfg->spline_bins, 2, NF_MAX_SPLINE_BINS)) ||
-        (st = nf_check_range(fn, "hidden_layers", cfg->hidden_layers, 1,
-                             NF_MAX_HIDDEN_LAYERS)) ||
+        (st = nf_check_range(fn, "hidden_layers", cfg->hidden_layers, 1, NF_MAX_HIDDEN_LAYERS)) ||
         (st = nf_check_range(fn, "hidden_width", cfg->hidden_width, 1, NF_MAX_HIDDEN_WIDTH)) ||
         (st = nf_check_range(fn, "oneblob_bins", cfg->oneblob_bins, 2, NF_MAX_ONEBLOB_BINS)) ||
         (st = nf_check_range(fn, "sh_bands", cfg->sh_bands, 0, NF_MAX_SH_BANDS)))
@@ -63,16 +62,16 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn)
     /* The enum is compared through an unsigned copy: a caller may store any integer in it. */
     unsigned prior = (unsigned)cfg->prior;
     if (prior > (unsigned)NF_PRIOR_CUSTOM)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.prior = %u is not a prior kind",
-                       fn, prior);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.prior = %u is not a prior kind", fn,
+                       prior);
     if (!(cfg->prior_epsilon > 0.0f && cfg->prior_epsilon <= 1.0f))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                       "%s: config.prior_epsilon = %g is outside (0, 1]", fn,
-                       (double)cfg->prior_epsilon);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.prior_epsilon = %g is outside (0, 1]",
+                       fn, (double)cfg->prior_epsilon);
     if (cfg->prior == NF_PRIOR_CUSTOM && (!cfg->custom_prior.sample || !cfg->custom_prior.pdf))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: config.prior is NF_PRIOR_CUSTOM but custom_prior.sample or .pdf "
-                       "is NULL", fn);
+                       "is NULL",
+                       fn);
     for (int a = 0; a < 3; ++a) {
         if (!isfinite(cfg->bounds_min[a]) || !isfinite(cfg->bounds_max[a]) ||
             !(cfg->bounds_max[a] > cfg->bounds_min[a]) ||
@@ -83,15 +82,15 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn)
     if (!(cfg->learning_rate > 0.0f) || !isfinite(cfg->learning_rate))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.learning_rate must be > 0", fn);
     if (!(cfg->beta1 >= 0.0f && cfg->beta1 < 1.0f) || !(cfg->beta2 >= 0.0f && cfg->beta2 < 1.0f))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.beta1/beta2 must be in [0, 1)",
-                       fn);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.beta1/beta2 must be in [0, 1)", fn);
     if (!(cfg->adam_epsilon > 0.0f) || !isfinite(cfg->adam_epsilon))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.adam_epsilon must be > 0", fn);
     /* Decoupled decay multiplies parameters by (1 - lr * wd), which must stay positive. */
     if (!(cfg->weight_decay >= 0.0f) || !(cfg->learning_rate * cfg->weight_decay < 1.0f))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: config.weight_decay must be >= 0 with learning_rate * "
-                       "weight_decay < 1", fn);
+                       "weight_decay < 1",
+                       fn);
     if ((cfg->allocator.alloc == NULL) != (cfg->allocator.free == NULL))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: config.allocator needs both alloc and free, or neither", fn);
@@ -102,8 +101,8 @@ size_t nf_layer_param_count(const nf_config *cfg)
 {
     size_t in = 4u * cfg->oneblob_bins + 2u * cfg->sh_bands * cfg->sh_bands;
     size_t h = cfg->hidden_width, out = 3u * cfg->spline_bins + 1u;
-    size_t count = (in + 1) * h;                     /* input layer  */
+    size_t count = (in + 1) * h;                             /* input layer  */
     count += (size_t)(cfg->hidden_layers - 1) * (h + 1) * h; /* hidden to hidden */
-    count += (h + 1) * out;                          /* output layer */
+    count += (h + 1) * out;                                  /* output layer */
     return count;
 }

@@ -32,8 +32,7 @@ const nf_kernels *nf_select_kernels(nf_isa isa, const char *fn)
             return &nf_kernels_avx2;
 #endif
         return &nf_kernels_generic;
-    case NF_ISA_GENERIC:
-        return &nf_kernels_generic;
+    case NF_ISA_GENERIC: return &nf_kernels_generic;
     case NF_ISA_AVX2:
 #if defined(NF_HAVE_X86_KERNELS)
         if (nf_cpu_has_avx2())
@@ -47,12 +46,9 @@ const nf_kernels *nf_select_kernels(nf_isa isa, const char *fn)
 #endif
         break;
     }
-    nf_fail(NF_ERROR_INVALID_ARGUMENT,
-            "%s: config.isa = %u is not supported by this CPU or build", fn, (unsigned)isa);
+    nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.isa = %u is not supported by this CPU or build",
+            fn, (unsigned)isa);
     return NULL;
 }
 
-const char *nf_model_isa_name(const nf_model *m)
-{
-    return m ? m->kernels->name : "";
-}
+const char *nf_model_isa_name(const nf_model *m) { return m ? m->kernels->name : ""; }

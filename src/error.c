@@ -31,10 +31,7 @@ const char *nf_status_string(nf_status s)
     return "unknown status";
 }
 
-const char *nf_last_error_message(void)
-{
-    return nf_message;
-}
+const char *nf_last_error_message(void) { return nf_message; }
 
 nf_status nf_fail(nf_status status, const char *fmt, ...)
 {

@@ -5,8 +5,8 @@
 #include "internal.h"
 #include "kernels/kernels.h"
 
-nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
-                    float *dir, float *pdf)
+nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u, float *dir,
+                    float *pdf)
 {
     static const char fn[] = "nf_sample";
     if (n == 0)
@@ -22,8 +22,7 @@ nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const fl
     return m->kernels->sample(m, n, ctx, u, dir, pdf);
 }
 
-nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
-                 float *pdf)
+nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir, float *pdf)
 {
     static const char fn[] = "nf_pdf";
     if (n == 0)

@@ -22,7 +22,8 @@
 #define NF_HALF_PI 1.57079632679489661923f
 #define NF_INV_FOUR_PI 0.0795774715459476679f
 #define NF_TWO_PI_SQUARED 19.7392088021787172f
-#define NF_SPLINE_MIN 1e-3f /* m in docs/theory.md section 3: smallest bin width, height, derivative */
+#define NF_SPLINE_MIN                                                                              \
+    1e-3f /* m in docs/theory.md section 3: smallest bin width, height, derivative */
 /* The conditioners' raw spline parameters are clamped to [-NF_RAW_LIMIT, NF_RAW_LIMIT] (NaN,
  * which an overflowing MLP can produce from extreme but finite weights, becomes the lower
  * bound). Widths and heights saturate long before (softmax differences beyond ~87 are
@@ -62,15 +63,15 @@ typedef struct nf_adamw_step {
 } nf_adamw_step;
 
 struct nf_model {
-    nf_config cfg;          /* validated; cfg.allocator resolved to real functions         */
-    uint32_t input_dim;     /* conditioner input: 4 B + 2 S^2                               */
-    uint32_t raw_dim;       /* conditioner output: 3 K + 1                                  */
-    size_t layer_params;    /* parameters of one coupling layer's conditioner               */
-    size_t param_count;     /* coupling_layers * layer_params                               */
-    size_t packed_count;    /* floats in `packed`                                           */
-    uint64_t step;          /* AdamW steps taken                                            */
-    uint64_t id;            /* unique among the models of this process (nf_model_allocate)  */
-    uint64_t generation;    /* counts changes of params; shading points record it           */
+    nf_config cfg;       /* validated; cfg.allocator resolved to real functions         */
+    uint32_t input_dim;  /* conditioner input: 4 B + 2 S^2                               */
+    uint32_t raw_dim;    /* conditioner output: 3 K + 1                                  */
+    size_t layer_params; /* parameters of one coupling layer's conditioner               */
+    size_t param_count;  /* coupling_layers * layer_params                               */
+    size_t packed_count; /* floats in `packed`                                           */
+    uint64_t step;       /* AdamW steps taken                                            */
+    uint64_t id;         /* unique among the models of this process (nf_model_allocate)  */
+    uint64_t generation; /* counts changes of params; shading points record it           */
     const nf_kernels *kernels;
     /* [layer][j]: j = 0 input layer, j = hidden_layers output layer */
     nf_linear linear[NF_MAX_COUPLING_LAYERS][NF_MAX_HIDDEN_LAYERS + 1]; /* public layout */
@@ -78,12 +79,12 @@ struct nf_model {
     /* params, adam_m and adam_v are one bank of 3 * param_count floats, staging the other;
      * nf_apply_gradient writes a step into staging and then exchanges the banks, so these
      * pointers change with every step (nothing may keep them). */
-    float *params;          /* param_count; layout documented in train.h                    */
-    float *packed;          /* the same weights, padded for the kernels; see nf_model_pack  */
-    float *adam_m;          /* param_count, first moments                                   */
-    float *adam_v;          /* param_count, second moments                                  */
-    float *grad;            /* param_count, scratch of nf_train_step                        */
-    float *staging;         /* 3 * param_count, scratch of nf_apply_gradient (p, m, v)      */
+    float *params;  /* param_count; layout documented in train.h                    */
+    float *packed;  /* the same weights, padded for the kernels; see nf_model_pack  */
+    float *adam_m;  /* param_count, first moments                                   */
+    float *adam_v;  /* param_count, second moments                                  */
+    float *grad;    /* param_count, scratch of nf_train_step                        */
+    float *staging; /* 3 * param_count, scratch of nf_apply_gradient (p, m, v)      */
 };
 
 /* Size of a coupling layer's parameters for a config (assumed valid). */
@@ -156,13 +157,13 @@ typedef struct nf_prior_point {
 
 /* A validated, normalized shading context and everything the conditioners share. */
 typedef struct nf_point {
-    const nf_context *user;  /* the caller's context, passed on to custom prior callbacks */
+    const nf_context *user;          /* the caller's context, passed on to custom prior callbacks */
     const nf_prior_callbacks *prior; /* the custom prior's callbacks for this context      */
-    nf_context ctx;          /* normal and wo normalized; position as given              */
-    uint32_t rows[9];        /* input rows of the position one-blobs: 3 slots per axis   */
-    float values[9];         /* (nf_oneblob_slots; 0 where a slot is outside)            */
-    uint32_t row_count;      /* 9                                                        */
-    float sh[2 * NF_MAX_SH]; /* SH of normal, then of wo                                 */
+    nf_context ctx;                  /* normal and wo normalized; position as given              */
+    uint32_t rows[9];                /* input rows of the position one-blobs: 3 slots per axis   */
+    float values[9];                 /* (nf_oneblob_slots; 0 where a slot is outside)            */
+    uint32_t row_count;              /* 9                                                        */
+    float sh[2 * NF_MAX_SH];         /* SH of normal, then of wo                                 */
 } nf_point;
 
 /* ---- shading points (point.c, point.h) ---------------------------------------------- */

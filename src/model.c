@@ -23,10 +23,7 @@ static void nf_default_free(void *user, void *ptr)
 }
 
 /* The struct and every array live in one block, so a model is one allocation. */
-static size_t nf_header_bytes(void)
-{
-    return (sizeof(nf_model) + 63u) & ~(size_t)63u;
-}
+static size_t nf_header_bytes(void) { return (sizeof(nf_model) + 63u) & ~(size_t)63u; }
 
 /* Fills the offset tables of both layouts: the public one (stride = out) and the packed one
  * (stride = out rounded up to NF_CHUNK). Returns the floats each layout needs. */
@@ -73,8 +70,7 @@ nf_status nf_model_allocate(const nf_config *cfg, nf_model **out)
     size_t bytes = nf_header_bytes() + (7u * p + packed) * sizeof(float);
     unsigned char *block = (unsigned char *)alloc.alloc(alloc.user, bytes);
     if (!block)
-        return nf_fail(NF_ERROR_OUT_OF_MEMORY, "could not allocate %zu bytes for a model",
-                       bytes);
+        return nf_fail(NF_ERROR_OUT_OF_MEMORY, "could not allocate %zu bytes for a model", bytes);
     memset(block, 0, bytes);
     nf_model *m = (nf_model *)block;
     *m = probe;

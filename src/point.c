@@ -43,10 +43,11 @@ nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
         if (m->cfg.prior != NF_PRIOR_CUSTOM)
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                            "%s: per-point prior callbacks need a model with NF_PRIOR_CUSTOM "
-                           "(this one has prior %u)", fn, (unsigned)m->cfg.prior);
+                           "(this one has prior %u)",
+                           fn, (unsigned)m->cfg.prior);
         if (!prior->sample || !prior->pdf)
-            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: prior->sample or prior->pdf is NULL", fn);
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: prior->sample or prior->pdf is NULL",
+                           fn);
     }
     /* Validated before anything is written: a failed call leaves a valid point valid. The
      * context is copied first, so that ctx may alias the point's own copy. */
@@ -72,8 +73,8 @@ nf_status nf_point_sample(const nf_model *m, const nf_shading_point *point, size
     return m->kernels->point_sample(m, point, n, 0, u, dir, pdf);
 }
 
-nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n,
-                       const float *dir, float *pdf)
+nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n, const float *dir,
+                       float *pdf)
 {
     static const char fn[] = "nf_point_pdf";
     if (n == 0)

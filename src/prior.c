@@ -22,10 +22,10 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
     nf_normalize3(dir, w);
     float eps = m->cfg.prior_epsilon;
     switch (m->cfg.prior) {
-    case NF_PRIOR_UNIFORM_DIRECTION:
-        return NF_INV_FOUR_PI;
+    case NF_PRIOR_UNIFORM_DIRECTION: return NF_INV_FOUR_PI;
     case NF_PRIOR_UNIFORM_ANGLE:
-        return 1.0f / (NF_TWO_PI_SQUARED * nf_maxf(sqrtf(w[0] * w[0] + w[1] * w[1]), NF_SIN_THETA_MIN));
+        return 1.0f /
+               (NF_TWO_PI_SQUARED * nf_maxf(sqrtf(w[0] * w[0] + w[1] * w[1]), NF_SIN_THETA_MIN));
     case NF_PRIOR_COSINE: {
         const float *n = pt.ctx.normal;
         float c = nf_maxf(n[0] * w[0] + n[1] * w[1] + n[2] * w[2], 0.0f);

@@ -20,10 +20,10 @@ static const unsigned char nf_magic[8] = {'N', 'I', 'S', 'F', 'L', 'O', 'W', 0};
 /* CRC-32 (IEEE 802.3, reflected, as zlib and PNG), four bits at a time. */
 static uint32_t nf_crc32(const unsigned char *p, size_t n)
 {
-    static const uint32_t table[16] = {
-        0x00000000u, 0x1DB71064u, 0x3B6E20C8u, 0x26D930ACu, 0x76DC4190u, 0x6B6B51F4u,
-        0x4DB26158u, 0x5005713Cu, 0xEDB88320u, 0xF00F9344u, 0xD6D6A3E8u, 0xCB61B38Cu,
-        0x9B64C2B0u, 0x86D3D2D4u, 0xA00AE278u, 0xBDBDF21Cu};
+    static const uint32_t table[16] = {0x00000000u, 0x1DB71064u, 0x3B6E20C8u, 0x26D930ACu,
+                                       0x76DC4190u, 0x6B6B51F4u, 0x4DB26158u, 0x5005713Cu,
+                                       0xEDB88320u, 0xF00F9344u, 0xD6D6A3E8u, 0xCB61B38Cu,
+                                       0x9B64C2B0u, 0x86D3D2D4u, 0xA00AE278u, 0xBDBDF21Cu};
     uint32_t crc = 0xFFFFFFFFu;
     for (size_t i = 0; i < n; ++i) {
         crc ^= p[i];
@@ -137,37 +137,53 @@ nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_call
         return nf_fail(NF_ERROR_FORMAT, "%s: not a libnisflow model (bad magic)", fn);
     uint32_t version = nf_get_u32(p + 8);
     if (version != NF_FORMAT_VERSION)
-        return nf_fail(NF_ERROR_FORMAT, "%s: format version %u is not supported (expected %u)",
-                       fn, version, NF_FORMAT_VERSION);
+        return nf_fail(NF_ERROR_FORMAT, "%s: format version %u is not supported (expected %u)", fn,
+                       version, NF_FORMAT_VERSION);
     if (nf_crc32(p, size - NF_TRAILER_BYTES) != nf_get_u32(p + size - NF_TRAILER_BYTES))
         return nf_fail(NF_ERROR_FORMAT, "%s: checksum mismatch (corrupt or truncated)", fn);
 
     nf_config cfg;
     nf_config_init(&cfg, NF_PRESET_SMALL);
     const unsigned char *q = p + 12;
-    cfg.coupling_layers = nf_get_u32(q); q += 4;
-    cfg.spline_bins = nf_get_u32(q); q += 4;
-    cfg.hidden_layers = nf_get_u32(q); q += 4;
-    cfg.hidden_width = nf_get_u32(q); q += 4;
-    cfg.oneblob_bins = nf_get_u32(q); q += 4;
-    cfg.sh_bands = nf_get_u32(q); q += 4;
-    uint32_t prior = nf_get_u32(q); q += 4;
+    cfg.coupling_layers = nf_get_u32(q);
+    q += 4;
+    cfg.spline_bins = nf_get_u32(q);
+    q += 4;
+    cfg.hidden_layers = nf_get_u32(q);
+    q += 4;
+    cfg.hidden_width = nf_get_u32(q);
+    q += 4;
+    cfg.oneblob_bins = nf_get_u32(q);
+    q += 4;
+    cfg.sh_bands = nf_get_u32(q);
+    q += 4;
+    uint32_t prior = nf_get_u32(q);
+    q += 4;
     if (prior > (uint32_t)NF_PRIOR_CUSTOM)
         return nf_fail(NF_ERROR_FORMAT, "%s: prior kind %u is unknown", fn, prior);
     cfg.prior = (nf_prior_kind)prior;
-    cfg.prior_epsilon = nf_get_f32(q); q += 4;
+    cfg.prior_epsilon = nf_get_f32(q);
+    q += 4;
     for (int a = 0; a < 3; ++a, q += 4)
         cfg.bounds_min[a] = nf_get_f32(q);
     for (int a = 0; a < 3; ++a, q += 4)
         cfg.bounds_max[a] = nf_get_f32(q);
-    cfg.learning_rate = nf_get_f32(q); q += 4;
-    cfg.beta1 = nf_get_f32(q); q += 4;
-    cfg.beta2 = nf_get_f32(q); q += 4;
-    cfg.adam_epsilon = nf_get_f32(q); q += 4;
-    cfg.weight_decay = nf_get_f32(q); q += 4;
-    cfg.seed = nf_get_u64(q); q += 8;
-    uint64_t step = nf_get_u64(q); q += 8;
-    uint64_t count = nf_get_u64(q); q += 8;
+    cfg.learning_rate = nf_get_f32(q);
+    q += 4;
+    cfg.beta1 = nf_get_f32(q);
+    q += 4;
+    cfg.beta2 = nf_get_f32(q);
+    q += 4;
+    cfg.adam_epsilon = nf_get_f32(q);
+    q += 4;
+    cfg.weight_decay = nf_get_f32(q);
+    q += 4;
+    cfg.seed = nf_get_u64(q);
+    q += 8;
+    uint64_t step = nf_get_u64(q);
+    q += 8;
+    uint64_t count = nf_get_u64(q);
+    q += 8;
 
     if (cfg.prior == NF_PRIOR_CUSTOM) {
         if (!custom || !custom->sample || !custom->pdf)
@@ -188,8 +204,10 @@ nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_call
     for (size_t i = 0; i < 3 * expected; ++i) {
         float v = nf_get_f32(data + 4 * i);
         if (!isfinite(v) || (i >= 2 * expected && v < 0.0f))
-            return nf_fail(NF_ERROR_FORMAT, "%s: value %zu of the parameters or optimizer state "
-                           "is invalid", fn, i);
+            return nf_fail(NF_ERROR_FORMAT,
+                           "%s: value %zu of the parameters or optimizer state "
+                           "is invalid",
+                           fn, i);
     }
 
     nf_model *m = NULL;

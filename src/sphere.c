@@ -4,10 +4,7 @@
  */
 #include "kernels/sphere.h"
 
-void nf_direction_to_square(const float dir[3], float s[2])
-{
-    nf_to_square(dir, s);
-}
+void nf_direction_to_square(const float dir[3], float s[2]) { nf_to_square(dir, s); }
 
 void nf_square_to_direction(const float s_in[2], float dir[3])
 {

@@ -1,6 +1,6 @@
 /*
- * train.c - the weighted negative log-likelihood (docs/theory.md section 6), its gradient, AdamW, and
- * parameter access.
+ * train.c - the weighted negative log-likelihood (docs/theory.md section 6), its gradient, AdamW,
+ * and parameter access.
  */
 #include <math.h>
 #include <string.h>
@@ -10,8 +10,8 @@
 
 /* Validates a training batch and returns the sum of its weights in *total. */
 static nf_status nf_validate_training(const char *fn, const nf_model *m, size_t n,
-                                      const nf_context *ctx, const float *dir,
-                                      const float *weight, double *total)
+                                      const nf_context *ctx, const float *dir, const float *weight,
+                                      double *total)
 {
     if (!m)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: model is NULL", fn);
@@ -44,8 +44,10 @@ static nf_status nf_validate_training(const char *fn, const nf_model *m, size_t 
 static nf_status nf_check_result(const char *fn, double loss, const float *grad, size_t count)
 {
     if (!isfinite(loss) || !nf_all_finite(grad, count))
-        return nf_fail(NF_ERROR_NUMERIC, "%s: the loss or its gradient is not finite for this "
-                       "batch (extreme parameters?); the model is unchanged", fn);
+        return nf_fail(NF_ERROR_NUMERIC,
+                       "%s: the loss or its gradient is not finite for this "
+                       "batch (extreme parameters?); the model is unchanged",
+                       fn);
     return NF_OK;
 }
 
@@ -122,8 +124,7 @@ nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const floa
         return st;
     if (total > 0.0) {
         memset(m->grad, 0, m->param_count * sizeof(float));
-        if ((st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, m->grad)) !=
-                NF_OK ||
+        if ((st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, m->grad)) != NF_OK ||
             (st = nf_check_result(fn, value, m->grad, m->param_count)) != NF_OK ||
             (st = nf_adamw_commit(m, m->grad, fn)) != NF_OK)
             return st;
@@ -133,10 +134,7 @@ nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const floa
     return NF_OK;
 }
 
-size_t nf_param_count(const nf_model *m)
-{
-    return m ? m->param_count : 0;
-}
+size_t nf_param_count(const nf_model *m) { return m ? m->param_count : 0; }
 
 nf_status nf_get_params(const nf_model *m, float *params)
 {
@@ -157,10 +155,7 @@ nf_status nf_set_params(nf_model *m, const float *params)
     return NF_OK;
 }
 
-uint64_t nf_model_step_count(const nf_model *m)
-{
-    return m ? m->step : 0;
-}
+uint64_t nf_model_step_count(const nf_model *m) { return m ? m->step : 0; }
 
 nf_status nf_set_learning_rate(nf_model *m, float learning_rate)
 {

@@ -7,10 +7,7 @@
 
 #include "internal.h"
 
-int nf_all_finite(const float *v, size_t n)
-{
-    return nf_floats_finite(v, n);
-}
+int nf_all_finite(const float *v, size_t n) { return nf_floats_finite(v, n); }
 
 nf_status nf_validate_batch_size(const char *fn, size_t n)
 {
@@ -35,8 +32,7 @@ nf_status nf_validate_contexts(const char *fn, size_t n, const nf_context *ctx)
 {
     for (size_t i = 0; i < n; ++i) {
         if (!nf_all_finite(ctx[i].position, 3))
-            return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: ctx[%zu].position is not finite",
-                           fn, i);
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: ctx[%zu].position is not finite", fn, i);
         if (!nf_vector_usable(ctx[i].normal))
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                            "%s: ctx[%zu].normal is zero-length or not finite", fn, i);
@@ -51,7 +47,7 @@ nf_status nf_validate_directions(const char *fn, const char *name, size_t n, con
 {
     for (size_t i = 0; i < n; ++i)
         if (!nf_vector_usable(dir + 3 * i))
-            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: %s[%zu] is zero-length or not finite", fn, name, i);
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s[%zu] is zero-length or not finite",
+                           fn, name, i);
     return NF_OK;
 }

@@ -18,16 +18,14 @@ NF_EXTERN_C_BEGIN
  * heights, bins+1 raw derivatives. All raw zeros give the identity. x is clamped to [0,1];
  * *y receives the spline's value in [0,1] and *dydx (if not NULL) its derivative, > 0.
  * NF_ERROR_INVALID_ARGUMENT for NULL pointers, bad `bins`, or non-finite inputs. */
-NF_API nf_status nf_spline_forward(uint32_t bins, const float *raw, float x, float *y,
-                                   float *dydx);
+NF_API nf_status nf_spline_forward(uint32_t bins, const float *raw, float x, float *y, float *dydx);
 
 /* The inverse of nf_spline_forward: *x such that forward(*x) = y (y clamped to [0,1]), and
  * *dydx (if not NULL) the forward derivative dy/dx at *x (so dx/dy = 1 / *dydx). */
-NF_API nf_status nf_spline_inverse(uint32_t bins, const float *raw, float y, float *x,
-                                   float *dydx);
+NF_API nf_status nf_spline_inverse(uint32_t bins, const float *raw, float y, float *x, float *dydx);
 
-/* One-blob encoding of v in [0,1] (clamped) into `bins` floats (docs/theory.md section 5): bin j gets
- * Q((j+1)/B - v) - Q(j/B - v) with Q the CDF of a quartic kernel of radius 1/B. At most three
+/* One-blob encoding of v in [0,1] (clamped) into `bins` floats (docs/theory.md section 5): bin j
+ * gets Q((j+1)/B - v) - Q(j/B - v) with Q the CDF of a quartic kernel of radius 1/B. At most three
  * entries are non-zero and they sum to 1 inside the domain. bins 0 or out NULL: no-op. */
 NF_API void nf_encode_oneblob(float v, uint32_t bins, float *out);
 

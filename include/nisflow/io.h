@@ -28,14 +28,12 @@ NF_API nf_status nf_model_save(const nf_model *m, const char *path);
  * without callbacks is refused with NF_ERROR_INVALID_ARGUMENT (the file is fine, the call is
  * not). NF_ERROR_IO when the file cannot be opened or read. The model uses the default
  * allocator and NF_ISA_AUTO. *out is NULL on failure. Thread-safe. */
-NF_API nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom,
-                               nf_model **out);
+NF_API nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom, nf_model **out);
 
 /* Serializes into a caller-owned buffer. With buf NULL only *size is set (the bytes needed).
  * With a buffer smaller than needed, returns NF_ERROR_INVALID_ARGUMENT and sets *size to the
  * bytes needed. Thread-safe on a const model; never allocates. */
-NF_API nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity,
-                                    size_t *size);
+NF_API nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity, size_t *size);
 
 /* Creates a model from exactly `size` bytes written by nf_model_serialize. `custom` as for
  * nf_model_load. The buffer is only read and may be freed afterwards. Thread-safe. */

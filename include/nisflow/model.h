@@ -52,8 +52,8 @@ typedef enum nf_prior_kind {
     NF_PRIOR_CUSTOM = 3             /* user callbacks (for example a BSDF lobe), eps-mixed    */
 } nf_prior_kind;
 
-/* A user prior in solid-angle terms (docs/theory.md section 2). The library mixes it with the uniform
- * direction density: q = (1 - eps) q_custom + eps / (4 pi), eps = nf_config.prior_epsilon.
+/* A user prior in solid-angle terms (docs/theory.md section 2). The library mixes it with the
+ * uniform direction density: q = (1 - eps) q_custom + eps / (4 pi), eps = nf_config.prior_epsilon.
  *
  * sample: maps (u0, u1) in [0,1)^2 deterministically to a direction `dir` (unit length, world
  *         space) and returns the solid-angle density of that direction, which must be finite
@@ -119,16 +119,16 @@ typedef struct nf_config {
     nf_prior_kind prior;      /* default NF_PRIOR_COSINE                                      */
     float prior_epsilon;      /* defensive mixture weight for cosine/custom, (0, 1]; 0.01     */
     nf_prior_callbacks custom_prior; /* required when prior == NF_PRIOR_CUSTOM                 */
-    float bounds_min[3];      /* scene bounds for the position encoding, world units;        */
-    float bounds_max[3];      /* max > min on every axis (default the unit cube)              */
-    float learning_rate;      /* AdamW, > 0 (default 1e-3)                                    */
-    float beta1, beta2;       /* AdamW, in [0, 1) (defaults 0.9, 0.999)                       */
-    float adam_epsilon;       /* AdamW, > 0 (default 1e-8)                                    */
-    float weight_decay;       /* AdamW decoupled decay, >= 0 with learning_rate * weight_decay
-                                 < 1, so the decay factor stays positive (default 0.01)      */
-    uint64_t seed;            /* seed of the weight initialisation (default 1)                */
-    nf_allocator allocator;   /* optional; not saved with the model                          */
-    nf_isa isa;               /* kernels to use (default NF_ISA_AUTO); not saved             */
+    float bounds_min[3];    /* scene bounds for the position encoding, world units;        */
+    float bounds_max[3];    /* max > min on every axis (default the unit cube)              */
+    float learning_rate;    /* AdamW, > 0 (default 1e-3)                                    */
+    float beta1, beta2;     /* AdamW, in [0, 1) (defaults 0.9, 0.999)                       */
+    float adam_epsilon;     /* AdamW, > 0 (default 1e-8)                                    */
+    float weight_decay;     /* AdamW decoupled decay, >= 0 with learning_rate * weight_decay
+                               < 1, so the decay factor stays positive (default 0.01)      */
+    uint64_t seed;          /* seed of the weight initialisation (default 1)                */
+    nf_allocator allocator; /* optional; not saved with the model                          */
+    nf_isa isa;             /* kernels to use (default NF_ISA_AUTO); not saved             */
 } nf_config;
 
 /* Fills `cfg` with the preset's architecture and the defaults above. `cfg` NULL is ignored.

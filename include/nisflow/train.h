@@ -62,8 +62,7 @@ NF_API nf_status nf_set_params(nf_model *m, const float *params);
  * 160 KiB of the caller's stack (the activations of 16 samples for the largest networks the
  * configuration limits allow). */
 NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
-                                  const float *dir, const float *weight, float *loss,
-                                  float *grad);
+                                  const float *dir, const float *weight, float *loss, float *grad);
 
 /* One AdamW step (decoupled weight decay, bias-corrected moments) with the given gradient
  * (nf_param_count floats). Refuses a non-finite gradient with NF_ERROR_INVALID_ARGUMENT, and a

@@ -12,23 +12,23 @@
 #define NISFLOW_VERSION_H
 
 #if defined(_WIN32) && !defined(NISFLOW_STATIC)
-#  if defined(NISFLOW_BUILDING)
-#    define NF_API __declspec(dllexport)
-#  else
-#    define NF_API __declspec(dllimport)
-#  endif
-#elif defined(__GNUC__) || defined(__clang__)
-#  define NF_API __attribute__((visibility("default")))
+#if defined(NISFLOW_BUILDING)
+#define NF_API __declspec(dllexport)
 #else
-#  define NF_API
+#define NF_API __declspec(dllimport)
+#endif
+#elif defined(__GNUC__) || defined(__clang__)
+#define NF_API __attribute__((visibility("default")))
+#else
+#define NF_API
 #endif
 
 #ifdef __cplusplus
-#  define NF_EXTERN_C_BEGIN extern "C" {
-#  define NF_EXTERN_C_END }
+#define NF_EXTERN_C_BEGIN extern "C" {
+#define NF_EXTERN_C_END }
 #else
-#  define NF_EXTERN_C_BEGIN
-#  define NF_EXTERN_C_END
+#define NF_EXTERN_C_BEGIN
+#define NF_EXTERN_C_END
 #endif
 
 #define NF_VERSION_MAJOR 0

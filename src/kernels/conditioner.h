@@ -1,6 +1,6 @@
 /*
- * conditioner.h - the per-layer MLPs that predict spline parameters (docs/theory.md sections 4-5) as
- * inline code for the kernels: shading-point features, forward pass and reverse mode.
+ * conditioner.h - the per-layer MLPs that predict spline parameters (docs/theory.md sections 4-5)
+ * as inline code for the kernels: shading-point features, forward pass and reverse mode.
  *
  * The input vector of layer i is [one-blob(v) | one-blob(position) | SH(normal) | SH(wo)].
  * One-blob parts have at most three non-zeros per scalar, so the input layer gathers those
@@ -43,8 +43,8 @@ static inline void nf_context_features(const nf_model *m, const nf_context *ctx,
     /* three one-blob slots per axis (zero-valued where outside the encoding) */
     pt->row_count = 9;
     for (uint32_t a = 0; a < 3; ++a) {
-        float t = (ctx->position[a] - cfg->bounds_min[a]) /
-                  (cfg->bounds_max[a] - cfg->bounds_min[a]);
+        float t =
+            (ctx->position[a] - cfg->bounds_min[a]) / (cfg->bounds_max[a] - cfg->bounds_min[a]);
         nf_oneblob_slots(t, bins, (a + 1) * bins, pt->rows + 3 * a, pt->values + 3 * a);
     }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
@@ -108,10 +108,9 @@ static inline void nf_input_layer_context_sums(const float *restrict w, const fl
 }
 
 static inline void nf_input_layer_context(const float *restrict w, const float *restrict bias,
-                                          uint32_t hp, const uint32_t rows[9],
-                                          const float vals[9], const float *restrict wd,
-                                          const float *restrict sh, size_t sh_stride,
-                                          uint32_t dense, float *restrict ctx)
+                                          uint32_t hp, const uint32_t rows[9], const float vals[9],
+                                          const float *restrict wd, const float *restrict sh,
+                                          size_t sh_stride, uint32_t dense, float *restrict ctx)
 {
     /* The presets' shape (16 units, 4 SH bands: 32 SH inputs) with constant bounds: the
      * compiler unrolls the loops and addresses the rows at fixed offsets, instead of keeping
@@ -201,9 +200,9 @@ static inline void nf_conditioner_forward(const nf_model *m, uint32_t layer, con
 
     uint32_t rows[3];
     float vals[3];
-    nf_input_layer_context(packed + lin[0].weight, packed + lin[0].bias, hp, pt->rows,
-                           pt->values, packed + lin[0].weight + (size_t)4u * bins * hp, pt->sh,
-                           1, 2u * m->cfg.sh_bands * m->cfg.sh_bands, act);
+    nf_input_layer_context(packed + lin[0].weight, packed + lin[0].bias, hp, pt->rows, pt->values,
+                           packed + lin[0].weight + (size_t)4u * bins * hp, pt->sh, 1,
+                           2u * m->cfg.sh_bands * m->cfg.sh_bands, act);
     nf_oneblob_slots(v, bins, 0, rows, vals);
     nf_input_layer_blob(act, packed + lin[0].weight, hp, rows, vals, act);
     nf_relu(act, hp);
@@ -223,9 +222,9 @@ static inline void nf_conditioner_forward(const nf_model *m, uint32_t layer, con
 
 /* Reverse mode: given d loss / d raw (g_raw, NF_PAD(3K+1) floats with zero padding), adds the
  * parameter gradients into grad (public layout) and returns d loss / d v. */
-static inline float nf_conditioner_backward(const nf_model *m, uint32_t layer,
-                                            const nf_point *pt, float v, const float *act,
-                                            const float *g_raw, float *grad)
+static inline float nf_conditioner_backward(const nf_model *m, uint32_t layer, const nf_point *pt,
+                                            float v, const float *act, const float *g_raw,
+                                            float *grad)
 {
     const nf_linear *pk = m->packed_linear[layer], *pub = m->linear[layer];
     const float *packed = m->packed;
@@ -240,8 +239,8 @@ static inline float nf_conditioner_backward(const nf_model *m, uint32_t layer,
     nf_axpy(grad + pub[depth].bias, g_raw, 1.0f, m->raw_dim);
     for (uint32_t i = 0; i < width; ++i) {
         nf_axpy(grad + pub[depth].weight + (size_t)i * m->raw_dim, g_raw, last[i], m->raw_dim);
-        g_act[i] = nf_dot_padded(packed + out->weight + (size_t)i * out->stride, g_raw,
-                                 out->stride);
+        g_act[i] =
+            nf_dot_padded(packed + out->weight + (size_t)i * out->stride, g_raw, out->stride);
     }
 
     /* hidden-to-hidden layers, last to first */

@@ -19,7 +19,7 @@
  * NF_PAD(NF_MAX_HIDDEN_WIDTH) units, [unit][lane]. Sampling and densities keep two slots (each
  * layer reads only the one before it, 16 KiB); the gradient keeps every hidden layer of one
  * conditioner for its reverse pass. */
-#define NF_TILE_ACT_ROWS(slots) ((slots) * NF_PAD(NF_MAX_HIDDEN_WIDTH))
+#define NF_TILE_ACT_ROWS(slots) ((slots)*NF_PAD(NF_MAX_HIDDEN_WIDTH))
 
 /* The first hidden layer of layer `layer`'s conditioner, with `vblob` the one-blob of the
  * pass-through coordinate, into out[unit][lane] (ReLU applied; rows up to the padded width
@@ -48,8 +48,7 @@ static inline void nf_tile_input_layer(const nf_model *m, uint32_t layer, const 
                 vals[3 * a + s] = tile->position[a].value[s][i];
             }
         }
-        nf_input_layer_context(w, bias, hp, rows, vals, wd, &tile->sh[0][i], NF_TILE, dense,
-                               one);
+        nf_input_layer_context(w, bias, hp, rows, vals, wd, &tile->sh[0][i], NF_TILE, dense, one);
         nf_input_layer_blob(one, w, hp, vrows, vvals, one);
         for (uint32_t c = 0; c < hp; c += NF_CHUNK)
             memcpy(act[c / NF_CHUNK][i], one + c, sizeof act[0][0]);
@@ -58,8 +57,8 @@ static inline void nf_tile_input_layer(const nf_model *m, uint32_t layer, const 
         for (uint32_t i = tile->count; i < NF_TILE; ++i)
             memcpy(act[c][i], act[c][0], sizeof act[c][i]);
         /* a fixed-size 16 x 16 transpose, which the compiler turns into vector permutes */
-        const float (*block)[NF_CHUNK] = (const float(*)[NF_CHUNK])act[c];
-        float (*dst)[NF_TILE] = out + c * NF_CHUNK;
+        const float(*block)[NF_CHUNK] = (const float(*)[NF_CHUNK])act[c];
+        float(*dst)[NF_TILE] = out + c * NF_CHUNK;
         for (uint32_t j = 0; j < NF_CHUNK; ++j)
             for (uint32_t i = 0; i < NF_TILE; ++i)
                 dst[j][i] = nf_maxf(block[i][j], 0.0f);
@@ -74,8 +73,7 @@ static inline void nf_tile_input_layer(const nf_model *m, uint32_t layer, const 
  * one at a time. */
 static inline void nf_tile_dense_layer(const float *w, size_t in_stride, size_t out_stride,
                                        const float *bias, uint32_t inputs, uint32_t outputs,
-                                       const float (*in)[NF_TILE], float (*out)[NF_TILE],
-                                       int relu)
+                                       const float (*in)[NF_TILE], float (*out)[NF_TILE], int relu)
 {
     uint32_t r = 0;
     for (; r + 8 <= outputs; r += 8) {
@@ -142,14 +140,14 @@ static inline void nf_tile_conditioner_forward(const nf_model *m, uint32_t layer
     const uint32_t hp = lin[0].stride;
     nf_tile_input_layer(m, layer, tile, vblob, act);
     for (uint32_t l = 1; l < depth; ++l)
-        nf_tile_dense_layer(packed + lin[l].weight, lin[l].stride, 1, packed + lin[l].bias,
-                            width, width, (const float(*)[NF_TILE])(act + (l - 1) % slots * hp),
+        nf_tile_dense_layer(packed + lin[l].weight, lin[l].stride, 1, packed + lin[l].bias, width,
+                            width, (const float(*)[NF_TILE])(act + (l - 1) % slots * hp),
                             act + l % slots * hp, 1);
     /* All eight rows of the last group (the packed columns are zero-padded to NF_CHUNK, so
      * the extra rows are zeros): the raw rows stay on the eight-chain path, as before the
      * one-row tail existed, instead of ending with a row on a chain of its own. */
-    nf_tile_dense_layer(packed + lin[depth].weight, lin[depth].stride, 1,
-                        packed + lin[depth].bias, width, (m->raw_dim + 7u) / 8u * 8u,
+    nf_tile_dense_layer(packed + lin[depth].weight, lin[depth].stride, 1, packed + lin[depth].bias,
+                        width, (m->raw_dim + 7u) / 8u * 8u,
                         (const float(*)[NF_TILE])(act + (depth - 1) % slots * hp), raw, 0);
     for (uint32_t r = 0; r < m->raw_dim; ++r)
         for (uint32_t i = 0; i < NF_TILE; ++i)

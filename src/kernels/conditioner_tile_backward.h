@@ -17,8 +17,8 @@
 #include "conditioner_tile.h"
 
 /* Columns of a lane-major gradient: the widest of an output layer and a hidden layer. */
-#define NF_TILE_GT_COLUMNS                                                                    \
-    (NF_MAX_RAW_PADDED > NF_PAD(NF_MAX_HIDDEN_WIDTH) ? NF_MAX_RAW_PADDED                       \
+#define NF_TILE_GT_COLUMNS                                                                         \
+    (NF_MAX_RAW_PADDED > NF_PAD(NF_MAX_HIDDEN_WIDTH) ? NF_MAX_RAW_PADDED                           \
                                                      : NF_PAD(NF_MAX_HIDDEN_WIDTH))
 
 /* Scratch of the reverse pass, about 30 KiB. */
@@ -106,9 +106,8 @@ static inline void nf_tile_outer_add(const float (*a)[NF_TILE], uint32_t rows,
 /* g_pre[j][lane] = act[j][lane] > 0 ? g_act[j][lane] : 0 for j < rows: through a ReLU whose
  * outputs were act. In the lanes type: GCC 12 left the plain loop scalar with a branch per
  * value, and at -O3 -mavx2 even computed it wrongly once written inline (26 of 256 values). */
-static inline void nf_tile_relu_backward(const float (*act)[NF_TILE],
-                                         const float (*g_act)[NF_TILE], uint32_t rows,
-                                         float (*g_pre)[NF_TILE])
+static inline void nf_tile_relu_backward(const float (*act)[NF_TILE], const float (*g_act)[NF_TILE],
+                                         uint32_t rows, float (*g_pre)[NF_TILE])
 {
     for (uint32_t j = 0; j < rows; ++j) {
         nf_lanes g, a;
@@ -155,7 +154,7 @@ static inline void nf_tile_conditioner_backward(const nf_model *m, uint32_t laye
 
     /* hidden layers, last to first: h_l = relu(W h_{l-1} + b) */
     for (uint32_t l = depth; l-- > 0;) {
-        const float (*out_act)[NF_TILE] = act + (size_t)l * hp;
+        const float(*out_act)[NF_TILE] = act + (size_t)l * hp;
         nf_tile_relu_backward(out_act, (const float(*)[NF_TILE])w->g_act, width, w->g_pre);
         nf_tile_to_lane_major((const float(*)[NF_TILE])w->g_pre, width, w->gt);
         if (l == 0)

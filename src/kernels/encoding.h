@@ -55,8 +55,8 @@ static inline void nf_oneblob_sparse(float v, uint32_t bins, nf_blob *out)
  * can be non-zero, see nf_oneblob_sparse). A slot outside the encoding has value 0 and row
  * row_offset, so every encoded scalar has three slots and no branch: the tile kernels and the
  * per-sample kernels use this same form, which keeps their sums in the same order. */
-static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset,
-                                    uint32_t row[3], float value[3])
+static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset, uint32_t row[3],
+                                    float value[3])
 {
     float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
     int first = (int)vb - 1; /* vb >= 0, so truncation is floor */
@@ -85,8 +85,8 @@ static inline void nf_sh_recurrence(const float d[3], uint32_t bands, float *out
                 p_prev = p;
                 p = z * (2.0 * m + 1.0) * pmm;
             } else if (l > m + 1) {
-                double next = ((2.0 * l - 1.0) * z * p - (double)(l + m - 1) * p_prev) /
-                              (double)(l - m);
+                double next =
+                    ((2.0 * l - 1.0) * z * p - (double)(l + m - 1) * p_prev) / (double)(l - m);
                 p_prev = p;
                 p = next;
             }

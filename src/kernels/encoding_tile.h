@@ -50,8 +50,7 @@ static inline void nf_tile_oneblob_slopes(const float *v, uint32_t bins, float (
 }
 
 /* Real SH of the unit vectors d[.][i] into out[row][i] (S^2 rows). */
-static inline void nf_tile_sh(const float (*d)[NF_TILE], uint32_t bands,
-                              float (*out)[NF_TILE])
+static inline void nf_tile_sh(const float (*d)[NF_TILE], uint32_t bands, float (*out)[NF_TILE])
 {
     float v[16][NF_TILE];
     for (uint32_t i = 0; i < NF_TILE; ++i) {

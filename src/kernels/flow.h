@@ -15,10 +15,7 @@
 #include "spline.h"
 
 /* The coordinate that layer i transforms; the other one passes through. */
-static inline uint32_t nf_transformed(uint32_t layer)
-{
-    return (layer & 1u) ? 0u : 1u;
-}
+static inline uint32_t nf_transformed(uint32_t layer) { return (layer & 1u) ? 0u : 1u; }
 
 /* Per-sample scratch, kept in one struct so the kernels declare it once. */
 typedef struct nf_scratch {
@@ -40,8 +37,7 @@ static inline double nf_flow_forward(const nf_model *m, const nf_point *pt, cons
         nf_conditioner_forward(m, i, pt, x[1 - t], sc->act, sc->raw);
         nf_spline_build(&sc->spline, m->cfg.spline_bins, sc->raw);
         nf_spline_bin bin;
-        nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.x, m->cfg.spline_bins, x[t]),
-                         &bin);
+        nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.x, m->cfg.spline_bins, x[t]), &bin);
         float slope;
         x[t] = nf_spline_bin_eval(&bin, x[t], &slope);
         det *= slope;
@@ -83,8 +79,8 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
         inv_det /= nf_layer_inverse(m, pt, i, x, sc, &bin);
     }
     float q, g[2] = {0.0f, 0.0f};
-    nf_prior_point pp = {pt->user, pt->prior, {pt->ctx.normal[0], pt->ctx.normal[1],
-                                                pt->ctx.normal[2]}};
+    nf_prior_point pp = {
+        pt->user, pt->prior, {pt->ctx.normal[0], pt->ctx.normal[1], pt->ctx.normal[2]}};
     nf_status st = nf_prior_density(m, &pp, x, &q, grad ? g : NULL);
     if (st != NF_OK)
         return st;
@@ -120,8 +116,8 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
     return NF_OK;
 }
 
-/* Density on the square -> solid-angle density at s (docs/theory.md section 1). Extreme parameters can
- * make a density (correctly) exceed the float range; it is clamped to [FLT_MIN, FLT_MAX] so
+/* Density on the square -> solid-angle density at s (docs/theory.md section 1). Extreme parameters
+ * can make a density (correctly) exceed the float range; it is clamped to [FLT_MIN, FLT_MAX] so
  * that both the density and its reciprocal are finite and positive (a renderer divides by
  * it). Ordinary densities are untouched; NaN, which cannot arise, would pass through. */
 static inline float nf_solid_angle_pdf(double p_s, float s0)

@@ -15,7 +15,7 @@
 /* Everything one tile needs, about 52 KiB: kernels declare it once per call, on the stack. */
 typedef struct nf_tile_work {
     nf_tile tile;
-    nf_tile_blob blob;                  /* one-blob of the pass-through coordinate */
+    nf_tile_blob blob; /* one-blob of the pass-through coordinate */
     float act[NF_TILE_ACT_ROWS(2)][NF_TILE];
     float raw[NF_MAX_RAW_PADDED][NF_TILE]; /* nf_tile_dense_layer writes 8 rows at a time */
     nf_tile_spline spline;
@@ -52,8 +52,8 @@ static inline nf_status nf_tile_sample(const nf_model *m, const nf_context *ctx,
     for (uint32_t layer = 0; layer < m->cfg.coupling_layers; ++layer) {
         uint32_t t = nf_transformed(layer);
         nf_tile_layer_splines(m, layer, (const float(*)[NF_TILE])x, w);
-        nf_tile_spline_forward(&w->spline, bins, (const float(*)[NF_TILE])(w->raw + 2 * bins),
-                               x[t], slope, &w->bin);
+        nf_tile_spline_forward(&w->spline, bins, (const float(*)[NF_TILE])(w->raw + 2 * bins), x[t],
+                               slope, &w->bin);
         for (uint32_t i = 0; i < NF_TILE; ++i)
             det[i] *= slope[i];
     }
@@ -98,8 +98,8 @@ static inline nf_status nf_tile_pdf(const nf_model *m, const nf_context *ctx, co
     for (uint32_t layer = m->cfg.coupling_layers; layer-- > 0;) {
         uint32_t t = nf_transformed(layer);
         nf_tile_layer_splines(m, layer, (const float(*)[NF_TILE])x, w);
-        nf_tile_spline_inverse(&w->spline, bins, (const float(*)[NF_TILE])(w->raw + 2 * bins),
-                               x[t], slope, &w->bin);
+        nf_tile_spline_inverse(&w->spline, bins, (const float(*)[NF_TILE])(w->raw + 2 * bins), x[t],
+                               slope, &w->bin);
         for (uint32_t i = 0; i < NF_TILE; ++i)
             inv_det[i] /= slope[i];
     }

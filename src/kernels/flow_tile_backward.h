@@ -1,7 +1,7 @@
 /*
- * flow_tile_backward.h - the loss gradient of docs/theory.md section 6 for a tile of training samples: the
- * inverse flow of nf_tile_pdf, then reverse mode from the prior back through the coupling
- * layers (the tile form of nf_flow_density with a gradient, flow.h).
+ * flow_tile_backward.h - the loss gradient of docs/theory.md section 6 for a tile of training
+ * samples: the inverse flow of nf_tile_pdf, then reverse mode from the prior back through the
+ * coupling layers (the tile form of nf_flow_density with a gradient, flow.h).
  *
  * The forward pass records what the reverse pass needs on a tape: every coupling layer's
  * hidden activations and raw spline parameters, and its bins, solutions and slopes. When the
@@ -32,9 +32,9 @@ typedef struct nf_tile_gradient_work {
     float tape[NF_TILE_TAPE_ROWS][NF_TILE];
     float g_raw[NF_MAX_RAW_PADDED][NF_TILE];
     nf_tile_spline spline;
-    nf_tile_bin bin[NF_MAX_COUPLING_LAYERS];             /* each inverse layer's bins */
-    float solved[NF_MAX_COUPLING_LAYERS][NF_TILE];       /* its solutions x[t]        */
-    float slope[NF_MAX_COUPLING_LAYERS][NF_TILE];        /* dy/dx there               */
+    nf_tile_bin bin[NF_MAX_COUPLING_LAYERS];       /* each inverse layer's bins */
+    float solved[NF_MAX_COUPLING_LAYERS][NF_TILE]; /* its solutions x[t]        */
+    float slope[NF_MAX_COUPLING_LAYERS][NF_TILE];  /* dy/dx there               */
     nf_tile_partials partials;
     nf_tile_backward_work backward;
 } nf_tile_gradient_work;
@@ -149,8 +149,7 @@ static inline nf_status nf_tile_gradient(const nf_model *m, const nf_context *co
             if (tape.keep_all)
                 nf_tile_spline_build(&w->spline, bins, (const float(*)[NF_TILE])raw);
             else
-                nf_tile_gradient_layer(m, layer, (const float(*)[NF_TILE])inputs[layer],
-                                       &tape, w);
+                nf_tile_gradient_layer(m, layer, (const float(*)[NF_TILE])inputs[layer], &tape, w);
         }
         nf_tile_partials_at(&w->bin[layer], w->solved[layer], &w->partials);
         /* x = S^-1(y): dx/dy = 1/S'; the layer's term is -log S'(x). */
@@ -162,8 +161,7 @@ static inline nf_status nf_tile_gradient(const nf_model *m, const nf_context *co
         for (uint32_t r = 0; r < m->raw_dim; ++r)
             for (uint32_t i = 0; i < NF_TILE; ++i)
                 w->g_raw[r][i] = 0.0f;
-        nf_tile_spline_raw_backward(&w->spline, bins, &w->bin[layer], &w->partials, a, b,
-                                    w->g_raw);
+        nf_tile_spline_raw_backward(&w->spline, bins, &w->bin[layer], &w->partials, a, b, w->g_raw);
         /* A raw parameter held at the clamp does not depend on the weights. */
         for (uint32_t r = 0; r < m->raw_dim; ++r)
             for (uint32_t i = 0; i < NF_TILE; ++i) {

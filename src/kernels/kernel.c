@@ -41,27 +41,26 @@
 
 /* The per-direction functions for one shape: flattened, so that the presets' constant shapes
  * reach every inner loop (point.h, nf_point_shape), with scratch sized for the shape. */
-#define NF_POINT_VARIANT(suffix, SHAPE_EXPR, WORK_FLOATS)                                     \
-    static NF_FLATTEN nf_status nf_point_sample_##suffix(                                      \
-        const nf_model *m, const nf_shading_point *p, const nf_context *user,                  \
-        const float u[2], float dir[3], float *pdf)                                            \
-    {                                                                                          \
-        const nf_point_shape sh = SHAPE_EXPR;                                                  \
-        float work[WORK_FLOATS];                                                               \
-        nf_point_scratch sc;                                                                   \
-        nf_point_scratch_in(work, sh, &sc);                                                    \
-        return nf_point_sample_one(m, sh, p, user, u, dir, pdf, &sc);                          \
-    }                                                                                          \
-    static NF_FLATTEN nf_status nf_point_pdf_##suffix(const nf_model *m,                       \
-                                                      const nf_shading_point *p,               \
-                                                      const nf_context *user,                  \
-                                                      const float dir[3], float *pdf)          \
-    {                                                                                          \
-        const nf_point_shape sh = SHAPE_EXPR;                                                  \
-        float work[WORK_FLOATS];                                                               \
-        nf_point_scratch sc;                                                                   \
-        nf_point_scratch_in(work, sh, &sc);                                                    \
-        return nf_point_pdf_one(m, sh, p, user, dir, pdf, &sc);                                \
+#define NF_POINT_VARIANT(suffix, SHAPE_EXPR, WORK_FLOATS)                                          \
+    static NF_FLATTEN nf_status nf_point_sample_##suffix(                                          \
+        const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \
+        float dir[3], float *pdf)                                                                  \
+    {                                                                                              \
+        const nf_point_shape sh = SHAPE_EXPR;                                                      \
+        float work[WORK_FLOATS];                                                                   \
+        nf_point_scratch sc;                                                                       \
+        nf_point_scratch_in(work, sh, &sc);                                                        \
+        return nf_point_sample_one(m, sh, p, user, u, dir, pdf, &sc);                              \
+    }                                                                                              \
+    static NF_FLATTEN nf_status nf_point_pdf_##suffix(                                             \
+        const nf_model *m, const nf_shading_point *p, const nf_context *user, const float dir[3],  \
+        float *pdf)                                                                                \
+    {                                                                                              \
+        const nf_point_shape sh = SHAPE_EXPR;                                                      \
+        float work[WORK_FLOATS];                                                                   \
+        nf_point_scratch sc;                                                                       \
+        nf_point_scratch_in(work, sh, &sc);                                                        \
+        return nf_point_pdf_one(m, sh, p, user, dir, pdf, &sc);                                    \
     }
 
 NF_POINT_VARIANT(small, NF_POINT_SHAPE_SMALL, NF_POINT_WORK_FLOATS(32u, 8u, 16u))
@@ -72,8 +71,8 @@ NF_POINT_VARIANT(any, nf_point_shape_of(m),
 
 typedef nf_status (*nf_point_sample_fn)(const nf_model *, const nf_shading_point *,
                                         const nf_context *, const float *, float *, float *);
-typedef nf_status (*nf_point_pdf_fn)(const nf_model *, const nf_shading_point *,
-                                     const nf_context *, const float *, float *);
+typedef nf_status (*nf_point_pdf_fn)(const nf_model *, const nf_shading_point *, const nf_context *,
+                                     const float *, float *);
 
 /* The variant for the model's shape. Comparing the shape costs a few compares per call, far
  * less than what the constants save. */
@@ -117,23 +116,21 @@ static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const floa
 }
 
 /* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). */
-static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points,
-                                        size_t n, size_t stride, const float *u, float *dir,
-                                        float *pdf)
+static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points, size_t n,
+                                        size_t stride, const float *u, float *dir, float *pdf)
 {
     const nf_point_sample_fn sample = nf_point_sampler(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
-        nf_status st = sample(m, p, &p->context_, u + 2 * i, dir + 3 * i,
-                              pdf ? pdf + i : NULL);
+        nf_status st = sample(m, p, &p->context_, u + 2 * i, dir + 3 * i, pdf ? pdf + i : NULL);
         if (st != NF_OK)
             return st;
     }
     return NF_OK;
 }
 
-static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *points,
-                                     size_t n, size_t stride, const float *dir, float *pdf)
+static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *points, size_t n,
+                                     size_t stride, const float *dir, float *pdf)
 {
     const nf_point_pdf_fn eval = nf_point_evaluator(m);
     for (size_t i = 0; i < n; ++i) {
@@ -151,8 +148,7 @@ static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context 
 {
     if (n < NF_TILED_FROM) {
         for (size_t i = 0; i < n; ++i) {
-            nf_status st = nf_sample_one(m, &ctx[i], u + 2 * i, dir + 3 * i,
-                                         pdf ? pdf + i : NULL);
+            nf_status st = nf_sample_one(m, &ctx[i], u + 2 * i, dir + 3 * i, pdf ? pdf + i : NULL);
             if (st != NF_OK)
                 return st;
         }
@@ -161,16 +157,16 @@ static nf_status nf_kernel_sample(const nf_model *m, size_t n, const nf_context 
     nf_tile_work w;
     for (size_t i = 0; i < n; i += NF_TILE) {
         uint32_t count = (uint32_t)(n - i < NF_TILE ? n - i : NF_TILE);
-        nf_status st = nf_tile_sample(m, ctx + i, u + 2 * i, count, dir + 3 * i,
-                                      pdf ? pdf + i : NULL, &w);
+        nf_status st =
+            nf_tile_sample(m, ctx + i, u + 2 * i, count, dir + 3 * i, pdf ? pdf + i : NULL, &w);
         if (st != NF_OK)
             return st;
     }
     return NF_OK;
 }
 
-static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ctx,
-                               const float *dir, float *pdf)
+static nf_status nf_kernel_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                               float *pdf)
 {
     if (n < NF_TILED_FROM) {
         for (size_t i = 0; i < n; ++i) {
@@ -260,8 +256,8 @@ static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_contex
  * first loop, the test kept GCC 12 from vectorizing it. */
 static int nf_kernel_adamw(const nf_adamw_step *step, size_t count, const float *restrict g,
                            const float *restrict p, const float *restrict m,
-                           const float *restrict v, float *restrict p_new,
-                           float *restrict m_new, float *restrict v_new)
+                           const float *restrict v, float *restrict p_new, float *restrict m_new,
+                           float *restrict v_new)
 {
     const float beta1 = step->beta1, beta2 = step->beta2, epsilon = step->epsilon;
     const float step_size = step->step_size, inv_sqrt_bias2 = step->inv_sqrt_bias2;
@@ -286,6 +282,5 @@ static int nf_kernel_adamw(const nf_adamw_step *step, size_t count, const float 
 }
 
 const nf_kernels NF_KERNEL_CAT(nf_kernels_, NF_KERNEL_ISA) = {
-    NF_KERNEL_STR(NF_KERNEL_ISA), nf_kernel_sample,         nf_kernel_pdf,
-    nf_kernel_gradient,           nf_point_prepare_at,      nf_kernel_point_sample,
-    nf_kernel_point_pdf,          nf_kernel_adamw};
+    NF_KERNEL_STR(NF_KERNEL_ISA), nf_kernel_sample,       nf_kernel_pdf,       nf_kernel_gradient,
+    nf_point_prepare_at,          nf_kernel_point_sample, nf_kernel_point_pdf, nf_kernel_adamw};

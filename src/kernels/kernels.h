@@ -22,8 +22,8 @@ struct nf_kernels {
     /* The shading-point API (nisflow/point.h) on kernels/point.h, inputs validated by
      * point.c. point_sample and point_pdf take points[i * stride] for direction i: stride 0
      * for n directions at one point, 1 for one direction at each of n points. */
-    void (*point_prepare)(const nf_model *m, const nf_context *ctx,
-                          const nf_prior_callbacks *prior, nf_shading_point *point);
+    void (*point_prepare)(const nf_model *m, const nf_context *ctx, const nf_prior_callbacks *prior,
+                          nf_shading_point *point);
     nf_status (*point_sample)(const nf_model *m, const nf_shading_point *points, size_t n,
                               size_t stride, const float *u, float *dir, float *pdf);
     nf_status (*point_pdf)(const nf_model *m, const nf_shading_point *points, size_t n,

@@ -49,15 +49,9 @@ typedef int32_t nf_half_i32 __attribute__((vector_size(32)));
 
 /* Values travel by pointer: a vector passed by value changes the calling convention between
  * instruction sets (GCC's -Wpsabi), and these functions always inline anyway. */
-static inline void nf_lanes_load(nf_lanes *r, const float *p)
-{
-    memcpy(r, p, sizeof *r);
-}
+static inline void nf_lanes_load(nf_lanes *r, const float *p) { memcpy(r, p, sizeof *r); }
 
-static inline void nf_lanes_store(float *p, const nf_lanes *v)
-{
-    memcpy(p, v, sizeof *v);
-}
+static inline void nf_lanes_store(float *p, const nf_lanes *v) { memcpy(p, v, sizeof *v); }
 
 static inline void nf_lanes_splat(nf_lanes *r, float s)
 {

@@ -35,9 +35,14 @@ typedef struct nf_point_shape {
 
 static inline nf_point_shape nf_point_shape_of(const nf_model *m)
 {
-    nf_point_shape s = {m->cfg.coupling_layers, m->cfg.spline_bins, m->cfg.oneblob_bins,
-                        m->cfg.hidden_layers,   m->cfg.hidden_width, NF_PAD(m->cfg.hidden_width),
-                        m->raw_dim,             NF_PAD(m->raw_dim)};
+    nf_point_shape s = {m->cfg.coupling_layers,
+                        m->cfg.spline_bins,
+                        m->cfg.oneblob_bins,
+                        m->cfg.hidden_layers,
+                        m->cfg.hidden_width,
+                        NF_PAD(m->cfg.hidden_width),
+                        m->raw_dim,
+                        NF_PAD(m->raw_dim)};
     return s;
 }
 
@@ -55,7 +60,7 @@ typedef struct nf_point_scratch {
 } nf_point_scratch;
 
 #define NF_POINT_MAX2(a, b) ((a) > (b) ? (a) : (b))
-#define NF_POINT_WORK_FLOATS(raw_stride, bins, hp)                                            \
+#define NF_POINT_WORK_FLOATS(raw_stride, bins, hp)                                                 \
     ((raw_stride) + 2u * ((bins) + 1u) + NF_POINT_MAX2(2u * (hp), 4u * (bins) + 2u))
 
 static inline void nf_point_scratch_in(float *work, nf_point_shape sh, nf_point_scratch *sc)
@@ -119,8 +124,7 @@ static inline const float *nf_point_context_sums(const nf_model *m, const nf_sha
     uint32_t rows[9];
     for (uint32_t r = 0; r < 9; ++r)
         rows[r] = (uint32_t)p->cache_[NF_POINT_ROWS + r];
-    nf_point_layer_sums(m, rows, p->cache_ + NF_POINT_VALUES, p->cache_ + NF_POINT_SH, layer,
-                        into);
+    nf_point_layer_sums(m, rows, p->cache_ + NF_POINT_VALUES, p->cache_ + NF_POINT_SH, layer, into);
     return into;
 }
 
@@ -146,8 +150,8 @@ static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
         nf_relu(o, hp);
         h = o;
     }
-    nf_dense_one(sc->raw, packed + lin[sh.depth].weight, sh.raw_stride,
-                 packed + lin[sh.depth].bias, h, sh.width);
+    nf_dense_one(sc->raw, packed + lin[sh.depth].weight, sh.raw_stride, packed + lin[sh.depth].bias,
+                 h, sh.width);
     for (uint32_t r = 0; r < sh.raw; ++r)
         sc->raw[r] = nf_clampf(sc->raw[r], -NF_RAW_LIMIT, NF_RAW_LIMIT);
 }
@@ -183,8 +187,7 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
     p->check_ = nf_point_hash(p);
     if (p->cached_) {
         for (uint32_t i = 0; i < layers; ++i)
-            nf_point_layer_sums(m, feat.rows, feat.values, feat.sh, i,
-                                p->cache_ + (size_t)i * hp);
+            nf_point_layer_sums(m, feat.rows, feat.values, feat.sh, i, p->cache_ + (size_t)i * hp);
         return;
     }
     for (uint32_t r = 0; r < 9; ++r) {
@@ -252,8 +255,8 @@ static inline void nf_point_walk_spline(const nf_model *m, nf_point_shape sh, in
 }
 
 /* The second half of step j: the spline applied (forward) or inverted (inverse). */
-static inline void nf_point_walk_map(nf_point_shape sh, int inverse, uint32_t j,
-                                     nf_point_walk *w, const nf_point_scratch *sc)
+static inline void nf_point_walk_map(nf_point_shape sh, int inverse, uint32_t j, nf_point_walk *w,
+                                     const nf_point_scratch *sc)
 {
     uint32_t t = nf_transformed(nf_point_walk_layer(sh, inverse, j));
     nf_spline_bin bin;
@@ -282,8 +285,7 @@ static inline void nf_point_walk_sampled(nf_point_walk *w, float dir[3], float *
 }
 
 /* Ends an inverse walk: the prior's density at the latent point, then the direction's. */
-static inline nf_status nf_point_walk_density(const nf_model *m, const nf_point_walk *w,
-                                              float *pdf)
+static inline nf_status nf_point_walk_density(const nf_model *m, const nf_point_walk *w, float *pdf)
 {
     nf_prior_point view;
     nf_point_prior_view(w->p, w->user, &view);
@@ -297,9 +299,9 @@ static inline nf_status nf_point_walk_density(const nf_model *m, const nf_point_
 
 /* One direction drawn at the point (nf_sample_one's arithmetic). */
 static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh,
-                                            const nf_shading_point *p,
-                                            const nf_context *user, const float u[2],
-                                            float dir[3], float *pdf, const nf_point_scratch *sc)
+                                            const nf_shading_point *p, const nf_context *user,
+                                            const float u[2], float dir[3], float *pdf,
+                                            const nf_point_scratch *sc)
 {
     nf_point_walk w;
     nf_status st = nf_point_walk_sample(m, p, user, u, &w);
@@ -315,9 +317,8 @@ static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh
 
 /* The solid-angle density of one direction at the point (nf_pdf_one's arithmetic). */
 static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
-                                         const nf_shading_point *p,
-                                         const nf_context *user, const float dir[3], float *pdf,
-                                         const nf_point_scratch *sc)
+                                         const nf_shading_point *p, const nf_context *user,
+                                         const float dir[3], float *pdf, const nf_point_scratch *sc)
 {
     nf_point_walk w;
     nf_point_walk_pdf(p, user, dir, &w);
@@ -329,8 +330,14 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
 }
 
 /* The presets' shapes (nisflow/model.h: NF_PRESET_SMALL, NF_PRESET_LARGE). */
-#define NF_POINT_SHAPE_SMALL {2u, 8u, 32u, 1u, 16u, 16u, 25u, 32u}
-#define NF_POINT_SHAPE_LARGE {4u, 16u, 32u, 2u, 16u, 16u, 49u, 64u}
+#define NF_POINT_SHAPE_SMALL                                                                       \
+    {                                                                                              \
+        2u, 8u, 32u, 1u, 16u, 16u, 25u, 32u                                                        \
+    }
+#define NF_POINT_SHAPE_LARGE                                                                       \
+    {                                                                                              \
+        4u, 16u, 32u, 2u, 16u, 16u, 49u, 64u                                                       \
+    }
 
 static inline int nf_point_shape_equal(nf_point_shape a, nf_point_shape b)
 {

@@ -13,10 +13,7 @@
 #include "sphere.h"
 
 /* Below 1 by one ulp: u = 1 would map to the far edge of the square. */
-static inline float nf_clamp_unit(float u)
-{
-    return nf_clampf(u, 0.0f, 0x1.fffffep-1f);
-}
+static inline float nf_clamp_unit(float u) { return nf_clampf(u, 0.0f, 0x1.fffffep-1f); }
 
 /* An orthonormal frame (t, b, n) around a unit normal, branch-free except for the sign
  * (Duff et al. 2017, "Building an Orthonormal Basis, Revisited"). */
@@ -78,8 +75,8 @@ static inline nf_status nf_custom_density(const nf_model *m, const nf_prior_poin
 
 /* The prior's density on the square at z, q_s(z) > 0, and (if grad != NULL) the gradient of
  * log q_s in z. For custom priors NF_ERROR_NUMERIC if a callback returns a bad value. */
-static inline nf_status nf_prior_density(const nf_model *m, const nf_prior_point *pt, const float z[2],
-                                         float *q, float grad[2])
+static inline nf_status nf_prior_density(const nf_model *m, const nf_prior_point *pt,
+                                         const float z[2], float *q, float grad[2])
 {
     if (m->cfg.prior == NF_PRIOR_UNIFORM_ANGLE) {
         *q = 1.0f;
@@ -143,8 +140,8 @@ static inline nf_status nf_prior_density(const nf_model *m, const nf_prior_point
 }
 
 /* Draws a latent point z on the square and returns its density q_s(z) in *q. */
-static inline nf_status nf_prior_sample(const nf_model *m, const nf_prior_point *pt, float u0, float u1,
-                                        float z[2], float *q)
+static inline nf_status nf_prior_sample(const nf_model *m, const nf_prior_point *pt, float u0,
+                                        float u1, float z[2], float *q)
 {
     u0 = nf_clamp_unit(u0);
     u1 = nf_clamp_unit(u1);
@@ -154,9 +151,7 @@ static inline nf_status nf_prior_sample(const nf_model *m, const nf_prior_point 
         z[0] = u0;
         z[1] = u1;
         break;
-    case NF_PRIOR_UNIFORM_DIRECTION:
-        nf_uniform_sphere_square(u0, u1, z);
-        break;
+    case NF_PRIOR_UNIFORM_DIRECTION: nf_uniform_sphere_square(u0, u1, z); break;
     case NF_PRIOR_COSINE:
         /* u0 picks the mixture component and is rescaled, so u -> z stays deterministic. */
         if (u0 < 1.0f - eps) {
@@ -170,13 +165,14 @@ static inline nf_status nf_prior_sample(const nf_model *m, const nf_prior_point 
     case NF_PRIOR_CUSTOM: {
         float w[3], pc = 0.0f;
         if (u0 < 1.0f - eps) {
-            pc = pt->prior->sample(pt->prior->user, pt->user,
-                                            nf_clamp_unit(u0 / (1.0f - eps)), u1, w);
+            pc = pt->prior->sample(pt->prior->user, pt->user, nf_clamp_unit(u0 / (1.0f - eps)), u1,
+                                   w);
             if (!(pc > 0.0f) || !isfinite(pc) || !nf_all_finite(w, 3) ||
                 !(w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > 0.0f))
                 return nf_fail(NF_ERROR_NUMERIC,
                                "custom prior sample callback returned pdf %g or a bad "
-                               "direction", (double)pc);
+                               "direction",
+                               (double)pc);
             nf_to_square(w, z);
         } else {
             nf_uniform_sphere_square(nf_clamp_unit((u0 - (1.0f - eps)) / eps), u1, z);

@@ -24,8 +24,8 @@ static inline void nf_tile_point(const nf_tile *tile, uint32_t i, nf_prior_point
 /* Custom prior, lane by lane: z[.][i] and q[i] from u for the real samples; padding lanes
  * copy lane 0. */
 static inline nf_status nf_tile_custom_sample(const nf_model *m, const nf_tile *tile,
-                                              const float *u0, const float *u1,
-                                              float (*z)[NF_TILE], float *q)
+                                              const float *u0, const float *u1, float (*z)[NF_TILE],
+                                              float *q)
 {
     for (uint32_t i = 0; i < NF_TILE; ++i) {
         if (i >= tile->count) {
@@ -67,13 +67,12 @@ static inline nf_status nf_tile_prior_density(const nf_model *m, const nf_tile *
         for (uint32_t i = 0; i < NF_TILE; ++i) {
             float zi[2] = {z[0][i], z[1][i]}, w[3];
             float sin_theta = nf_maxf(nf_from_square(zi, w), NF_SIN_THETA_MIN);
-            float c = tile->normal[0][i] * w[0] + tile->normal[1][i] * w[1] +
-                      tile->normal[2][i] * w[2];
+            float c =
+                tile->normal[0][i] * w[0] + tile->normal[1][i] * w[1] + tile->normal[2][i] * w[2];
             q[i] = sin_theta * ((1.0f - eps) * NF_TWO_PI * nf_maxf(c, 0.0f) + eps * NF_HALF_PI);
         }
         return NF_OK;
-    case NF_PRIOR_CUSTOM:
-        break;
+    case NF_PRIOR_CUSTOM: break;
     }
     for (uint32_t i = 0; i < tile->count; ++i) {
         nf_prior_point pt;
@@ -128,8 +127,7 @@ static inline nf_status nf_tile_prior_sample(const nf_model *m, const nf_tile *t
             z[1][i] = cosine ? zc[1] : zu[1];
         }
         break;
-    case NF_PRIOR_CUSTOM:
-        return nf_tile_custom_sample(m, tile, u0, u1, z, q);
+    case NF_PRIOR_CUSTOM: return nf_tile_custom_sample(m, tile, u0, u1, z, q);
     }
     return nf_tile_prior_density(m, tile, (const float(*)[NF_TILE])z, q);
 }

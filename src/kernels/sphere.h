@@ -1,6 +1,6 @@
 /*
- * sphere.h - the map between unit directions and the unit square (docs/theory.md section 1) as inline
- * code on the fast trigonometry of fastmath.h. sphere.c wraps it for the public API, so the
+ * sphere.h - the map between unit directions and the unit square (docs/theory.md section 1) as
+ * inline code on the fast trigonometry of fastmath.h. sphere.c wraps it for the public API, so the
  * library has exactly one definition of the parameterization.
  */
 #ifndef NISFLOW_KERNELS_SPHERE_H

@@ -24,7 +24,7 @@ typedef struct nf_spline {
 typedef struct nf_spline_bin {
     uint32_t k;
     float xk, wk, yk, hk, d0, d1;
-    float x1, y1; /* the bin's upper knots, exactly as stored */
+    float x1, y1;   /* the bin's upper knots, exactly as stored */
     float sd0, sd1; /* d d_k / d raw, d d_{k+1} / d raw: sigmoid(raw + c) */
 } nf_spline_bin;
 
@@ -201,8 +201,8 @@ static inline void nf_spline_partials_at(const nf_spline_bin *b, float x, nf_spl
     float ry_d1 = -r * e * inv_den;
     float ry_h = (sk * xi * xi + d0 * e) * inv_den;
     /* l = 2 log s + log P - 2 log D */
-    float l_xi = (2.0f * d1 * xi + 2.0f * sk * ep - 2.0f * d0 * om) * inv_poly -
-                 2.0f * sum * ep * inv_den;
+    float l_xi =
+        (2.0f * d1 * xi + 2.0f * sk * ep - 2.0f * d0 * om) * inv_poly - 2.0f * sum * ep * inv_den;
     float l_s = 2.0f / sk + 2.0f * e * inv_poly - 2.0f * (1.0f - 2.0f * e) * inv_den;
     float l_d0 = om * om * inv_poly - 2.0f * e * inv_den;
     float l_d1 = xi * xi * inv_poly - 2.0f * e * inv_den;
@@ -247,8 +247,8 @@ static inline void nf_spline_raw_backward(const nf_spline *s, const nf_spline_bi
                                           float *raw_grad)
 {
     uint32_t bins = s->bins, k = bin->k;
-    nf_knots_backward(bins, k, s->sw, a * p->dy_dxk + b * p->dl_dxk,
-                      a * p->dy_dwk + b * p->dl_dwk, raw_grad);
+    nf_knots_backward(bins, k, s->sw, a * p->dy_dxk + b * p->dl_dxk, a * p->dy_dwk + b * p->dl_dwk,
+                      raw_grad);
     nf_knots_backward(bins, k, s->sh, a, a * p->dy_dhk + b * p->dl_dhk, raw_grad + bins);
     raw_grad[2 * bins + k] += (a * p->dy_dd0 + b * p->dl_dd0) * bin->sd0;
     raw_grad[2 * bins + k + 1] += (a * p->dy_dd1 + b * p->dl_dd1) * bin->sd1;

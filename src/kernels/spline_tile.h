@@ -1,9 +1,9 @@
 /*
- * spline_tile.h - the rational-quadratic splines of docs/theory.md section 3 for a tile of samples: one
- * spline per lane, every loop across the lanes. The per-lane arithmetic is spline.h's
- * own inline functions, so a tile computes exactly what the per-sample code computes; only the
- * knot search and the bin's quantities are gathered differently (by comparison and select
- * over the bins instead of indexing, which would not vectorize).
+ * spline_tile.h - the rational-quadratic splines of docs/theory.md section 3 for a tile of samples:
+ * one spline per lane, every loop across the lanes. The per-lane arithmetic is spline.h's own
+ * inline functions, so a tile computes exactly what the per-sample code computes; only the knot
+ * search and the bin's quantities are gathered differently (by comparison and select over the bins
+ * instead of indexing, which would not vectorize).
  */
 #ifndef NISFLOW_KERNELS_SPLINE_TILE_H
 #define NISFLOW_KERNELS_SPLINE_TILE_H
@@ -79,9 +79,8 @@ static inline void nf_tile_spline_build(nf_tile_spline *s, uint32_t bins,
 /* The bin of v[lane] among `key` (s->x to evaluate, s->y to invert), as nf_spline_find and
  * nf_spline_bin_at; raw_d are the K+1 raw derivative rows. */
 static inline void nf_tile_bin_select(const nf_tile_spline *s, uint32_t bins,
-                                      const float (*raw_d)[NF_TILE],
-                                      const float (*key)[NF_TILE], const float *v,
-                                      nf_tile_bin *b)
+                                      const float (*raw_d)[NF_TILE], const float (*key)[NF_TILE],
+                                      const float *v, nf_tile_bin *b)
 {
     nf_lanes vl, kl;
     nf_lanes_load(&vl, v);
@@ -158,8 +157,8 @@ static inline nf_spline_bin nf_tile_bin_lane(const nf_tile_bin *b, uint32_t i)
 
 /* v[lane] <- S(v[lane]); slope[lane] = S'. */
 static inline void nf_tile_spline_forward(const nf_tile_spline *s, uint32_t bins,
-                                          const float (*raw_d)[NF_TILE], float *v,
-                                          float *slope, nf_tile_bin *b)
+                                          const float (*raw_d)[NF_TILE], float *v, float *slope,
+                                          nf_tile_bin *b)
 {
     nf_tile_bin_select(s, bins, raw_d, (const float(*)[NF_TILE])s->x, v, b);
     for (uint32_t i = 0; i < NF_TILE; ++i) {
@@ -170,8 +169,8 @@ static inline void nf_tile_spline_forward(const nf_tile_spline *s, uint32_t bins
 
 /* v[lane] <- S^-1(v[lane]); slope[lane] = S' at the solution. */
 static inline void nf_tile_spline_inverse(const nf_tile_spline *s, uint32_t bins,
-                                          const float (*raw_d)[NF_TILE], float *v,
-                                          float *slope, nf_tile_bin *b)
+                                          const float (*raw_d)[NF_TILE], float *v, float *slope,
+                                          nf_tile_bin *b)
 {
     nf_tile_bin_select(s, bins, raw_d, (const float(*)[NF_TILE])s->y, v, b);
     for (uint32_t i = 0; i < NF_TILE; ++i) {

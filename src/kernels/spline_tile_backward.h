@@ -87,17 +87,16 @@ static inline void nf_tile_knots_backward(uint32_t bins, const uint32_t *k,
 /* Adds to raw_grad[r][lane] (3K+1 rows) the gradient of a[lane] y + b[lane] log(dy/dx) at the
  * lane's point, whose bin and partials are given; as nf_spline_raw_backward. */
 static inline void nf_tile_spline_raw_backward(const nf_tile_spline *s, uint32_t bins,
-                                               const nf_tile_bin *bin,
-                                               const nf_tile_partials *p, const float *a,
-                                               const float *b, float (*raw_grad)[NF_TILE])
+                                               const nf_tile_bin *bin, const nf_tile_partials *p,
+                                               const float *a, const float *b,
+                                               float (*raw_grad)[NF_TILE])
 {
     float g_pos[NF_TILE], g_width[NF_TILE], d0[NF_TILE], d1[NF_TILE];
     for (uint32_t i = 0; i < NF_TILE; ++i) {
         g_pos[i] = a[i] * p->dy_dxk[i] + b[i] * p->dl_dxk[i];
         g_width[i] = a[i] * p->dy_dwk[i] + b[i] * p->dl_dwk[i];
     }
-    nf_tile_knots_backward(bins, bin->k, (const float(*)[NF_TILE])s->sw, g_pos, g_width,
-                           raw_grad);
+    nf_tile_knots_backward(bins, bin->k, (const float(*)[NF_TILE])s->sw, g_pos, g_width, raw_grad);
     for (uint32_t i = 0; i < NF_TILE; ++i) {
         g_pos[i] = a[i];
         g_width[i] = a[i] * p->dy_dhk[i] + b[i] * p->dl_dhk[i];

@@ -18,12 +18,12 @@
 
 /* The shading points of a tile: everything the conditioners share across layers. */
 typedef struct nf_tile {
-    uint32_t count;                     /* real samples, 1..NF_TILE                       */
-    const nf_context *user[NF_TILE];    /* the caller's contexts, for custom priors       */
-    const nf_prior_callbacks *prior;    /* the model's custom prior callbacks             */
-    float normal[3][NF_TILE];           /* unit normals                                   */
-    nf_tile_blob position[3];           /* one-blob of each position axis                 */
-    float sh[2 * NF_MAX_SH][NF_TILE];   /* SH of the normal (S^2 rows), then of wo        */
+    uint32_t count;                   /* real samples, 1..NF_TILE                       */
+    const nf_context *user[NF_TILE];  /* the caller's contexts, for custom priors       */
+    const nf_prior_callbacks *prior;  /* the model's custom prior callbacks             */
+    float normal[3][NF_TILE];         /* unit normals                                   */
+    nf_tile_blob position[3];         /* one-blob of each position axis                 */
+    float sh[2 * NF_MAX_SH][NF_TILE]; /* SH of the normal (S^2 rows), then of wo        */
 } nf_tile;
 
 /* Loads the contexts *ctx[0..count) (count in 1..NF_TILE, inputs validated) into a tile. The
