@@ -20,6 +20,20 @@
  *             sample; on several threads it is not defined (one sample cannot be sharded) and
  *             is reported as n/a.
  *
+ * The shading-point API (nisflow/point.h) is timed per call, n = 1, in the same streams of
+ * 256 calls as batch 1 (so it has no batch sizes; a table of its own):
+ *
+ *   prepare       nf_point_prepare on a new context every call, into a point on the calling
+ *                 thread's stack (where a renderer keeps it).
+ *   point-sample  nf_point_sample(n = 1) on an already prepared point: a ring of 256 points
+ *                 (one unit's worth, prepared outside the timed region) with a new u every
+ *                 call.
+ *   point-pdf     nf_point_pdf(n = 1) likewise, of a uniform random unit direction.
+ *   vertex        one guided vertex, the headline figure: nf_point_prepare on a new context,
+ *                 nf_point_sample of one direction and nf_point_pdf of another (a uniform
+ *                 random unit direction, standing for the BSDF's or a light sample's), all
+ *                 timed.
+ *
  * With T threads, each thread processes its own contiguous 1/T of every batch and the figure
  * is throughput: wall time divided by the total samples. The main thread is worker 0; T - 1
  * persistent pthreads are created once and released per repetition (per step for training)
@@ -35,6 +49,12 @@
  *
  * The model has randomized parameters (nf_get_params + uniform noise + nf_set_params) so
  * every spline is a real, non-identity spline; the cosine prior is the default.
+ *
+ * Validity: every call's status is checked inside the timed loop (the first failure ends the
+ * case and the program, with the call and its message), and after each case, outside the
+ * timed region, every density and direction the case wrote is checked (finite, positive,
+ * unit length), so a broken call is reported rather than timed. At start-up the shading-point
+ * results are compared with nf_sample / nf_pdf, which they must equal bit for bit.
  */
 #define _POSIX_C_SOURCE 200809L
 #define _DEFAULT_SOURCE 1
@@ -69,8 +89,29 @@
 
 static const float PI = 3.14159265358979f;
 
-enum { OP_SAMPLE = 0, OP_PDF = 1, OP_TRAIN = 2, OP_COUNT = 3 };
-static const char *const OP_NAME[OP_COUNT] = {"sample", "pdf", "train"};
+/* The batched ops come first: they have a row per batch size. The shading-point ops after
+ * them are per-call latencies (n = 1) with one row each. */
+enum {
+    OP_SAMPLE = 0,
+    OP_PDF = 1,
+    OP_TRAIN = 2,
+    OP_BATCHED_COUNT = 3,
+    OP_PREPARE = 3,
+    OP_POINT_SAMPLE = 4,
+    OP_POINT_PDF = 5,
+    OP_VERTEX = 6,
+    OP_COUNT = 7
+};
+static const char *const OP_NAME[OP_COUNT] = {"sample",       "pdf",       "train", "prepare",
+                                              "point-sample", "point-pdf", "vertex"};
+#define OP_MASK_ALL ((1 << OP_COUNT) - 1)
+#define OP_MASK_BATCHED ((1 << OP_BATCHED_COUNT) - 1)
+#define OP_MASK_POINT (OP_MASK_ALL & ~OP_MASK_BATCHED)
+
+static int op_is_point(int op)
+{
+    return op >= OP_BATCHED_COUNT;
+}
 
 /* ---- Random numbers (splitmix64) ------------------------------------------------------------ */
 
@@ -354,14 +395,26 @@ static void pool_destroy(pool *pl)
 
 /* ---- Inputs ------------------------------------------------------------------------------ */
 
+/* The ring of prepared points that point-sample and point-pdf cycle through: one unit's
+ * worth, so that call i of a unit uses points[i] and the threads' slices of a unit use
+ * disjoint points. A renderer samples the point it has just prepared, hot in L1; 256 points
+ * (288 KiB) stay in L2, so the figure carries at most a few L2 hits (the point's header and
+ * cached sums, 4 to 6 lines) more than a renderer pays, while a pool-sized array (72 MiB)
+ * would time memory instead. The u and directions still change with every call. */
+#define NFB_POINT_RING NFB_STREAM
+
 typedef struct bench_data {
     size_t n;
     nf_context *ctx;
-    float *u;       /* 2 n */
-    float *dir;     /* 3 n, nf_sample's directions for the current preset */
-    float *weight;  /* n, positive */
-    float *out_dir; /* 3 n, written by the sample benchmark */
-    float *out_pdf; /* n */
+    float *u;         /* 2 n */
+    float *dir;       /* 3 n, nf_sample's directions for the current preset */
+    float *light_dir; /* 3 n, uniform unit directions: the "other" direction of point-pdf and
+                         vertex, independent of the flow as a light sample's would be */
+    float *weight;    /* n, positive */
+    float *out_dir;   /* 3 n, written by sample, point-sample and vertex */
+    float *out_pdf;   /* n, the densities of those samples and of pdf */
+    float *out_pdf2;  /* n, the densities of light_dir (point-pdf, vertex) */
+    nf_shading_point *points; /* NFB_POINT_RING, 64-byte aligned, prepared per preset */
 } bench_data;
 
 static void data_free(bench_data *d)
@@ -369,10 +422,19 @@ static void data_free(bench_data *d)
     free(d->ctx);
     free(d->u);
     free(d->dir);
+    free(d->light_dir);
     free(d->weight);
     free(d->out_dir);
     free(d->out_pdf);
+    free(d->out_pdf2);
+    free(d->points);
     memset(d, 0, sizeof *d);
+}
+
+static size_t data_bytes(const bench_data *d)
+{
+    return d->n * (sizeof(nf_context) + 14 * sizeof(float)) +
+           NFB_POINT_RING * sizeof(nf_shading_point);
 }
 
 static int data_alloc(bench_data *d, size_t n, const nf_config *cfg)
@@ -382,10 +444,16 @@ static int data_alloc(bench_data *d, size_t n, const nf_config *cfg)
     d->ctx = (nf_context *)malloc(n * sizeof *d->ctx);
     d->u = (float *)malloc(2 * n * sizeof(float));
     d->dir = (float *)malloc(3 * n * sizeof(float));
+    d->light_dir = (float *)malloc(3 * n * sizeof(float));
     d->weight = (float *)malloc(n * sizeof(float));
     d->out_dir = (float *)malloc(3 * n * sizeof(float));
     d->out_pdf = (float *)malloc(n * sizeof(float));
-    if (!d->ctx || !d->u || !d->dir || !d->weight || !d->out_dir || !d->out_pdf) {
+    d->out_pdf2 = (float *)malloc(n * sizeof(float));
+    /* 64-byte aligned, as point.h advises; aligned_alloc needs a multiple of 64 bytes. */
+    d->points = (nf_shading_point *)aligned_alloc(
+        64, (NFB_POINT_RING * sizeof *d->points + 63u) / 64u * 64u);
+    if (!d->ctx || !d->u || !d->dir || !d->light_dir || !d->weight || !d->out_dir ||
+        !d->out_pdf || !d->out_pdf2 || !d->points) {
         data_free(d);
         return -1;
     }
@@ -407,6 +475,11 @@ static int data_alloc(bench_data *d, size_t n, const nf_config *cfg)
         d->u[2 * i + 1] = rng_float(&rng);
         d->weight[i] = 0.05f + 2.0f * rng_float(&rng);
     }
+    /* A stream of its own, so that the inputs above (and the figures of the batched ops) are
+     * those of earlier versions of this program. */
+    uint64_t rng_light = 0x11647D1Bu;
+    for (size_t i = 0; i < n; ++i)
+        rng_unit_vector(&rng_light, d->light_dir + 3 * i);
     return 0;
 }
 
@@ -457,12 +530,72 @@ static void record_failure(thread_result *r, nf_status st, const char *fn)
     snprintf(r->message, sizeof r->message, "%s", nf_last_error_message());
 }
 
-/* nf_sample / nf_pdf on inputs [lo, hi): one call, or hi - lo calls with n = 1. */
+/* The shading-point ops on inputs [lo, hi): hi - lo calls (of each function) with n = 1.
+ * Like the batch-1 loops, the first failure ends the range and is recorded, so that
+ * run_units reports it instead of timing it. */
+static void point_range(bench_case *c, thread_result *r, size_t lo, size_t hi)
+{
+    const bench_data *d = c->d;
+    const nf_model *m = c->model;
+    /* prepare and vertex prepare into this thread's stack, as a renderer does: the point is
+     * hot when vertex samples it, and the threads never share its cache lines. */
+    _Alignas(64) nf_shading_point sp;
+    nf_status st = NF_OK;
+    const char *fn = NULL;
+    switch (c->op) {
+    case OP_PREPARE:
+        fn = "nf_point_prepare";
+        for (size_t i = lo; i < hi && st == NF_OK; ++i)
+            st = nf_point_prepare(m, d->ctx + i, NULL, &sp);
+        break;
+    case OP_POINT_SAMPLE:
+        /* Input i of a unit uses ring point i (units start at multiples of NFB_STREAM). */
+        fn = "nf_point_sample";
+        for (size_t i = lo; i < hi && st == NF_OK; ++i)
+            st = nf_point_sample(m, &d->points[i % NFB_POINT_RING], 1, d->u + 2 * i,
+                                 d->out_dir + 3 * i, d->out_pdf + i);
+        break;
+    case OP_POINT_PDF:
+        fn = "nf_point_pdf";
+        for (size_t i = lo; i < hi && st == NF_OK; ++i)
+            st = nf_point_pdf(m, &d->points[i % NFB_POINT_RING], 1, d->light_dir + 3 * i,
+                              d->out_pdf2 + i);
+        break;
+    case OP_VERTEX:
+        /* fn is set only on a failure, to keep the timed loop to the three calls. */
+        for (size_t i = lo; i < hi; ++i) {
+            if ((st = nf_point_prepare(m, d->ctx + i, NULL, &sp)) != NF_OK) {
+                fn = "nf_point_prepare";
+                break;
+            }
+            if ((st = nf_point_sample(m, &sp, 1, d->u + 2 * i, d->out_dir + 3 * i,
+                                      d->out_pdf + i)) != NF_OK) {
+                fn = "nf_point_sample";
+                break;
+            }
+            if ((st = nf_point_pdf(m, &sp, 1, d->light_dir + 3 * i, d->out_pdf2 + i)) !=
+                NF_OK) {
+                fn = "nf_point_pdf";
+                break;
+            }
+        }
+        break;
+    default:
+        break;
+    }
+    if (st != NF_OK)
+        record_failure(r, st, fn);
+}
+
+/* nf_sample / nf_pdf on inputs [lo, hi): one call, or hi - lo calls with n = 1; the
+ * shading-point ops through point_range. */
 static void eval_range(bench_case *c, thread_result *r, size_t lo, size_t hi)
 {
     const bench_data *d = c->d;
     nf_status st = NF_OK;
-    if (c->op == OP_SAMPLE) {
+    if (op_is_point(c->op)) {
+        point_range(c, r, lo, hi);
+    } else if (c->op == OP_SAMPLE) {
         if (c->batch == 1) {
             for (size_t i = lo; i < hi && st == NF_OK; ++i)
                 st = nf_sample(c->model, 1, d->ctx + i, d->u + 2 * i, d->out_dir + 3 * i,
@@ -529,6 +662,71 @@ static int check_results(bench_case *c)
         }
     }
     return bad ? -1 : 0;
+}
+
+/* ---- Checks of what the timed calls wrote ------------------------------------------------ */
+
+/* Statuses are checked in the timed loops; these check, outside them, the outputs of calls
+ * that returned NF_OK: a NaN, a non-positive density, a direction that is not a unit vector
+ * or an output never written is a failure too, not a figure. Before a case every output is
+ * set to a value no call writes (a NaN direction, a density of -1). */
+static void clear_outputs(bench_data *d)
+{
+    for (size_t i = 0; i < 3 * d->n; ++i)
+        d->out_dir[i] = NAN;
+    for (size_t i = 0; i < d->n; ++i)
+        d->out_pdf[i] = d->out_pdf2[i] = -1.0f;
+}
+
+static int valid_density(float p)
+{
+    return isfinite(p) && p > 0.0f;
+}
+
+static int valid_direction(const float *v)
+{
+    float len2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    return isfinite(len2) && fabsf(len2 - 1.0f) <= 1e-3f; /* false for NaN */
+}
+
+/* The outputs of case c, which started from clear_outputs. Its units so far walked the
+ * inputs from the pool's start, so every input in [0, covered) must hold a valid output. */
+static int check_outputs(const bench_case *c, const char *preset)
+{
+    const bench_data *d = c->d;
+    int op = c->op;
+    /* Which outputs the op writes, and the function that writes them. */
+    const char *dir_fn = op == OP_SAMPLE                            ? "nf_sample"
+                         : op == OP_POINT_SAMPLE || op == OP_VERTEX ? "nf_point_sample"
+                                                                     : NULL;
+    const char *pdf_fn = op == OP_PDF ? "nf_pdf" : dir_fn;
+    const char *pdf2_fn = op == OP_POINT_PDF || op == OP_VERTEX ? "nf_point_pdf" : NULL;
+    size_t covered = c->cursor * unit_samples(c);
+    if (covered > d->n)
+        covered = d->n;
+    for (size_t i = 0; i < covered; ++i) {
+        const float *v = d->out_dir + 3 * i;
+        const char *fn = NULL, *what = NULL;
+        if (dir_fn && !valid_direction(v)) {
+            fn = dir_fn;
+            what = "direction";
+        } else if (pdf_fn && !valid_density(d->out_pdf[i])) {
+            fn = pdf_fn;
+            what = "density";
+        } else if (pdf2_fn && !valid_density(d->out_pdf2[i])) {
+            fn = pdf2_fn;
+            what = "density";
+        }
+        if (fn) {
+            fprintf(stderr,
+                    "nf_bench: %s %s %dT: %s returned NF_OK but input %zu's %s is invalid or "
+                    "was not written (direction %g %g %g, densities %g %g)\n",
+                    preset, OP_NAME[op], c->threads, fn, i, what, (double)v[0], (double)v[1],
+                    (double)v[2], (double)d->out_pdf[i], (double)d->out_pdf2[i]);
+            return -1;
+        }
+    }
+    return 0;
 }
 
 static void reset_results(bench_case *c)
@@ -696,10 +894,13 @@ typedef struct preset_info {
     const char *name;
     size_t params;
     size_t model_bytes;
-    double flops_sparse; /* forward FLOPs per sample, one-blob sparsity exploited */
-    double flops_dense;  /* forward FLOPs per sample, dense input layer           */
-    double shard_check;  /* check_sharding's relative difference                  */
-    const char *isa;     /* the kernel variant the model runs (nf_model_isa_name)  */
+    double flops_sparse;     /* forward FLOPs per sample, one-blob sparsity exploited */
+    double flops_dense;      /* forward FLOPs per sample, dense input layer           */
+    double flops_context;    /* the share of flops_sparse that nf_point_prepare does  */
+    double shard_check;      /* check_sharding's relative difference                  */
+    size_t point_checked;    /* check_points: inputs compared                         */
+    size_t point_mismatches; /* check_points: inputs whose results differ             */
+    const char *isa;         /* the kernel variant the model runs (nf_model_isa_name) */
     nf_config cfg;
 } preset_info;
 
@@ -708,8 +909,10 @@ static const char *const PRESET_NAME[2] = {"small", "large"};
 /* Multiply-adds of the conditioner MLPs, times 2. Per coupling layer: input layer
  * in * H (in = 3 + 9 one-blob non-zeros + 2 S^2 SH values exploiting sparsity, or the dense
  * 4 B + 2 S^2), hidden layers H^2 each, output layer H (3K + 1). Biases, activations,
- * encodings and splines are not counted. */
-static void model_flops(const nf_config *cfg, double *sparse, double *dense)
+ * encodings and splines are not counted. *context is the share of *sparse that depends on
+ * the context alone (the input rows of the position's one-blobs and the SH values), which
+ * nf_point_prepare does once per point; the rest is done per direction. */
+static void model_flops(const nf_config *cfg, double *sparse, double *dense, double *context)
 {
     double h = cfg->hidden_width, s2 = (double)cfg->sh_bands * cfg->sh_bands;
     double blob_nz = cfg->oneblob_bins < 3 ? cfg->oneblob_bins : 3;
@@ -718,6 +921,7 @@ static void model_flops(const nf_config *cfg, double *sparse, double *dense)
     double rest = (cfg->hidden_layers - 1.0) * h * h + h * (3.0 * cfg->spline_bins + 1.0);
     *sparse = 2.0 * cfg->coupling_layers * (in_sparse * h + rest);
     *dense = 2.0 * cfg->coupling_layers * (in_dense * h + rest);
+    *context = 2.0 * cfg->coupling_layers * (3.0 * blob_nz + 2.0 * s2) * h;
 }
 
 static int report_status(nf_status st, const char *fn)
@@ -774,7 +978,7 @@ static int make_model(int preset, const options *o, counting_allocator *ca, pres
     info->model_bytes = atomic_load(&ca->live) - before;
     info->isa = nf_model_isa_name(m);
     info->cfg = cfg;
-    model_flops(&cfg, &info->flops_sparse, &info->flops_dense);
+    model_flops(&cfg, &info->flops_sparse, &info->flops_dense, &info->flops_context);
     *out = m;
     return 0;
 }
@@ -815,6 +1019,42 @@ static int check_sharding(const nf_model *m, const bench_data *d, size_t n, size
     }
     free(g);
     return bad ? -1 : 0;
+}
+
+/* Checks the shading-point functions against the batched ones they must equal bit for bit
+ * (point.h): for the first n inputs, nf_point_sample(u) against d->dir and d->out_pdf (which
+ * the caller has just filled with nf_sample) and nf_point_pdf(light_dir) against nf_pdf.
+ * A failed call is an error; *mismatches counts inputs whose results differ in any bit. */
+static int check_points(const nf_model *m, bench_data *d, size_t n, size_t *mismatches)
+{
+    *mismatches = 0;
+    if (report_status(nf_pdf(m, n, d->ctx, d->light_dir, d->out_pdf2), "nf_pdf") != 0)
+        return -1;
+    _Alignas(64) nf_shading_point sp;
+    for (size_t i = 0; i < n; ++i) {
+        float dir[3], pdf, pdf2;
+        if (report_status(nf_point_prepare(m, d->ctx + i, NULL, &sp), "nf_point_prepare") ||
+            report_status(nf_point_sample(m, &sp, 1, d->u + 2 * i, dir, &pdf),
+                          "nf_point_sample") ||
+            report_status(nf_point_pdf(m, &sp, 1, d->light_dir + 3 * i, &pdf2),
+                          "nf_point_pdf"))
+            return -1;
+        if (memcmp(dir, d->dir + 3 * i, sizeof dir) != 0 ||
+            memcmp(&pdf, d->out_pdf + i, sizeof pdf) != 0 ||
+            memcmp(&pdf2, d->out_pdf2 + i, sizeof pdf2) != 0)
+            ++*mismatches;
+    }
+    return 0;
+}
+
+/* Prepares the ring of points that point-sample and point-pdf use, outside any timing. */
+static int prepare_ring(const nf_model *m, bench_data *d)
+{
+    for (size_t i = 0; i < NFB_POINT_RING; ++i)
+        if (report_status(nf_point_prepare(m, d->ctx + i, NULL, &d->points[i]),
+                          "nf_point_prepare") != 0)
+            return -1;
+    return 0;
 }
 
 /* ---- Output -------------------------------------------------------------------------- */
@@ -859,9 +1099,23 @@ static void json_string(FILE *f, const char *s)
     fputc('"', f);
 }
 
+/* FLOPs per sample (per call for the shading-point ops; per vertex for vertex). */
 static double flops_of(const preset_info *pi, int op)
 {
-    return op == OP_TRAIN ? 3.0 * pi->flops_sparse : pi->flops_sparse;
+    double direction = pi->flops_sparse - pi->flops_context;
+    switch (op) {
+    case OP_TRAIN:
+        return 3.0 * pi->flops_sparse;
+    case OP_PREPARE:
+        return pi->flops_context;
+    case OP_POINT_SAMPLE:
+    case OP_POINT_PDF:
+        return direction;
+    case OP_VERTEX:
+        return pi->flops_context + 2.0 * direction;
+    default:
+        return pi->flops_sparse;
+    }
 }
 
 static const result *find(const result *res, size_t count, int preset, int op, int threads,
@@ -875,46 +1129,70 @@ static const result *find(const result *res, size_t count, int preset, int op, i
 }
 
 typedef struct target {
+    int preset;
     const char *what;
     double value, limit;
     int higher_is_better;
     int available;
 } target;
 
-/* The issue's targets: small preset, batch 4096. */
+#define NFB_MAX_TARGETS 32
+
+/* The targets of docs/performance.md. Batched ops: small preset, batch 4096 (and the n = 1
+ * streams against it). Shading points: per-call latencies of the small preset on 1 thread,
+ * the vertex of the large preset, and the vertex's 2-thread scaling (small preset, as the
+ * other scaling targets). */
 static size_t eval_targets(const result *res, size_t count, target *t)
 {
     size_t k = 0;
-    static const char *const abs_name[OP_COUNT] = {
+    static const char *const abs_name[OP_BATCHED_COUNT] = {
         "sample, 1 thread, batch 4096 (ns/sample)", "pdf, 1 thread, batch 4096 (ns/sample)",
         "train, 1 thread, batch 4096 (ns/sample)"};
-    static const double abs_limit[OP_COUNT] = {150.0, 150.0, 600.0};
-    static const char *const n1_name[OP_COUNT] = {"sample, n=1 / batch 4096 (1 thread)",
-                                                  "pdf, n=1 / batch 4096 (1 thread)",
-                                                  "train, n=1 / batch 4096 (1 thread)"};
-    static const char *const sc_name[OP_COUNT] = {"sample, 2 threads / 1 thread, batch 4096",
-                                                  "pdf, 2 threads / 1 thread, batch 4096",
-                                                  "train, 2 threads / 1 thread, batch 4096"};
-    static const double sc_limit[OP_COUNT] = {1.8, 1.8, 1.6};
-    for (int op = 0; op < OP_COUNT; ++op) {
+    static const double abs_limit[OP_BATCHED_COUNT] = {150.0, 150.0, 600.0};
+    static const char *const n1_name[OP_BATCHED_COUNT] = {
+        "sample, n=1 / batch 4096 (1 thread)", "pdf, n=1 / batch 4096 (1 thread)",
+        "train, n=1 / batch 4096 (1 thread)"};
+    static const char *const sc_name[OP_BATCHED_COUNT] = {
+        "sample, 2 threads / 1 thread, batch 4096", "pdf, 2 threads / 1 thread, batch 4096",
+        "train, 2 threads / 1 thread, batch 4096"};
+    static const double sc_limit[OP_BATCHED_COUNT] = {1.8, 1.8, 1.6};
+    for (int op = 0; op < OP_BATCHED_COUNT; ++op) {
         const result *b = find(res, count, 0, op, 1, 4096);
-        t[k] = (target){abs_name[op], b ? b->ns_median : 0.0, abs_limit[op], 0, b != NULL};
-        k++;
+        t[k++] = (target){0, abs_name[op], b ? b->ns_median : 0.0, abs_limit[op], 0, b != NULL};
     }
-    for (int op = 0; op < OP_COUNT; ++op) {
+    for (int op = 0; op < OP_BATCHED_COUNT; ++op) {
         const result *b = find(res, count, 0, op, 1, 4096);
         const result *s = find(res, count, 0, op, 1, 1);
-        t[k] = (target){n1_name[op], b && s ? s->ns_median / b->ns_median : 0.0, 2.0, 0,
-                        b && s};
-        k++;
+        t[k++] = (target){0, n1_name[op], b && s ? s->ns_median / b->ns_median : 0.0, 2.0, 0,
+                          b && s};
     }
-    for (int op = 0; op < OP_COUNT; ++op) {
+    for (int op = 0; op < OP_BATCHED_COUNT; ++op) {
         const result *b = find(res, count, 0, op, 1, 4096);
         const result *s = find(res, count, 0, op, 2, 4096);
-        t[k] = (target){sc_name[op], b && s ? b->ns_median / s->ns_median : 0.0, sc_limit[op],
-                        1, b && s};
-        k++;
+        t[k++] = (target){0, sc_name[op], b && s ? b->ns_median / s->ns_median : 0.0,
+                          sc_limit[op], 1, b && s};
     }
+    /* The shading-point ops are stored with batch 1 (n = 1 per call). */
+    static const struct {
+        int preset, op;
+        const char *what;
+        double limit;
+    } point_abs[] = {
+        {0, OP_PREPARE, "prepare, 1 thread (ns/call)", 100.0},
+        {0, OP_POINT_SAMPLE, "point-sample, 1 thread (ns/call)", 70.0},
+        {0, OP_POINT_PDF, "point-pdf, 1 thread (ns/call)", 60.0},
+        {0, OP_VERTEX, "vertex, 1 thread (ns/vertex)", 220.0},
+        {1, OP_VERTEX, "vertex, 1 thread (ns/vertex)", 600.0},
+    };
+    for (size_t i = 0; i < sizeof point_abs / sizeof point_abs[0]; ++i) {
+        const result *r = find(res, count, point_abs[i].preset, point_abs[i].op, 1, 1);
+        t[k++] = (target){point_abs[i].preset, point_abs[i].what, r ? r->ns_median : 0.0,
+                          point_abs[i].limit, 0, r != NULL};
+    }
+    const result *v1 = find(res, count, 0, OP_VERTEX, 1, 1);
+    const result *v2 = find(res, count, 0, OP_VERTEX, 2, 1);
+    t[k++] = (target){0, "vertex, 2 threads / 1 thread",
+                      v1 && v2 ? v1->ns_median / v2->ns_median : 0.0, 1.8, 1, v1 && v2};
     return k;
 }
 
@@ -923,20 +1201,15 @@ static int target_met(const target *t)
     return t->higher_is_better ? t->value >= t->limit : t->value <= t->limit;
 }
 
-/* The results table: plain text (md = 0) or a Markdown table (md = 1) for
- * docs/performance.md. */
-static void print_table(FILE *f, int md, const options *o, const preset_info *info,
-                        const size_t *batches, size_t batch_count, const result *res,
-                        size_t count)
+/* The thread columns of a table's header: ns (per `unit`) and GFLOP/s per thread count,
+ * then the 2T/1T scaling, and the Markdown separator row after `lead` ("|---|..." of the
+ * leading columns). */
+static void print_thread_header(FILE *f, int md, const options *o, const char *unit,
+                                int has_scaling, const char *lead)
 {
-    int has_scaling = o->thread_count == 2 && o->threads[0] == 1;
-    if (md)
-        fprintf(f, "| preset | op | batch");
-    else
-        fprintf(f, "%-6s %-6s %6s", "preset", "op", "batch");
     for (int ti = 0; ti < o->thread_count; ++ti) {
         char h1[32], h2[32];
-        snprintf(h1, sizeof h1, "ns/smp %dT", o->threads[ti]);
+        snprintf(h1, sizeof h1, "%s %dT", unit, o->threads[ti]);
         snprintf(h2, sizeof h2, "GFLOP/s %dT", o->threads[ti]);
         if (md)
             fprintf(f, " | %s | %s", h1, h2);
@@ -947,50 +1220,105 @@ static void print_table(FILE *f, int md, const options *o, const preset_info *in
         fprintf(f, md ? " | %s" : " | %5s", "2T/1T");
     fprintf(f, md ? " |\n" : "\n");
     if (md) {
-        fprintf(f, "|---|---|--:|");
+        fprintf(f, "%s", lead);
         for (int ti = 0; ti < o->thread_count; ++ti)
             fprintf(f, "--:|--:|");
         fprintf(f, has_scaling ? "--:|\n" : "\n");
     }
+}
+
+/* The thread columns of one row (preset, op, batch), ending the line; *marked is set when a
+ * figure is flagged as disturbed. */
+static void print_thread_cells(FILE *f, int md, const options *o, const preset_info *info,
+                               const result *res, size_t count, int preset, int op,
+                               size_t batch, int has_scaling, int *marked)
+{
+    const result *r1 = NULL, *r2 = NULL;
+    for (int ti = 0; ti < o->thread_count; ++ti) {
+        const result *r = find(res, count, preset, op, o->threads[ti], batch);
+        if (ti == 0)
+            r1 = r;
+        else
+            r2 = r;
+        if (r) {
+            int busy = r->disturbed;
+            double gf = flops_of(&info[preset], op) / r->ns_median;
+            if (md)
+                fprintf(f, " | %.1f%s | %.2f", r->ns_median, busy ? "\\*" : "", gf);
+            else
+                fprintf(f, " | %10.1f%c %10.2f", r->ns_median, busy ? '*' : ' ', gf);
+            *marked |= busy;
+        } else {
+            fprintf(f, md ? " | n/a | n/a" : " | %11s %10s", "n/a", "n/a");
+        }
+    }
+    if (has_scaling) {
+        if (r1 && r2)
+            fprintf(f, md ? " | %.2fx" : " | %4.2fx", r1->ns_median / r2->ns_median);
+        else
+            fprintf(f, md ? " | n/a" : " | %5s", "n/a");
+    }
+    fprintf(f, md ? " |\n" : "\n");
+}
+
+/* The results: plain text (md = 0) or Markdown (md = 1) for docs/performance.md. Two
+ * tables: the batched ops, a row per batch size; then the shading-point ops, per-call
+ * latencies with no batch size, a row per op. Each is printed when --op selected any of its
+ * ops. */
+static void print_table(FILE *f, int md, const options *o, const preset_info *info,
+                        const size_t *batches, size_t batch_count, const result *res,
+                        size_t count)
+{
+    int has_scaling = o->thread_count == 2 && o->threads[0] == 1;
     int marked = 0;
-    for (int pi = 0; pi < o->preset_count; ++pi) {
-        int preset = o->presets[pi];
-        for (int op = 0; op < OP_COUNT; ++op) {
-            if (!(o->op_mask & (1 << op)))
-                continue;
-            for (size_t bi = 0; bi < batch_count; ++bi) {
+    if (o->op_mask & OP_MASK_BATCHED) {
+        if (md)
+            fprintf(f, "| preset | op | batch");
+        else
+            fprintf(f, "%-6s %-6s %6s", "preset", "op", "batch");
+        print_thread_header(f, md, o, "ns/smp", has_scaling, "|---|---|--:|");
+        for (int pi = 0; pi < o->preset_count; ++pi) {
+            int preset = o->presets[pi];
+            for (int op = 0; op < OP_BATCHED_COUNT; ++op) {
+                if (!(o->op_mask & (1 << op)))
+                    continue;
+                for (size_t bi = 0; bi < batch_count; ++bi) {
+                    if (md)
+                        fprintf(f, "| %s | %s | %zu", PRESET_NAME[preset], OP_NAME[op],
+                                batches[bi]);
+                    else
+                        fprintf(f, "%-6s %-6s %6zu", PRESET_NAME[preset], OP_NAME[op],
+                                batches[bi]);
+                    print_thread_cells(f, md, o, info, res, count, preset, op, batches[bi],
+                                       has_scaling, &marked);
+                }
+            }
+        }
+    }
+    if (o->op_mask & OP_MASK_POINT) {
+        if (o->op_mask & OP_MASK_BATCHED)
+            fprintf(f, "\n");
+        if (md)
+            fprintf(f, "Shading points (`nf_point_*`, one call with n = 1 each, ns per call; "
+                       "`vertex` = `nf_point_prepare` + `nf_point_sample` + `nf_point_pdf` of "
+                       "another direction, ns per vertex):\n\n| preset | op");
+        else
+            fprintf(f, "shading points (n = 1 per call, ns per call; vertex = prepare + "
+                       "point-sample + point-pdf of another direction, ns per vertex):\n"
+                       "%-6s %-12s",
+                    "preset", "op");
+        print_thread_header(f, md, o, "ns/call", has_scaling, "|---|---|");
+        for (int pi = 0; pi < o->preset_count; ++pi) {
+            int preset = o->presets[pi];
+            for (int op = OP_BATCHED_COUNT; op < OP_COUNT; ++op) {
+                if (!(o->op_mask & (1 << op)))
+                    continue;
                 if (md)
-                    fprintf(f, "| %s | %s | %zu", PRESET_NAME[preset], OP_NAME[op], batches[bi]);
+                    fprintf(f, "| %s | %s", PRESET_NAME[preset], OP_NAME[op]);
                 else
-                    fprintf(f, "%-6s %-6s %6zu", PRESET_NAME[preset], OP_NAME[op], batches[bi]);
-                const result *r1 = NULL, *r2 = NULL;
-                for (int ti = 0; ti < o->thread_count; ++ti) {
-                    const result *r = find(res, count, preset, op, o->threads[ti], batches[bi]);
-                    if (ti == 0)
-                        r1 = r;
-                    else
-                        r2 = r;
-                    if (r) {
-                        int busy = r->disturbed;
-                        double gf = flops_of(&info[preset], op) / r->ns_median;
-                        if (md)
-                            fprintf(f, " | %.1f%s | %.2f", r->ns_median, busy ? "\\*" : "",
-                                    gf);
-                        else
-                            fprintf(f, " | %10.1f%c %10.2f", r->ns_median, busy ? '*' : ' ',
-                                    gf);
-                        marked |= busy;
-                    } else {
-                        fprintf(f, md ? " | n/a | n/a" : " | %11s %10s", "n/a", "n/a");
-                    }
-                }
-                if (has_scaling) {
-                    if (r1 && r2)
-                        fprintf(f, md ? " | %.2fx" : " | %4.2fx", r1->ns_median / r2->ns_median);
-                    else
-                        fprintf(f, md ? " | n/a" : " | %5s", "n/a");
-                }
-                fprintf(f, md ? " |\n" : "\n");
+                    fprintf(f, "%-6s %-12s", PRESET_NAME[preset], OP_NAME[op]);
+                print_thread_cells(f, md, o, info, res, count, preset, op, 1, has_scaling,
+                                   &marked);
             }
         }
     }
@@ -1022,7 +1350,12 @@ static int write_json(const options *o, const char *cpu, long nproc, const prese
             ",\n  \"quick\": %s,\n  \"reps\": %d,\n  \"min_rep_ms\": %.1f,\n"
             "  \"batch1_stream_calls\": %u,\n"
             "  \"flop_count\": \"2 * multiply-adds of the conditioner MLPs, input layer with "
-            "one-blob sparsity exploited; training = 3 x forward\",\n"
+            "one-blob sparsity exploited; training = 3 x forward; prepare = the context's "
+            "share of the input layers, point-sample and point-pdf = the rest, vertex = "
+            "prepare + 2 directions\",\n"
+            "  \"point_ops\": \"prepare, point-sample, point-pdf and vertex are calls with "
+            "n = 1 (batch 1); ns_per_sample is per call, for vertex per guided vertex "
+            "(nf_point_prepare + nf_point_sample + nf_point_pdf)\",\n"
             "  \"presets\": [",
             o->quick ? "true" : "false", o->reps, o->min_rep_s * 1e3, NFB_STREAM);
     for (int pi = 0; pi < o->preset_count; ++pi) {
@@ -1032,11 +1365,14 @@ static int write_json(const options *o, const char *cpu, long nproc, const prese
                 "\"hidden_layers\": %u, \"hidden_width\": %u, \"params\": %zu, "
                 "\"model_bytes\": %zu, \"forward_flops_sparse\": %.0f, "
                 "\"forward_flops_dense\": %.0f, \"train_flops\": %.0f, "
-                "\"sharded_gradient_rel_diff\": %.2e, \"kernels\": \"%s\"}",
+                "\"prepare_flops\": %.0f, \"point_direction_flops\": %.0f, "
+                "\"sharded_gradient_rel_diff\": %.2e, \"point_check_inputs\": %zu, "
+                "\"point_check_mismatches\": %zu, \"kernels\": \"%s\"}",
                 pi ? "," : "", p->name, p->cfg.coupling_layers, p->cfg.spline_bins,
                 p->cfg.hidden_layers, p->cfg.hidden_width, p->params, p->model_bytes,
-                p->flops_sparse, p->flops_dense, 3.0 * p->flops_sparse, p->shard_check,
-                p->isa);
+                p->flops_sparse, p->flops_dense, 3.0 * p->flops_sparse,
+                flops_of(p, OP_PREPARE), flops_of(p, OP_POINT_SAMPLE), p->shard_check,
+                p->point_checked, p->point_mismatches, p->isa);
     }
     fprintf(f, "\n  ],\n  \"results\": [");
     int first = 1;
@@ -1065,7 +1401,8 @@ static int write_json(const options *o, const char *cpu, long nproc, const prese
     for (size_t i = 0; i < tcount; ++i) {
         if (!t[i].available)
             continue;
-        fprintf(f, "%s\n    {\"what\": ", first ? "" : ",");
+        fprintf(f, "%s\n    {\"preset\": \"%s\", \"what\": ", first ? "" : ",",
+                PRESET_NAME[t[i].preset]);
         first = 0;
         json_string(f, t[i].what);
         fprintf(f, ", \"value\": %.3f, \"limit\": \"%s %.2f\", \"met\": %s}", t[i].value,
@@ -1091,7 +1428,10 @@ static void usage(FILE *f)
             "usage: nf_bench [options]\n"
             "  --preset small|large|all   presets to measure (default all)\n"
             "  --threads 1|2|all|N        thread counts (default all = 1 and 2)\n"
-            "  --op sample|pdf|train|all  operations to measure (default all)\n"
+            "  --op LIST                  operations to measure, comma-separated (default\n"
+            "                             all): sample, pdf, train; the shading-point ops\n"
+            "                             prepare, point-sample, point-pdf, vertex; point\n"
+            "                             (those four); all\n"
             "  --reps N                   timed repetitions, median reported (default 7)\n"
             "  --min-rep-ms X             minimum length of one repetition (default 50)\n"
             "  --prior NAME               cosine (default), uniform-direction,\n"
@@ -1102,13 +1442,18 @@ static void usage(FILE *f)
             "  --label TEXT               a free-form label stored in the JSON and printed\n"
             "  --retries N                re-measure a case up to N times when other\n"
             "                             processes disturbed it (default 2)\n"
-            "  --batch 1|64|4096|65536    measure only this batch size (for profiling)\n"
+            "  --batch 1|64|4096|65536    measure only this batch size of sample, pdf and\n"
+            "                             train (for profiling; the shading-point ops have\n"
+            "                             none: select them or not with --op)\n"
             "  --isa auto|generic|avx2|avx512\n"
             "                             kernels to use (default auto, the library's choice)\n"
             "  --quick                    smoke run: batches 1, 64, 4096; 3 reps of >= 5 ms\n"
             "  --help                     this text\n"
             "Batch sizes 1, 64, 4096, 65536. Batch 1 is streams of calls with n = 1, in units\n"
-            "of %u calls.\n",
+            "of %u calls. The shading-point ops are such streams too, timed per call:\n"
+            "prepare (nf_point_prepare on a new context), point-sample and point-pdf (one\n"
+            "direction at a prepared point), vertex (prepare + point-sample + point-pdf of\n"
+            "another direction, per vertex).\n",
             NFB_STREAM);
 }
 
@@ -1119,6 +1464,37 @@ static int parse_int(const char *s, int lo, int hi, int *out)
     if (end == s || *end != '\0' || v < lo || v > hi)
         return -1;
     *out = (int)v;
+    return 0;
+}
+
+/* --op: a comma-separated list of op names, "point" (the four shading-point ops) or "all". */
+static int parse_ops(const char *list, int *mask)
+{
+    int m = 0;
+    const char *s = list;
+    for (;;) {
+        size_t len = strcspn(s, ",");
+        int found = 0;
+        if (len == 3 && strncmp(s, "all", len) == 0) {
+            m |= OP_MASK_ALL;
+            found = 1;
+        } else if (len == 5 && strncmp(s, "point", len) == 0) {
+            m |= OP_MASK_POINT;
+            found = 1;
+        }
+        for (int op = 0; op < OP_COUNT && !found; ++op) {
+            if (strlen(OP_NAME[op]) == len && strncmp(s, OP_NAME[op], len) == 0) {
+                m |= 1 << op;
+                found = 1;
+            }
+        }
+        if (!found)
+            return -1; /* also an empty name: "", "a,,b", "a," */
+        if (s[len] == '\0')
+            break;
+        s += len + 1;
+    }
+    *mask = m;
     return 0;
 }
 
@@ -1138,7 +1514,7 @@ static int parse_args(int argc, char **argv, options *o)
     o->json_path = "bench.json";
     o->retries = 2;
     o->busy_threshold = 0.2;
-    o->op_mask = 7;
+    o->op_mask = OP_MASK_ALL;
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -1209,16 +1585,9 @@ static int parse_args(int argc, char **argv, options *o)
             }
             o->prior_name = v;
         } else if (strcmp(a, "--op") == 0) {
-            if (strcmp(v, "sample") == 0)
-                o->op_mask = 1 << OP_SAMPLE;
-            else if (strcmp(v, "pdf") == 0)
-                o->op_mask = 1 << OP_PDF;
-            else if (strcmp(v, "train") == 0)
-                o->op_mask = 1 << OP_TRAIN;
-            else if (strcmp(v, "all") == 0)
-                o->op_mask = 7;
-            else {
-                fprintf(stderr, "nf_bench: --op takes sample, pdf, train or all\n");
+            if (parse_ops(v, &o->op_mask) != 0) {
+                fprintf(stderr, "nf_bench: --op takes a comma-separated list of sample, pdf, "
+                                "train, prepare, point-sample, point-pdf, vertex, point, all\n");
                 return -1;
             }
         } else if (strcmp(a, "--isa") == 0) {
@@ -1261,6 +1630,97 @@ static int parse_args(int argc, char **argv, options *o)
         o->reps = o->quick ? 3 : 7;
     if (o->min_rep_s < 0.0)
         o->min_rep_s = o->quick ? 5e-3 : 50e-3;
+    return 0;
+}
+
+/* ---- One case -------------------------------------------------------------------------- */
+
+/* What the cases of one preset share. */
+typedef struct case_env {
+    const options *o;
+    pool *pl; /* NULL when every case runs on 1 thread */
+    bench_data *d;
+    const nf_model *model;
+    int preset;
+    const preset_info *info;
+    float *const *grad; /* one gradient buffer per thread (train) */
+    float *grad_sum;
+} case_env;
+
+/* Measures one case into *r: re-measured while other processes disturb it (the quietest
+ * attempt is kept), then its outputs checked. -1 on any failure, already reported. */
+static int run_case(const case_env *e, int op, size_t batch, int threads, result *r)
+{
+    const options *o = e->o;
+    const char *name = e->info->name;
+    /* The label of the progress lines: batched ops name their batch size. */
+    char label[64];
+    if (op_is_point(op))
+        snprintf(label, sizeof label, "%-6s %-12s %dT", name, OP_NAME[op], threads);
+    else
+        snprintf(label, sizeof label, "%-6s %-6s batch %6zu %dT", name, OP_NAME[op], batch,
+                 threads);
+    memset(r, 0, sizeof *r);
+    r->preset = e->preset;
+    r->op = op;
+    r->threads = threads;
+    r->batch = batch;
+    if (op == OP_TRAIN && threads > 1 && batch < (size_t)threads) {
+        fprintf(stderr, "%s: n/a (a batch of %zu cannot be sharded)\n", label, batch);
+        return 0;
+    }
+    bench_case c;
+    memset(&c, 0, sizeof c);
+    c.op = op;
+    c.batch = batch;
+    c.threads = threads;
+    c.model = e->model;
+    c.d = e->d;
+    c.param_count = e->info->params;
+    c.grad_sum = e->grad_sum;
+    for (int k = 0; k < threads; ++k)
+        c.grad[k] = e->grad[k];
+    nf_model *train_model = NULL;
+    if (op == OP_TRAIN) {
+        /* Train a clone, so that every case sees the same model. */
+        if (report_status(nf_model_clone(e->model, &train_model), "nf_model_clone") != 0)
+            return -1;
+        c.train_model = train_model;
+    }
+    clear_outputs(e->d);
+    /* Re-measure when other processes were busy; keep the quietest. */
+    result best = *r;
+    int bad = 0, have = 0, attempt = 0;
+    for (; attempt <= o->retries; ++attempt) {
+        result cur = *r;
+        cpu_snapshot before, after;
+        cpu_snap(&before);
+        bad = measure(&c, threads > 1 ? e->pl : NULL, o, &cur);
+        cpu_snap(&after);
+        if (bad)
+            break;
+        cur.foreign_cpus = foreign_load(&before, &after);
+        double idle = (double)(o->nproc > threads ? o->nproc - threads : 0);
+        cur.disturbed = cur.foreign_cpus > idle + o->busy_threshold;
+        if (!have || cur.foreign_cpus < best.foreign_cpus)
+            best = cur;
+        have = 1;
+        if (!cur.disturbed)
+            break;
+    }
+    nf_model_destroy(train_model);
+    if (bad || check_outputs(&c, name) != 0)
+        return -1;
+    best.attempts = attempt <= o->retries ? attempt + 1 : attempt;
+    *r = best;
+    /* What one "sample" of the figure is: a call of n = 1, or a vertex of three calls. */
+    const char *unit = op == OP_VERTEX ? "vertex" : op_is_point(op) ? "call" : "sample";
+    const char *units = op == OP_VERTEX ? "vertices" : op_is_point(op) ? "calls" : "samples";
+    fprintf(stderr,
+            "%s: %9.1f ns/%s (min %.1f, max %.1f; %d reps x %zu %s; other load %.2f CPUs; "
+            "attempts %d)%s\n",
+            label, r->ns_median, unit, r->ns_min, r->ns_max, r->reps, r->samples_per_rep,
+            units, r->foreign_cpus, r->attempts, r->disturbed ? " disturbed" : "");
     return 0;
 }
 
@@ -1307,13 +1767,13 @@ int main(int argc, char **argv)
     size_t res_count = 0;
     bench_data data;
     memset(&data, 0, sizeof data);
-    nf_model *model = NULL, *train_model = NULL;
+    nf_model *model = NULL;
     float *grad[NFB_MAX_THREADS] = {NULL};
     float *grad_sum = NULL;
     pool pl;
     memset(&pl, 0, sizeof pl);
     int pool_ok = 0;
-    target targets[16];
+    target targets[NFB_MAX_TARGETS];
     size_t target_count = 0;
 
     if (!res) {
@@ -1362,6 +1822,20 @@ int main(int argc, char **argv)
                "relative difference %.1e%s\n",
                shard_rel, shard_rel > 1e-4 ? "  WARNING: larger than 1e-4" : "");
         inf->shard_check = shard_rel;
+        if (o.op_mask & OP_MASK_POINT) {
+            /* data.dir and data.out_pdf still hold the nf_sample results of above. */
+            inf->point_checked = data.n < 4096 ? data.n : 4096;
+            if (check_points(model, &data, inf->point_checked, &inf->point_mismatches) != 0)
+                goto done;
+            if (inf->point_mismatches)
+                printf("  shading-point check: WARNING: nf_point_sample / nf_point_pdf differ "
+                       "from nf_sample / nf_pdf on %zu of %zu inputs\n",
+                       inf->point_mismatches, inf->point_checked);
+            else
+                printf("  shading-point check (nf_point_sample / nf_point_pdf vs nf_sample / "
+                       "nf_pdf, %zu inputs): bit-identical\n",
+                       inf->point_checked);
+        }
         fflush(stdout);
         for (int k = 0; k < max_threads; ++k) {
             free(grad[k]);
@@ -1377,77 +1851,34 @@ int main(int argc, char **argv)
             goto done;
         }
 
-        for (int op = 0; op < OP_COUNT; ++op) {
+        case_env env = {&o, max_threads > 1 ? &pl : NULL, &data, model, preset, inf, grad,
+                        grad_sum};
+        for (int op = 0; op < OP_BATCHED_COUNT; ++op) {
             if (!(o.op_mask & (1 << op)))
                 continue;
             for (size_t bi = 0; bi < batch_count; ++bi) {
                 for (int ti = 0; ti < o.thread_count; ++ti) {
-                    size_t batch = all_batches[bi];
-                    int threads = o.threads[ti];
                     if (res_count == NFB_MAX_RESULTS)
                         goto done;
-                    result *r = &res[res_count++];
-                    memset(r, 0, sizeof *r);
-                    r->preset = preset;
-                    r->op = op;
-                    r->threads = threads;
-                    r->batch = batch;
-                    if (op == OP_TRAIN && threads > 1 && batch < (size_t)threads) {
-                        fprintf(stderr, "%-6s %-6s batch %6zu %dT: n/a (a batch of %zu cannot "
-                                        "be sharded)\n",
-                                inf->name, OP_NAME[op], batch, threads, batch);
-                        continue;
-                    }
-                    bench_case c;
-                    memset(&c, 0, sizeof c);
-                    c.op = op;
-                    c.batch = batch;
-                    c.threads = threads;
-                    c.model = model;
-                    c.d = &data;
-                    c.param_count = p;
-                    c.grad_sum = grad_sum;
-                    for (int k = 0; k < threads; ++k)
-                        c.grad[k] = grad[k];
-                    if (op == OP_TRAIN) {
-                        /* Train a clone, so that every case sees the same model. */
-                        if (report_status(nf_model_clone(model, &train_model),
-                                          "nf_model_clone") != 0)
-                            goto done;
-                        c.train_model = train_model;
-                    }
-                    /* Re-measure when other processes were busy; keep the quietest. */
-                    result best = *r;
-                    int bad = 0, have = 0, attempt = 0;
-                    for (; attempt <= o.retries; ++attempt) {
-                        result cur = *r;
-                        cpu_snapshot before, after;
-                        cpu_snap(&before);
-                        bad = measure(&c, threads > 1 ? &pl : NULL, &o, &cur);
-                        cpu_snap(&after);
-                        if (bad)
-                            break;
-                        cur.foreign_cpus = foreign_load(&before, &after);
-                        double idle = (double)(o.nproc > threads ? o.nproc - threads : 0);
-                        cur.disturbed = cur.foreign_cpus > idle + o.busy_threshold;
-                        if (!have || cur.foreign_cpus < best.foreign_cpus)
-                            best = cur;
-                        have = 1;
-                        if (!cur.disturbed)
-                            break;
-                    }
-                    nf_model_destroy(train_model);
-                    train_model = NULL;
-                    if (bad)
+                    if (run_case(&env, op, all_batches[bi], o.threads[ti], &res[res_count++]))
                         goto done;
-                    best.attempts = attempt <= o.retries ? attempt + 1 : attempt;
-                    *r = best;
-                    fprintf(stderr,
-                            "%-6s %-6s batch %6zu %dT: %9.1f ns/sample (min %.1f, max %.1f; "
-                            "%d reps x %zu samples; other load %.2f CPUs; attempts %d)%s\n",
-                            inf->name, OP_NAME[op], batch, threads, r->ns_median, r->ns_min,
-                            r->ns_max, r->reps, r->samples_per_rep, r->foreign_cpus,
-                            r->attempts, r->disturbed ? " disturbed" : "");
+                }
+            }
+        }
+        if (o.op_mask & OP_MASK_POINT) {
+            /* The model is not changed by the cases (training uses a clone), so the ring
+             * stays valid for all of them. */
+            if (prepare_ring(model, &data) != 0)
+                goto done;
+            /* Per-call ops: batch 1 (n = 1) in the results. */
+            for (int op = OP_BATCHED_COUNT; op < OP_COUNT; ++op) {
+                if (!(o.op_mask & (1 << op)))
+                    continue;
+                for (int ti = 0; ti < o.thread_count; ++ti) {
+                    if (res_count == NFB_MAX_RESULTS)
+                        goto done;
+                    if (run_case(&env, op, 1, o.threads[ti], &res[res_count++]))
+                        goto done;
                 }
             }
         }
@@ -1480,20 +1911,20 @@ int main(int argc, char **argv)
         for (size_t i = 0; i < target_count; ++i)
             any |= targets[i].available;
         if (any) {
-            printf("\ntargets (issue 4; small preset):\n");
+            printf("\ntargets (docs/performance.md):\n");
             for (size_t i = 0; i < target_count; ++i) {
                 const target *t = &targets[i];
                 if (!t->available)
                     continue;
-                printf("  %-44s %9.2f  %s %6.2f  %s\n", t->what, t->value,
-                       t->higher_is_better ? ">=" : "<=", t->limit,
+                printf("  %-5s %-44s %9.2f  %s %6.2f  %s\n", PRESET_NAME[t->preset], t->what,
+                       t->value, t->higher_is_better ? ">=" : "<=", t->limit,
                        target_met(t) ? "met" : "MISSED");
             }
         }
         printf("\npeak RSS %.1f MiB (bench inputs %.1f MiB, models at most %.1f KiB live); "
                "wall time %.1f s\n",
                rss / 1024.0,
-               (double)data.n * (sizeof(nf_context) + 10 * sizeof(float)) / (1024.0 * 1024.0),
+               (double)data_bytes(&data) / (1024.0 * 1024.0),
                atomic_load(&ca.peak) / 1024.0, wall);
         if (other >= 0.0)
             printf("other processes kept %.2f of %ld CPUs busy on average during the run%s\n",
@@ -1506,7 +1937,6 @@ int main(int argc, char **argv)
     rc = EXIT_SUCCESS;
 
 done:
-    nf_model_destroy(train_model);
     nf_model_destroy(model);
     if (pool_ok)
         pool_destroy(&pl);
