@@ -13,6 +13,7 @@ NF_DEB_PACKAGES=(
     pkg-config
     libcmocka-dev   # unit tests
     clang           # second compiler in CI
+    clang-format    # CI checks that include/ and src/ keep .clang-format's style
     libclang-rt-14-dev # clang's sanitizer and libFuzzer runtimes (.ci/robustness)
     # The example path tracer (examples/tracer/); without them it is skipped at configure time.
     libembree-dev   # Embree 3: ray intersection
