@@ -125,7 +125,7 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
     for (int i = 0; i < N; ++i) {
         const float *d = out_dir + 3 * i;
         double len = sqrt((double)d[0] * d[0] + (double)d[1] * d[1] + (double)d[2] * d[2]);
-        /* tests/test_numeric_robustness.c: unit within 2e-6 */
+        /* tests/robustness/test_numeric_robustness.c: unit within 2e-6 */
         NF_FUZZ_CHECK(fabs(len - 1.0) <= 2e-6, "sample %d has length %.9g", i, len);
         check_finite_positive(pdf[i], "sample pdf", i);
     }

@@ -161,7 +161,7 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * well-conditioned flows. pdf[i] belongs to the exact latent point, nf_pdf's value to the
  * inverse of the float direction; for sharp trained flows (densities of 100-2000 per sr) the
  * float round trip drifts and a few percent of samples differ by up to ~2e-3 (measured by
- * tests/test_sampling.c), which one-sample MIS tolerates. Densities are clamped to
+ * tests/correctness/test_sampling.c), which one-sample MIS tolerates. Densities are clamped to
  * [FLT_MIN, FLT_MAX], so that pdf and 1 / pdf are finite whatever the parameters
  * (docs/robustness.md). The map from u to dir is deterministic, and bit-identical however a
  * batch is split into calls (batches run in groups of 16 samples, calls of 1 or 2 samples per

@@ -40,7 +40,7 @@
  * caller's stack with the AVX-512 kernels, 2.8 KiB with AVX2 and 3.4 KiB with the generic
  * ones for the presets' shapes; other shapes up to the configuration limits take up to
  * 4.4 KiB (nf_point_prepare: 2.3 KiB at most). Renderers that shade on fiber stacks should
- * allow 5 KiB per call; tests/test_point.c measures the calls against that bound.
+ * allow 5 KiB per call; tests/correctness/test_point.c measures the calls against that bound.
  */
 #ifndef NISFLOW_POINT_H
 #define NISFLOW_POINT_H

@@ -3,8 +3,8 @@
  * loops. They inline into the per-ISA kernels, where libm calls would be opaque, and their
  * straight-line code lets the compiler vectorize loops over spline bins.
  *
- * Error bounds, measured by tests/test_fastmath.c against double-precision libm over the
- * stated domains (and asserted there):
+ * Error bounds, measured by tests/correctness/test_fastmath.c against double-precision libm
+ * over the stated domains (and asserted there):
  *   nf_fast_exp(x), x in [-87, 88]        relative error < 3e-7
  *   nf_fast_log(x), x in [1e-30, 1e30]    absolute error < 3e-7 where |log x| <= 1, else
  *                                         relative error < 3e-7

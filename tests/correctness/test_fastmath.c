@@ -11,7 +11,7 @@
 #include <cmocka.h>
 #include <math.h>
 
-#include "../src/kernels/fastmath.h"
+#include "../../src/kernels/fastmath.h"
 
 #define PI 3.14159265358979323846
 
