@@ -41,18 +41,6 @@
 
 #include "nf_test_support.h"
 
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define UNDER_SANITIZER 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) ||                     \
-    __has_feature(memory_sanitizer)
-#define UNDER_SANITIZER 1
-#endif
-#endif
-#ifndef UNDER_SANITIZER
-#define UNDER_SANITIZER 0
-#endif
-
 /* Directions per context, and points per batch: 64 is four tiles of 16, so nf_sample and
  * nf_pdf take their tiled path (kernel.c runs calls of 3 or more samples on tiles). */
 enum { K = 64 };
@@ -70,22 +58,6 @@ static const nf_prior_kind all_priors[4] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR
                                             NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};
 
 /* ---- outputs that must stay unwritten ------------------------------------------------------ */
-
-static const float sentinel = 12345.0f;
-
-static void fill(float *v, size_t n)
-{
-    for (size_t i = 0; i < n; ++i)
-        v[i] = sentinel;
-}
-
-static int untouched(const float *v, size_t n)
-{
-    for (size_t i = 0; i < n; ++i)
-        if (memcmp(&v[i], &sentinel, sizeof sentinel) != 0)
-            return 0;
-    return 1;
-}
 
 /* Fails with the first index where two float arrays differ in their bits. */
 static void same_bits(const float *got, const float *want, size_t count, const char *what,
@@ -372,9 +344,9 @@ static void check_context(const nf_model *m, const nf_context *ctx, const float 
     }
     nf_shading_point sp;
     assert_int_equal(nf_point_prepare(m, ctx, NULL, &sp), NF_OK);
-    fill(p_dir, 3 * K);
-    fill(p_pdf, K);
-    fill(p_eval, K);
+    nft_fill_sentinel(p_dir, 3 * K);
+    nft_fill_sentinel(p_pdf, K);
+    nft_fill_sentinel(p_eval, K);
     assert_int_equal(nf_point_sample(m, &sp, K, u, p_dir, p_pdf), NF_OK);
     assert_int_equal(nf_point_pdf(m, &sp, K, dir_in, p_eval), NF_OK);
     static const int pieces[] = {1, 2, 3, 16, 5, 17, 4};
@@ -430,7 +402,7 @@ static void check_points(const nf_model *m, uint64_t seed, const char *what)
     same_bits(p_dir, b_dir, 3 * K, what, "nf_points_sample dir");
     same_bits(p_pdf, b_pdf, K, what, "nf_points_sample pdf");
     same_bits(p_eval, b_eval, K, what, "nf_points_pdf");
-    fill(p_dir, 3 * K);
+    nft_fill_sentinel(p_dir, 3 * K);
     assert_int_equal(nf_points_sample(m, K, pts, u, p_dir, NULL), NF_OK);
     same_bits(p_dir, b_dir, 3 * K, what, "nf_points_sample without pdf: dir");
     /* In pieces of 1, 2, 3, ... points. */
@@ -727,14 +699,14 @@ static void assert_point_refused(const nf_model *m, const nf_shading_point *sp,
     float dir_in[3 * N] = {0.0f, 0.0f, 1.0f, 0.6f, 0.0f, 0.8f, -1.0f, 0.0f, 0.0f};
     float dir[3 * N], pdf[N];
     nf_shading_point three[N] = {*sp, *sp, *sp};
-    fill(dir, 3 * N);
-    fill(pdf, N);
+    nft_fill_sentinel(dir, 3 * N);
+    nft_fill_sentinel(pdf, N);
     EXPECT_STATUS(expected, "nf_point_sample", nf_point_sample(m, sp, N, u, dir, pdf));
     EXPECT_STATUS(expected, "nf_point_sample", nf_point_sample(m, sp, 1, u, dir, NULL));
     EXPECT_STATUS(expected, "nf_point_pdf", nf_point_pdf(m, sp, N, dir_in, pdf));
     EXPECT_STATUS(expected, "nf_points_sample", nf_points_sample(m, N, three, u, dir, pdf));
     EXPECT_STATUS(expected, "nf_points_pdf", nf_points_pdf(m, N, three, dir_in, pdf));
-    assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+    assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
 }
 
 static void test_stale_after_parameter_changes(void **state)
@@ -898,13 +870,13 @@ static void test_other_models_refused(void **state)
         for (int i = 0; i < 2 * N; ++i)
             u[i] = 0.25f;
         assert_int_equal(nf_points_pdf(m, N, pts, din, pdf), NF_OK);
-        fill(dir, 3 * N);
-        fill(pdf, N);
+        nft_fill_sentinel(dir, 3 * N);
+        nft_fill_sentinel(pdf, N);
         nf_shading_point good = pts[2];
         pts[2] = sc;
         EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, u, dir, pdf));
         EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, pts, din, pdf));
-        assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+        assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
         /* A stale one (the last) among valid ones: NF_ERROR_STALE, nothing written. */
         pts[2] = good;
         train(m, 1, 99u);
@@ -915,7 +887,7 @@ static void test_other_models_refused(void **state)
         EXPECT_STATUS(NF_ERROR_STALE, "nf_points_pdf", nf_points_pdf(m, N, pts, din, pdf));
         EXPECT_STATUS(NF_ERROR_STALE, "nf_points_sample",
                       nf_points_sample(m, N, pts, u, dir, pdf));
-        assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+        assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
 
     /* A model created after m was destroyed, in the same memory: the same address and
@@ -1064,8 +1036,8 @@ static void test_sample_pdf_bad_input(void **state)
         u[2 * i + 1] = nft_rng_float(&r);
         nft_random_unit_vector(&r, din + 3 * i);
     }
-    fill(dir, 3 * N);
-    fill(pdf, N);
+    nft_fill_sentinel(dir, 3 * N);
+    nft_fill_sentinel(pdf, N);
     const long calls = model_lobe.samples + model_lobe.pdfs;
 
     /* NULL arguments (pdf may be NULL for the samplers only). */
@@ -1092,7 +1064,7 @@ static void test_sample_pdf_bad_input(void **state)
         EXPECT_INVALID("nf_points_sample", nf_points_sample(m, huge_n[k], pts, u, dir, pdf));
         EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, huge_n[k], pts, din, pdf));
     }
-    assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+    assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
 
     /* NaN and infinite u, in the last pair: nothing of the batch may be written. */
     const float bad_u[3] = {NAN, INFINITY, -INFINITY};
@@ -1102,7 +1074,7 @@ static void test_sample_pdf_bad_input(void **state)
         bu[2 * (N - 1) + (k & 1)] = bad_u[k / 2];
         EXPECT_INVALID("nf_point_sample", nf_point_sample(m, &sp, N, bu, dir, pdf));
         EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, bu, dir, pdf));
-        assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+        assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     /* Bad directions in the last entry: NaN, +-Inf in any component, zero, too short. */
     for (int k = 0; k < 11; ++k) {
@@ -1116,7 +1088,7 @@ static void test_sample_pdf_bad_input(void **state)
         }
         EXPECT_INVALID("nf_point_pdf", nf_point_pdf(m, &sp, N, bd, pdf));
         EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, pts, bd, pdf));
-        assert_true(untouched(pdf, N));
+        assert_true(nft_untouched(pdf, N));
     }
     /* No refused call reached the prior's callbacks. */
     assert_int_equal(model_lobe.samples + model_lobe.pdfs, calls);
@@ -1137,7 +1109,7 @@ static void test_sample_pdf_bad_input(void **state)
         batch[N - 1] = junk;
         EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, batch, u, dir, pdf));
         EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, batch, din, pdf));
-        assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+        assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     assert_int_equal(model_lobe.samples + model_lobe.pdfs, calls);
 
@@ -1150,7 +1122,7 @@ static void test_sample_pdf_bad_input(void **state)
     assert_int_equal(nf_point_pdf(m, &sp, 0, din, pdf), NF_OK);
     assert_int_equal(nf_points_sample(m, 0, pts, u, dir, pdf), NF_OK);
     assert_int_equal(nf_points_pdf(m, 0, pts, din, pdf), NF_OK);
-    assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+    assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     assert_int_equal(model_lobe.samples + model_lobe.pdfs, calls);
 
     /* After all of that, the points still work. */
@@ -1211,8 +1183,8 @@ static int count_accepted_flips(const nf_model *m, const nf_shading_point *sp, f
         for (int k = 0; k < 3; ++k) {
             nf_shading_point bad = *sp;
             ((unsigned char *)&bad)[f.offset + b] ^= masks[k];
-            fill(dir, 3);
-            fill(pdf, 1);
+            nft_fill_sentinel(dir, 3);
+            nft_fill_sentinel(pdf, 1);
             nf_status s1 = nf_point_sample(m, &bad, 1, u, dir, pdf);
             nf_status s2 = nf_point_pdf(m, &bad, 1, din, pdf);
             nf_status s3 = nf_points_sample(m, 1, &bad, u, dir, pdf);
@@ -1225,7 +1197,7 @@ static int count_accepted_flips(const nf_model *m, const nf_shading_point *sp, f
                 s3 != NF_ERROR_INVALID_ARGUMENT || s4 != NF_ERROR_INVALID_ARGUMENT)
                 fail_msg("%s byte %zu ^ 0x%02x: statuses %d %d %d %d", f.name, b, masks[k],
                          (int)s1, (int)s2, (int)s3, (int)s4);
-            if (!untouched(dir, 3) || !untouched(pdf, 1))
+            if (!nft_untouched(dir, 3) || !nft_untouched(pdf, 1))
                 fail_msg("%s byte %zu ^ 0x%02x: a refused call wrote its output", f.name, b,
                          masks[k]);
         }
@@ -1484,7 +1456,7 @@ static void test_copies_are_valid(void **state)
  * libm included. Custom priors are left out (their callbacks' stack is the caller's). Only in
  * optimized builds without sanitizers: the figures are for those, and sanitizers grow every
  * frame. */
-#if !UNDER_SANITIZER && defined(NDEBUG) && defined(__OPTIMIZE__)
+#if !NFT_UNDER_SANITIZER && defined(NDEBUG) && defined(__OPTIMIZE__)
 #define STACK_CHECK 1
 #else
 #define STACK_CHECK 0

@@ -46,18 +46,6 @@
 #define HAVE_RLIMIT_INJECTION 0
 #endif
 
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define UNDER_SANITIZER 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) ||                     \
-    __has_feature(memory_sanitizer)
-#define UNDER_SANITIZER 1
-#endif
-#endif
-#ifndef UNDER_SANITIZER
-#define UNDER_SANITIZER 0
-#endif
-
 /* ---- the failing allocator ------------------------------------------------------------------ */
 
 typedef struct failing {
@@ -495,7 +483,7 @@ static void test_load_and_deserialize(void **state)
 {
     (void)state;
 #if HAVE_RLIMIT_INJECTION
-    if (UNDER_SANITIZER) {
+    if (NFT_UNDER_SANITIZER) {
         print_message("  skipped: the sanitizers reserve more address space than any limit\n");
         skip();
     }

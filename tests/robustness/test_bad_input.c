@@ -175,22 +175,6 @@ static void make_bad_direction(float d[3], int which)
     }
 }
 
-static const float sentinel = 12345.0f;
-
-static void fill(float *v, size_t n)
-{
-    for (size_t i = 0; i < n; ++i)
-        v[i] = sentinel;
-}
-
-static int untouched(const float *v, size_t n)
-{
-    for (size_t i = 0; i < n; ++i)
-        if (memcmp(&v[i], &sentinel, sizeof sentinel) != 0)
-            return 0;
-    return 1;
-}
-
 /* ---- configuration and life cycle ------------------------------------------------------- */
 
 /* Applies bad mutation `i` to a default config; returns 0 past the last one. */
@@ -402,16 +386,16 @@ static void test_sample_bad_input(void **state)
     float dir[3 * N], pdf[N];
     char what[64];
 
-    fill(dir, 3 * N);
-    fill(pdf, N);
+    nft_fill_sentinel(dir, 3 * N);
+    nft_fill_sentinel(pdf, N);
     EXPECT_INVALID(nf_sample(NULL, N, b.ctx, b.u, dir, pdf));
     EXPECT_INVALID(nf_sample(m, N, NULL, b.u, dir, pdf));
     EXPECT_INVALID(nf_sample(m, N, b.ctx, NULL, dir, pdf));
     EXPECT_INVALID(nf_sample(m, N, b.ctx, b.u, NULL, pdf));
-    assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+    assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     for (int k = 0; k < 3; ++k) {
         EXPECT_INVALID(nf_sample(m, huge_n[k], b.ctx, b.u, dir, pdf));
-        assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+        assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     /* A bad context in the last element: nothing of the batch may be written. */
     for (int which = 0; which < CTX_BAD_COUNT; ++which) {
@@ -421,7 +405,7 @@ static void test_sample_bad_input(void **state)
         nf_status st = nf_sample(m, N, bad.ctx, bad.u, dir, pdf);
         if (st != NF_ERROR_INVALID_ARGUMENT || message_is_primer(0))
             fail_msg("nf_sample with %s: %s", what, nf_status_string(st));
-        if (!untouched(dir, 3 * N) || !untouched(pdf, N))
+        if (!nft_untouched(dir, 3 * N) || !nft_untouched(pdf, N))
             fail_msg("nf_sample with %s wrote its outputs", what);
     }
     /* NaN and infinite u (finite values outside [0,1) are clamped, see below). */
@@ -430,15 +414,15 @@ static void test_sample_bad_input(void **state)
         batch bad = b;
         bad.u[2 * (N - 1) + (k & 1)] = bad_u[k / 2];
         EXPECT_INVALID(nf_sample(m, N, bad.ctx, bad.u, dir, pdf));
-        assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+        assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     /* n = 0 is a no-op, with or without pointers. */
     assert_int_equal(nf_sample(m, 0, NULL, NULL, NULL, NULL), NF_OK);
     assert_int_equal(nf_sample(m, 0, b.ctx, b.u, dir, pdf), NF_OK);
-    assert_true(untouched(dir, 3 * N) && untouched(pdf, N));
+    assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     /* pdf NULL is allowed. */
     assert_int_equal(nf_sample(m, N, b.ctx, b.u, dir, NULL), NF_OK);
-    assert_false(untouched(dir, 3));
+    assert_false(nft_untouched(dir, 3));
     EXPECT_UNCHANGED(m, &snap);
     nft_snapshot_free(&snap);
     nf_model_destroy(m);
@@ -478,14 +462,14 @@ static void test_pdf_bad_input(void **state)
     float pdf[N];
     char what[64];
 
-    fill(pdf, N);
+    nft_fill_sentinel(pdf, N);
     EXPECT_INVALID(nf_pdf(NULL, N, b.ctx, b.dir, pdf));
     EXPECT_INVALID(nf_pdf(m, N, NULL, b.dir, pdf));
     EXPECT_INVALID(nf_pdf(m, N, b.ctx, NULL, pdf));
     EXPECT_INVALID(nf_pdf(m, N, b.ctx, b.dir, NULL));
     for (int k = 0; k < 3; ++k)
         EXPECT_INVALID(nf_pdf(m, huge_n[k], b.ctx, b.dir, pdf));
-    assert_true(untouched(pdf, N));
+    assert_true(nft_untouched(pdf, N));
     for (int which = 0; which < CTX_BAD_COUNT; ++which) {
         batch bad = b;
         bad.ctx[N - 1] = bad_context(&b.ctx[N - 1], which, what, sizeof what);
@@ -493,18 +477,18 @@ static void test_pdf_bad_input(void **state)
         nf_status st = nf_pdf(m, N, bad.ctx, bad.dir, pdf);
         if (st != NF_ERROR_INVALID_ARGUMENT || message_is_primer(0))
             fail_msg("nf_pdf with %s: %s", what, nf_status_string(st));
-        if (!untouched(pdf, N))
+        if (!nft_untouched(pdf, N))
             fail_msg("nf_pdf with %s wrote its output", what);
     }
     for (int which = 0; which < 4; ++which) {
         batch bad = b;
         make_bad_direction(bad.dir + 3 * (N - 1), which);
         EXPECT_INVALID(nf_pdf(m, N, bad.ctx, bad.dir, pdf));
-        assert_true(untouched(pdf, N));
+        assert_true(nft_untouched(pdf, N));
     }
     assert_int_equal(nf_pdf(m, 0, NULL, NULL, NULL), NF_OK);
     assert_int_equal(nf_pdf(m, 0, b.ctx, b.dir, pdf), NF_OK);
-    assert_true(untouched(pdf, N));
+    assert_true(nft_untouched(pdf, N));
     EXPECT_UNCHANGED(m, &snap);
     nft_snapshot_free(&snap);
     nf_model_destroy(m);
@@ -570,7 +554,7 @@ static void test_train_step_bad_input(void **state)
     assert_int_equal(nft_snapshot_take(m, &snap), 0);
     batch b = valid_batch(), bad;
     char what[64];
-    float loss = sentinel;
+    float loss = NFT_SENTINEL;
 
     EXPECT_INVALID(nf_train_step(NULL, N, b.ctx, b.dir, b.weight, &loss));
     EXPECT_INVALID(nf_train_step(m, N, NULL, b.dir, b.weight, &loss));
@@ -592,7 +576,7 @@ static void test_train_step_bad_input(void **state)
     assert_int_equal(nf_train_step(m, 0, NULL, NULL, NULL, NULL), NF_OK);
     EXPECT_UNCHANGED(m, &snap);
     float zero[N] = {0};
-    loss = sentinel;
+    loss = NFT_SENTINEL;
     assert_int_equal(nf_train_step(m, N, b.ctx, b.dir, zero, &loss), NF_OK);
     assert_true(loss == 0.0f);
     EXPECT_UNCHANGED(m, &snap);
@@ -632,8 +616,8 @@ static void test_loss_gradient_bad_input(void **state)
     EXPECT_UNCHANGED(m, &snap);
     /* All-zero weights: loss and gradient 0. loss may be NULL. */
     float zero[N] = {0};
-    fill(grad, pc);
-    loss = sentinel;
+    nft_fill_sentinel(grad, pc);
+    loss = NFT_SENTINEL;
     assert_int_equal(nf_loss_gradient(m, N, b.ctx, b.dir, zero, &loss, grad), NF_OK);
     assert_true(loss == 0.0f);
     for (size_t i = 0; i < pc; ++i)
@@ -864,10 +848,10 @@ static void test_custom_callbacks_misbehave(void **state)
         f.bad_sample = 1;
         f.bad_pdf = 0;
         f.bad_value = bad_sample_values[v];
-        fill(dir, 3 * N);
-        fill(pdf, N);
+        nft_fill_sentinel(dir, 3 * N);
+        nft_fill_sentinel(pdf, N);
         EXPECT_STATUS(NF_ERROR_NUMERIC, nf_sample(m, N, b.ctx, b.u, dir, pdf));
-        if (!untouched(dir + 3 * (k + 1), 3 * (N - k - 1)) || !untouched(pdf + k + 1, N - k - 1))
+        if (!nft_untouched(dir + 3 * (k + 1), 3 * (N - k - 1)) || !nft_untouched(pdf + k + 1, N - k - 1))
             fail_msg("sampler density %g: outputs after the failing sample were written",
                      (double)f.bad_value);
     }
@@ -875,9 +859,9 @@ static void test_custom_callbacks_misbehave(void **state)
         f.bad_sample = 0;
         f.bad_pdf = 1;
         f.bad_value = bad_pdf_values[v];
-        fill(pdf, N);
+        nft_fill_sentinel(pdf, N);
         EXPECT_STATUS(NF_ERROR_NUMERIC, nf_pdf(m, N, b.ctx, b.dir, pdf));
-        if (!untouched(pdf + k + 1, N - k - 1))
+        if (!nft_untouched(pdf + k + 1, N - k - 1))
             fail_msg("pdf callback %g: outputs after the failing sample were written",
                      (double)f.bad_value);
         EXPECT_STATUS(NF_ERROR_NUMERIC, nf_train_step(m, N, b.ctx, b.dir, b.weight, &loss));
@@ -901,7 +885,7 @@ static void test_blocks_bad_input(void **state)
 {
     (void)state;
     float raw[3 * (NF_MAX_SPLINE_BINS + 1) + 1] = {0}; /* room for the bins = max+1 case */
-    float y = sentinel, dydx = sentinel;
+    float y = NFT_SENTINEL, dydx = NFT_SENTINEL;
     EXPECT_INVALID(nf_spline_forward(8, NULL, 0.5f, &y, &dydx));
     EXPECT_INVALID(nf_spline_forward(8, raw, 0.5f, NULL, &dydx));
     EXPECT_INVALID(nf_spline_forward(1, raw, 0.5f, &y, &dydx));
@@ -932,15 +916,15 @@ static void test_blocks_bad_input(void **state)
 
     /* Encodings: documented no-ops and zero outputs. */
     float out[NF_MAX_SH_BANDS * NF_MAX_SH_BANDS];
-    fill(out, sizeof out / sizeof out[0]);
+    nft_fill_sentinel(out, sizeof out / sizeof out[0]);
     nf_encode_oneblob(0.5f, 0, out);
     nf_encode_sh((const float[3]){0.0f, 0.0f, 1.0f}, 0, out);
-    assert_true(untouched(out, sizeof out / sizeof out[0]));
+    assert_true(nft_untouched(out, sizeof out / sizeof out[0]));
     nf_encode_oneblob(0.5f, 8, NULL);
     nf_encode_sh((const float[3]){0.0f, 0.0f, 1.0f}, 4, NULL);
     const float bad_dirs[4][3] = {{0, 0, 0}, {NAN, 0, 1}, {0, INFINITY, 0}, {0, 0, -INFINITY}};
     for (int k = 0; k < 4; ++k) {
-        fill(out, 16);
+        nft_fill_sentinel(out, 16);
         nf_encode_sh(bad_dirs[k], 4, out);
         for (int i = 0; i < 16; ++i)
             if (out[i] != 0.0f)

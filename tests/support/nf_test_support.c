@@ -680,3 +680,19 @@ void nft_snapshot_free(nft_snapshot *s)
     s->params = NULL;
     s->bytes = NULL;
 }
+
+static const float nft_sentinel = NFT_SENTINEL;
+
+void nft_fill_sentinel(float *v, size_t n)
+{
+    for (size_t i = 0; i < n; ++i)
+        v[i] = nft_sentinel;
+}
+
+int nft_untouched(const float *v, size_t n)
+{
+    for (size_t i = 0; i < n; ++i)
+        if (memcmp(&v[i], &nft_sentinel, sizeof nft_sentinel) != 0)
+            return 0;
+    return 1;
+}

@@ -176,4 +176,24 @@ int nft_snapshot_take(const nf_model *m, nft_snapshot *s);
 int nft_snapshot_equal(const nf_model *m, const nft_snapshot *s);
 void nft_snapshot_free(nft_snapshot *s);
 
+/* 1 when built with AddressSanitizer, ThreadSanitizer or MemorySanitizer (GCC or clang):
+ * tests of stack use and resource limits skip themselves there. */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define NFT_UNDER_SANITIZER 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) ||                     \
+    __has_feature(memory_sanitizer)
+#define NFT_UNDER_SANITIZER 1
+#endif
+#endif
+#ifndef NFT_UNDER_SANITIZER
+#define NFT_UNDER_SANITIZER 0
+#endif
+
+/* Outputs that a refused call must leave alone: nft_fill_sentinel writes NFT_SENTINEL, a value
+ * no call produces, and nft_untouched checks that every float still has its bits. */
+#define NFT_SENTINEL 12345.0f
+void nft_fill_sentinel(float *v, size_t n);
+int nft_untouched(const float *v, size_t n);
+
 #endif /* NF_TEST_SUPPORT_H */
