@@ -1,0 +1,77 @@
+/*
+ * nf_bench.h - what every part of the benchmark program shares: the operations it times, the
+ * options the command line sets, and the names the output gives them.
+ *
+ * The program is split by job, in the style of zstd's programs/:
+ *
+ *   harness.c   measurement machinery that knows nothing of libnisflow: clock, CPU load of
+ *               other processes, peak memory, CPU name, random numbers, a counting
+ *               allocator, a pool of persistent threads.
+ *   setup.c     what a preset's cases run on, prepared outside any timing: the model with
+ *               randomized parameters, its FLOP counts, the inputs, the ring of prepared
+ *               shading points, and the start-up checks of sharding and shading points.
+ *   cases.c     one case timed: the timed loops of every op, repetitions and their median,
+ *               re-measuring when the machine was busy, the checks of what the calls wrote.
+ *   report.c    the results table (plain text and Markdown), the targets, the JSON file.
+ *   nf_bench.c  the command line and main.
+ */
+#ifndef NF_BENCH_H
+#define NF_BENCH_H
+
+#include <stddef.h>
+
+#include <nisflow/nisflow.h>
+
+#define NFB_STREAM 256u /* n = 1 calls per unit of work at batch 1 */
+
+/* The batched ops come first: they have a row per batch size. The shading-point ops after
+ * them are per-call latencies (n = 1) with one row each. */
+enum {
+    OP_SAMPLE = 0,
+    OP_PDF = 1,
+    OP_TRAIN = 2,
+    OP_BATCHED_COUNT = 3,
+    OP_PREPARE = 3,
+    OP_POINT_SAMPLE = 4,
+    OP_POINT_PDF = 5,
+    OP_VERTEX = 6,
+    OP_COUNT = 7
+};
+#define OP_MASK_ALL ((1 << OP_COUNT) - 1)
+#define OP_MASK_BATCHED ((1 << OP_BATCHED_COUNT) - 1)
+#define OP_MASK_POINT (OP_MASK_ALL & ~OP_MASK_BATCHED)
+
+/* The ops' names in --op, the progress lines, the tables and the JSON. */
+extern const char *const OP_NAME[OP_COUNT];
+
+/* The presets: 0 small, 1 large. */
+extern const char *const PRESET_NAME[2];
+
+static inline int op_is_point(int op)
+{
+    return op >= OP_BATCHED_COUNT;
+}
+
+/* What the command line asked for (nf_bench.c's parse_args). */
+typedef struct options {
+    int quick;
+    int presets[2];
+    int preset_count;
+    int threads[2];
+    int thread_count;
+    int reps;
+    double min_rep_s;
+    nf_prior_kind prior;
+    const char *prior_name;
+    const char *json_path;
+    const char *label;
+    const char *markdown_path;
+    int retries;
+    double busy_threshold;
+    long nproc;
+    int op_mask;
+    size_t batch; /* 0: every batch size; else only this one */
+    nf_isa isa;   /* kernels to ask for (NF_ISA_AUTO: the library's choice) */
+} options;
+
+#endif /* NF_BENCH_H */
