@@ -172,15 +172,24 @@ typedef struct nf_point {
 
 /* A hash of every field of a point before check_ (context, identity, prior callbacks, normal,
  * cache mode), so that a point whose header was overwritten (or never written) is refused
- * rather than read with a wrong normal, context or callback. A sum of the fields' 32-bit
+ * rather than read with a wrong normal, context or callback. A sum of the header's 64-bit
  * words times distinct odd constants: any change of a single word changes it, and the
- * multiplies are independent, so checking costs a few cycles of latency per call. Field by
- * field rather than over the bytes: struct padding (on targets with 4-byte pointers) need not
- * survive a copy. */
+ * multiplies are independent, so the check costs a few cycles of latency per call. On
+ * 64-bit targets the header is 96 bytes without padding (asserted in point.c), read as 12
+ * words; elsewhere field by field, since struct padding need not survive a copy. */
 static inline uint32_t nf_point_hash(const nf_shading_point *p)
 {
-    uint32_t w[32];
-    uint32_t n = 0;
+    uint64_t h = 0;
+#if UINTPTR_MAX == UINT64_MAX
+    enum { NF_POINT_HEADER_WORDS = offsetof(nf_shading_point, check_) / 8 };
+    const unsigned char *bytes = (const unsigned char *)p;
+    for (uint32_t i = 0; i < NF_POINT_HEADER_WORDS; ++i) {
+        uint64_t w;
+        memcpy(&w, bytes + 8 * i, sizeof w);
+        h += w * (0x9e3779b97f4a7c15u + 2u * (uint64_t)i * 0x6a09e667f3bcc909u);
+    }
+#else
+    uint32_t w[32], n = 0;
     memcpy(w, &p->context_, sizeof p->context_); /* 9 floats */
     n = (uint32_t)(sizeof p->context_ / sizeof w[0]);
     w[n++] = p->magic_;
@@ -188,18 +197,15 @@ static inline uint32_t nf_point_hash(const nf_shading_point *p)
     w[n++] = (uint32_t)(p->model_id_ >> 32);
     w[n++] = (uint32_t)p->generation_;
     w[n++] = (uint32_t)(p->generation_ >> 32);
-    uintptr_t ptr[3] = {(uintptr_t)p->prior_.sample, (uintptr_t)p->prior_.pdf,
-                        (uintptr_t)p->prior_.user};
-    for (int i = 0; i < 3; ++i) {
-        w[n++] = (uint32_t)ptr[i];
-        w[n++] = (uint32_t)((uint64_t)ptr[i] >> 32);
-    }
+    w[n++] = (uint32_t)(uintptr_t)p->prior_.sample;
+    w[n++] = (uint32_t)(uintptr_t)p->prior_.pdf;
+    w[n++] = (uint32_t)(uintptr_t)p->prior_.user;
     memcpy(w + n, p->frame_, sizeof p->frame_);
     n += 3;
     w[n++] = p->cached_;
-    uint64_t h = 0;
     for (uint32_t i = 0; i < n; ++i)
         h += (uint64_t)w[i] * (0x9e3779b97f4a7c15u + 2u * (uint64_t)i * 0x6a09e667f3bcc909u);
+#endif
     return (uint32_t)(h ^ (h >> 32));
 }
 
