@@ -74,6 +74,7 @@ void path_stats_add(path_stats *a, const path_stats *b)
     a->guided_vertices += b->guided_vertices;
     a->nf_errors += b->nf_errors;
     a->camera_backfaces += b->camera_backfaces;
+    a->invalid_rays += b->invalid_rays;
 }
 
 static float power_heuristic(float a, float b)
@@ -177,6 +178,10 @@ static rgb next_event(const tracer *t, const shading *sh, const surface *sf,
     shadow.o = offset_origin(sf->p, sh->ng, ls.wi);
     shadow.d = ls.wi;
     shadow.tmax = isinf(ls.dist) ? INFINITY : ls.dist * (1.0f - 1e-4f);
+    if (!scene_ray_valid(&shadow)) { /* never within the loader's world range */
+        st->invalid_rays++;
+        return zero;
+    }
     st->rays++;
     if (scene_occluded(s, &shadow))
         return zero;
@@ -260,6 +265,10 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
 
     for (int depth = 1;; ++depth) {
         hit h;
+        if (!scene_ray_valid(&ry)) { /* never within the loader's world range */
+            st->invalid_rays++;
+            break;
+        }
         st->rays++;
         /* The previous vertex's record receives what this ray finds. */
         vertex_record *prev = records && nv > 0 && nv <= MAX_RECORDED_VERTICES ? &vr[nv - 1] : NULL;

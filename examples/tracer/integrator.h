@@ -49,6 +49,9 @@ int record_buffer_append(record_buffer *dst, const record_buffer *src);
 typedef struct path_stats {
     uint64_t paths, rays, guided_vertices, nf_errors;
     uint64_t camera_backfaces; /* camera rays that hit the black back of a one-sided material */
+    uint64_t invalid_rays;     /* rays Embree cannot take (scene_ray_valid); each ended its
+                                * path or its light sample without reaching Embree. Always 0
+                                * for a scene the loader accepted; tests check it. */
 } path_stats;
 
 void path_stats_add(path_stats *a, const path_stats *b);

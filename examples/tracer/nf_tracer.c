@@ -276,6 +276,11 @@ int main(int argc, char **argv)
                 "from pbrt or Tungsten shade both sides), wrap the material in <bsdf "
                 "type=\"twosided\">.\n", 100.0 * (double)stats.camera_backfaces / (double)stats.paths);
 
+    if (stats.invalid_rays)
+        fprintf(stderr, "nf_tracer: warning: %llu rays were outside what Embree accepts and "
+                "ended their paths (the scene loader should have refused this scene: please "
+                "report it).\n", (unsigned long long)stats.invalid_rays);
+
     snprintf(path, sizeof path, "%s.exr", prefix);
     if (!image_write_exr(&img, path, &err)) {
         fail(NULL, &err);

@@ -4,6 +4,7 @@
  */
 #include "scene.h"
 
+#include <assert.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -211,8 +212,26 @@ ray camera_ray(const scene *s, float px, float py)
     return r;
 }
 
+/* NaN fails both comparisons. */
+static int within_ray_limit(float v)
+{
+    return fabsf(v) <= SCENE_RAY_LIMIT;
+}
+
+int scene_ray_valid(const ray *r)
+{
+    return within_ray_limit(r->o.x) && within_ray_limit(r->o.y) && within_ray_limit(r->o.z) &&
+           within_ray_limit(r->d.x) && within_ray_limit(r->d.y) && within_ray_limit(r->d.z) &&
+           r->tmax >= 0.0f;
+}
+
 int scene_intersect(const scene *s, const ray *r, hit *h)
 {
+    /* The loader's world range (SCENE_WORLD_LIMIT) keeps every ray the integrator forms
+     * valid; should one not be, it must not reach Embree, which would abort. */
+    assert(scene_ray_valid(r));
+    if (!scene_ray_valid(r))
+        return 0;
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     struct RTCRayHit rh;
@@ -241,6 +260,9 @@ int scene_intersect(const scene *s, const ray *r, hit *h)
 
 int scene_occluded(const scene *s, const ray *r)
 {
+    assert(scene_ray_valid(r));
+    if (!scene_ray_valid(r))
+        return 1; /* nothing is known to be visible along it: no light arrives */
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     struct RTCRay ry;

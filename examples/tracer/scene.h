@@ -79,6 +79,22 @@ typedef struct scene {
     RTCScene rtc;
 } scene;
 
+/* The world-space range the loader accepts (docs/tracer.md, "Limits"): every coordinate of
+ * the camera origin, of a lookat target, of every vertex after its to_world, and every entry
+ * of every <transform> (so the image of the origin and of the unit vectors), after each of
+ * its steps, must be finite and within +-SCENE_WORLD_LIMIT; scene_props.c's check_world()
+ * is the one place that applies it.
+ *
+ * Why 1e9: the tracer computes the geometric normal and the area of a triangle as the
+ * length of the cross product of two edges, in float. With coordinates within +-B, edge
+ * components are within 2B, cross-product components within 8B^2, and its squared length
+ * within 192 B^4, which stays below FLT_MAX (3.4e38) for B <= 1.15e9. Beyond that the
+ * normal of a large triangle overflows to zero. Everything else the integrator forms is
+ * then far inside what Embree takes (SCENE_RAY_LIMIT): ray origins within B (1 + 1e-5)
+ * after the offset off the surface, distances and shadow-ray tmax within 2 sqrt(3) B,
+ * squared distances within 12 B^2. */
+#define SCENE_WORLD_LIMIT 1e9
+
 /* Loads and prepares a scene (scene_load.c). On failure returns 0 with a message naming the
  * file, the line and the element. */
 int scene_load(const char *path, scene *s, tr_error *err);
@@ -102,6 +118,17 @@ typedef struct ray {
 
 /* A camera ray through the film position (px, py) in pixels (0..width, 0..height). */
 ray camera_ray(const scene *s, float px, float py);
+
+/* Embree's own limit on ray origins and directions (FLT_LARGE in its kernels/common). */
+#define SCENE_RAY_LIMIT 1.844e18f
+
+/* Whether Embree can take the ray: every origin and direction component finite and within
+ * +-SCENE_RAY_LIMIT, tmax in [0, inf] (tnear is 0). This is Embree's RayK::valid(), which
+ * Debian's build asserts (an invalid ray aborts the process), plus tmax >= 0, which Embree
+ * documents. scene_intersect and scene_occluded assert it (debug builds) and never pass an
+ * invalid ray on: intersect reports a miss, occluded reports occlusion. The integrator
+ * checks before it calls them (path_stats.invalid_rays). */
+int scene_ray_valid(const ray *r);
 
 typedef struct hit {
     float t;

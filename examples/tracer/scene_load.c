@@ -183,7 +183,15 @@ static int parse_shape(loader *L, xml_node *n)
         ok = check_all_used(L, n);
     if (ok) {
         mesh_transform(&sh.m, &to_world);
-        if (!mesh_finish(&sh.m, face_normals, flip, &e))
+        for (uint32_t i = 0; i < sh.m.nverts && ok; ++i) {
+            const vec3 p = sh.m.p[i];
+            const double pd[3] = {p.x, p.y, p.z};
+            char what[80];
+            snprintf(what, sizeof what, "vertex %u of %u (after to_world) is at", (unsigned)i,
+                     (unsigned)sh.m.nverts);
+            ok = check_world(L, n, what, pd, 3);
+        }
+        if (ok && !mesh_finish(&sh.m, face_normals, flip, &e))
             ok = fail_at(L, n, "%s", e.msg);
     }
     if (ok && sh.bsdf < 0) { /* Mitsuba's default material: diffuse, reflectance 0.5 */
@@ -260,6 +268,16 @@ static int parse_sensor(loader *L, xml_node *n)
         return 0;
     if (!(L->s->fov_degrees > 0.0f && L->s->fov_degrees < 180.0f))
         return fail_at(L, n, "needs a 'fov' in (0, 180) degrees");
+    /* The transform's entries are in range (parse_transform); a projective one can still
+     * divide the origin by a tiny w. A singular one would give every camera ray the same
+     * degenerate direction. */
+    const vec3 o = mat4_point(&L->s->camera_to_world, v3(0.0f, 0.0f, 0.0f));
+    const double od[3] = {o.x, o.y, o.z};
+    mat4 inverse;
+    if (!check_world(L, n, "the camera origin is at", od, 3))
+        return 0;
+    if (!mat4_inverse(&L->s->camera_to_world, &inverse))
+        return fail_at(L, n, "to_world is not invertible");
     static const char *const axes[] = {"x", "y", "diagonal", "smaller", "larger"};
     L->s->fov_axis = -1;
     for (int i = 0; i < 5; ++i)

@@ -5,6 +5,7 @@
  */
 #include <ctype.h>
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -73,6 +74,10 @@ int parse_numbers(loader *L, const xml_node *n, const char *attr, const char *te
         double v = strtod(p, &end);
         if (end == p || !isfinite(v) || (*end && !isspace((unsigned char)*end) && *end != ','))
             return fail_at(L, n, "'%s' is not a number (in %s=\"%s\")", p, attr, text);
+        /* Most numbers end up in floats, where a larger one would become infinite. */
+        if (fabs(v) > FLT_MAX)
+            return fail_at(L, n, "'%.*s' is out of range (in %s=\"%s\"): numbers must lie "
+                           "within +-%g", (int)(end - p), p, attr, text, (double)FLT_MAX);
         out[(*count)++] = v;
         p = end;
     }
@@ -101,6 +106,49 @@ int parse_vec3_attr(loader *L, const xml_node *n, const char *attr, vec3 *out)
         return fail_at(L, n, "%s needs 3 numbers", attr);
     *out = v3((float)v[0], (float)v[1], (float)v[2]);
     return 1;
+}
+
+/* ---- The world's range --------------------------------------------------------------------- */
+
+int check_world(loader *L, const xml_node *n, const char *what, const double *v, int count)
+{
+    int ok = 1;
+    for (int i = 0; i < count; ++i)
+        ok = ok && fabs(v[i]) <= SCENE_WORLD_LIMIT; /* false for NaN */
+    if (ok)
+        return 1;
+    char values[160];
+    size_t len = 0;
+    for (int i = 0; i < count && len < sizeof values; ++i) {
+        /* %g, unless it would round a value just outside the range to one inside it (a
+         * vertex at 1000000128 would read "1e+09"). */
+        char shown[40];
+        snprintf(shown, sizeof shown, "%g", v[i]);
+        if (!(fabs(v[i]) <= SCENE_WORLD_LIMIT) && fabs(strtod(shown, NULL)) <= SCENE_WORLD_LIMIT)
+            snprintf(shown, sizeof shown, "%.10g", v[i]);
+        len += (size_t)snprintf(values + len, sizeof values - len, "%s%s", i ? ", " : "", shown);
+    }
+    return fail_at(L, n, "%s (%s), outside the world-space range: coordinates must be "
+                   "finite and within +-%g (docs/tracer.md, \"Limits\")", what, values,
+                   SCENE_WORLD_LIMIT);
+}
+
+/* Every entry of a transform: the images of the origin and of the unit vectors, and the
+ * projective row. */
+static int check_world_transform(loader *L, const xml_node *n, const mat4 *m)
+{
+    static const char *const what[4] = {"the transform maps the origin to",
+                                        "the transform maps the unit x vector to",
+                                        "the transform maps the unit y vector to",
+                                        "the transform maps the unit z vector to"};
+    static const int column[4] = {3, 0, 1, 2};
+    for (int k = 0; k < 4; ++k) {
+        const int c = column[k];
+        const double image[3] = {m->m[0][c], m->m[1][c], m->m[2][c]};
+        if (!check_world(L, n, what[k], image, 3))
+            return 0;
+    }
+    return check_world(L, n, "the transform's projective row is", m->m[3], 4);
 }
 
 /* ---- Object registry ----------------------------------------------------------------------- */
@@ -400,6 +448,10 @@ int parse_transform(loader *L, xml_node *t, mat4 *out)
             if (!check_attrs(L, c, look_attrs) || !parse_vec3_attr(L, c, "origin", &o) ||
                 !parse_vec3_attr(L, c, "target", &target))
                 return 0;
+            const double od[3] = {o.x, o.y, o.z}, td[3] = {target.x, target.y, target.z};
+            if (!check_world(L, c, "the lookat origin is at", od, 3) ||
+                !check_world(L, c, "the lookat target is at", td, 3))
+                return 0;
             if (xml_attr(c, "up")) {
                 if (!parse_vec3_attr(L, c, "up", &up))
                     return 0;
@@ -414,6 +466,9 @@ int parse_transform(loader *L, xml_node *t, mat4 *out)
                            "matrix or lookat)");
         }
         m = mat4_mul(&step, &m);
+        /* After every step, so that the message names the step that left the range. */
+        if (!check_world_transform(L, c, &m))
+            return 0;
     }
     *out = m;
     return 1;

@@ -52,6 +52,12 @@ int parse_numbers(loader *L, const xml_node *n, const char *attr, const char *te
 int parse_number_attr(loader *L, const xml_node *n, const char *attr, double *out);
 int parse_vec3_attr(loader *L, const xml_node *n, const char *attr, vec3 *out);
 
+/* The world-space range (SCENE_WORLD_LIMIT in scene.h, docs/tracer.md "Limits"), applied
+ * here and nowhere else: returns 1 when every one of the `count` values is finite and within
+ * +-SCENE_WORLD_LIMIT, else 0 with "<what> (v0, v1, ...), outside the world-space range: ..."
+ * on element n (what: "the camera origin is at", ...). */
+int check_world(loader *L, const xml_node *n, const char *what, const double *v, int count);
+
 const named_object *find_object(const loader *L, const char *id);
 /* Registers n's id attribute, if it has one. */
 int register_object(loader *L, const xml_node *n, object_kind kind, int index);
