@@ -24,9 +24,8 @@ static int parse_area_emitter(loader *L, xml_node *n, rgb *radiance)
         return 0;
     if (strcmp(type, "area"))
         return fail_at(L, n, "only 'area' emitters can be attached to a shape");
-    int failed;
-    xml_node *r = find_prop(L, n, "radiance", &failed);
-    if (failed)
+    xml_node *r;
+    if (!find_prop(L, n, "radiance", &r))
         return 0;
     if (!r)
         return fail_at(L, n, "missing parameter 'radiance'");
@@ -126,9 +125,8 @@ static int parse_shape(loader *L, xml_node *n)
     } else if (!strcmp(type, "sphere")) {
         vec3 center = v3(0.0f, 0.0f, 0.0f);
         float radius;
-        int failed;
-        xml_node *c = find_prop(L, n, "center", &failed);
-        if (failed)
+        xml_node *c;
+        if (!find_prop(L, n, "center", &c))
             return 0;
         if (c) {
             static const char *const allowed[] = {"name", "value", "x", "y", "z", NULL};

@@ -119,9 +119,8 @@ const texture *parse_texture(loader *L, xml_node *n)
 /* A texture-valued parameter: a colour, a nested <texture> or a <ref> to one. */
 int get_texture(loader *L, xml_node *plugin, const char *name, rgb def, const texture **out)
 {
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
-    if (failed)
+    xml_node *n;
+    if (!find_prop(L, plugin, name, &n))
         return 0;
     if (!n) {
         *out = constant_texture(L, plugin, def);
@@ -167,10 +166,9 @@ static int ior_by_name(const char *name, float *out)
 
 static int get_ior(loader *L, xml_node *plugin, const char *name, float def, float *out)
 {
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
+    xml_node *n;
     *out = def;
-    if (failed)
+    if (!find_prop(L, plugin, name, &n))
         return 0;
     if (!n)
         return 1;

@@ -225,23 +225,21 @@ int is_property_tag(const char *tag)
 }
 
 /* The child property called `name` (any tag), or NULL. Two of them are an error. */
-xml_node *find_prop(loader *L, xml_node *plugin, const char *name, int *failed)
+int find_prop(loader *L, xml_node *plugin, const char *name, xml_node **out)
 {
     xml_node *found = NULL;
-    *failed = 0;
+    *out = NULL;
     for (int i = 0; i < plugin->nchildren; ++i) {
         xml_node *c = plugin->children[i];
         const char *cn = xml_attr(c, "name");
         if (cn && !strcmp(cn, name)) {
-            if (found) {
-                *failed = 1;
-                fail_at(L, c, "'%s' is given twice (first on line %d)", name, found->line);
-                return NULL;
-            }
+            if (found)
+                return fail_at(L, c, "'%s' is given twice (first on line %d)", name, found->line);
             found = c;
         }
     }
-    return found;
+    *out = found;
+    return 1;
 }
 
 int wrong_type(loader *L, const xml_node *n, const char *expected)
@@ -256,10 +254,9 @@ static int find_value_prop(loader *L, xml_node *plugin, const char *name, const 
                            const char *alt, xml_node **out)
 {
     static const char *const allowed[] = {"name", "value", NULL};
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
+    xml_node *n;
     *out = NULL;
-    if (failed)
+    if (!find_prop(L, plugin, name, &n))
         return 0;
     if (!n)
         return 1;
@@ -362,10 +359,9 @@ int parse_colour(loader *L, xml_node *n, rgb *out)
 
 int get_rgb(loader *L, xml_node *plugin, const char *name, rgb def, rgb *out)
 {
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
+    xml_node *n;
     *out = def;
-    if (failed)
+    if (!find_prop(L, plugin, name, &n))
         return 0;
     return n ? parse_colour(L, n, out) : 1;
 }
@@ -476,10 +472,9 @@ int parse_transform(loader *L, xml_node *t, mat4 *out)
 
 int get_transform(loader *L, xml_node *plugin, const char *name, mat4 *out)
 {
-    int failed;
-    xml_node *n = find_prop(L, plugin, name, &failed);
+    xml_node *n;
     *out = mat4_identity();
-    if (failed)
+    if (!find_prop(L, plugin, name, &n))
         return 0;
     if (!n)
         return 1;

@@ -69,8 +69,9 @@ int resolve_path(loader *L, const xml_node *n, const char *name, char *out, size
 
 /* Whether a tag is a typed parameter (<float>, <rgb>, ...). */
 int is_property_tag(const char *tag);
-/* The child with name="name", or NULL; *failed when it is given twice. */
-xml_node *find_prop(loader *L, xml_node *plugin, const char *name, int *failed);
+/* The child with name="name" in *out, NULL when the plugin does not set it: returns 1, or 0
+ * after recording an error when it is given twice. Every property lookup starts here. */
+int find_prop(loader *L, xml_node *plugin, const char *name, xml_node **out);
 int wrong_type(loader *L, const xml_node *n, const char *expected);
 /* Typed parameters: *out = def when absent; marks the element used when present. */
 int get_float(loader *L, xml_node *plugin, const char *name, float def, float *out);

@@ -30,6 +30,7 @@
 #include "render.h"
 #include "rng.h"
 #include "scene.h"
+#include "scene_errors.h"
 
 /* ---- Helpers ---------------------------------------------------------------------------- */
 
@@ -44,25 +45,6 @@ static void write_file(const char *path, const void *data, size_t size)
 static void write_text(const char *path, const char *text)
 {
     write_file(path, text, strlen(text));
-}
-
-/* Loads `xml` (which must fail) and checks that the message contains every given fragment. */
-static void expect_error(const char *xml, ...)
-{
-    scene s;
-    tr_error err;
-    if (scene_load_string(xml, TRACER_TEST_TMP_DIR, &s, &err)) {
-        scene_free(&s);
-        fail_msg("loaded a scene outside the limits:\n%s", xml);
-    }
-    va_list ap;
-    va_start(ap, xml);
-    for (const char *frag = va_arg(ap, const char *); frag; frag = va_arg(ap, const char *))
-        if (!strstr(err.msg, frag)) {
-            va_end(ap);
-            fail_msg("error message\n  %s\nlacks '%s'", err.msg, frag);
-        }
-    va_end(ap);
 }
 
 #define RANGE "outside the world-space range: coordinates must be finite and within +-1e+09"

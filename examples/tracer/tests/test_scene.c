@@ -15,6 +15,7 @@
 
 #include "mesh.h"
 #include "scene.h"
+#include "scene_errors.h"
 
 static uint64_t triangle_count(const scene *s)
 {
@@ -238,25 +239,6 @@ static void test_ply_ascii_and_obj(void **state)
 }
 
 /* ---- Errors ------------------------------------------------------------------------------------ */
-
-/* Loads `xml` (which must fail) and checks that the message contains every given fragment. */
-static void expect_error(const char *xml, ...)
-{
-    scene s;
-    tr_error err;
-    if (scene_load_string(xml, TRACER_TEST_TMP_DIR, &s, &err)) {
-        scene_free(&s);
-        fail_msg("loaded a malformed scene:\n%s", xml);
-    }
-    va_list ap;
-    va_start(ap, xml);
-    for (const char *frag = va_arg(ap, const char *); frag; frag = va_arg(ap, const char *))
-        if (!strstr(err.msg, frag)) {
-            va_end(ap);
-            fail_msg("error message\n  %s\nlacks '%s'", err.msg, frag);
-        }
-    va_end(ap);
-}
 
 #define HEAD "<scene version=\"3.0.0\">\n<default name=\"w\" value=\"8\"/>\n" SENSOR
 

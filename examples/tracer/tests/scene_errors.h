@@ -1,0 +1,31 @@
+/*
+ * scene_errors.h - the tracer tests' check of a refused scene, shared by test_scene.c and
+ * test_limits.c: include it after <cmocka.h> and "scene.h".
+ */
+#ifndef TRACER_TEST_SCENE_ERRORS_H
+#define TRACER_TEST_SCENE_ERRORS_H
+
+#include <stdarg.h>
+#include <string.h>
+
+/* Loads `xml` (which must fail) and checks that the message contains every fragment given
+ * after it, up to a NULL. */
+static void expect_error(const char *xml, ...)
+{
+    scene s;
+    tr_error err;
+    if (scene_load_string(xml, TRACER_TEST_TMP_DIR, &s, &err)) {
+        scene_free(&s);
+        fail_msg("loaded a scene that must be refused:\n%s", xml);
+    }
+    va_list ap;
+    va_start(ap, xml);
+    for (const char *frag = va_arg(ap, const char *); frag; frag = va_arg(ap, const char *))
+        if (!strstr(err.msg, frag)) {
+            va_end(ap);
+            fail_msg("error message\n  %s\nlacks '%s'", err.msg, frag);
+        }
+    va_end(ap);
+}
+
+#endif /* TRACER_TEST_SCENE_ERRORS_H */
