@@ -48,7 +48,7 @@ int mesh_read_file(const char *path, char **data, size_t *size, tr_error *err)
     long len = ftell(f);
     rewind(f);
     /* A directory opens on Linux and "ends" at LONG_MAX: refuse sizes no mesh has rather
-     * than asking malloc for them (found by fuzz/fuzz_scene_load). */
+     * than asking malloc for them (found by fuzz_scene_load, examples/tracer/fuzz/). */
     if (len < 0 || len > (1L << 30)) {
         fclose(f);
         *data = NULL;
