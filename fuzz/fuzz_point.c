@@ -11,17 +11,19 @@
  * Invariants, checked by abort():
  *   - every status is the documented one: a context, direction or u is refused
  *     (NF_ERROR_INVALID_ARGUMENT) exactly when point.h / model.h's rules say so (finite;
- *     squared length above 1e-30), an unprepared point or one whose identifying bytes (mark,
- *     model, generation, cache flag, check) were flipped is refused, a point prepared before
- *     a change of the parameters is NF_ERROR_STALE, a point used with a clone is refused;
+ *     squared length above 1e-30), an unprepared point or one whose header bytes (context,
+ *     mark, model, generation, normal, cache flag, check) were flipped is refused, a point
+ *     prepared before a change of the parameters is NF_ERROR_STALE, a point used with a
+ *     clone is refused;
  *   - a refused call writes nothing, and a refused nf_point_prepare leaves the slot's bytes;
- *   - an accepted call gives unit directions (within 2e-6, as tests/test_numeric_robustness)
- *     and finite positive densities, the same bits as nf_sample / nf_pdf on the point's
- *     context (as one call of n, tiled for n >= 3, and as calls of 1).
- * Bytes of a point outside its identifying fields (context, frame, reserved, cache) are
- * flipped too; the library does not promise to detect that, so such a point must only not
- * crash the library or trip a sanitizer. Its prior callbacks are never flipped: calling a
- * corrupted function pointer would crash by design, not by a bug.
+ *   - an accepted call gives unit directions (within 2e-6, as
+ *     tests/robustness/test_numeric_robustness) and finite positive densities, the same bits
+ *     as nf_sample / nf_pdf on the point's context (as one call of n, tiled for n >= 3, and
+ *     as calls of 1).
+ * Bytes of a point outside its header (reserved, cache) are flipped too; the library does not
+ * promise to detect that, so such a point must only not crash the library or trip a
+ * sanitizer. Its prior callbacks are never flipped: calling a corrupted function pointer would
+ * crash by design, not by a bug.
  */
 #include <float.h>
 #include <stddef.h>
@@ -99,19 +101,11 @@ typedef struct slot {
     uint64_t epoch;            /* the parameter epoch it was prepared in                  */
 } slot;
 
-/* The identifying fields: a flip there must be refused. */
+/* The header (every field up to and including check_, which nf_point_hash covers): a flip
+ * there must be refused. */
 static int identity_byte(size_t offset)
 {
-    const size_t starts[5] = {offsetof(nf_shading_point, magic_),
-                              offsetof(nf_shading_point, model_id_),
-                              offsetof(nf_shading_point, generation_),
-                              offsetof(nf_shading_point, cached_),
-                              offsetof(nf_shading_point, check_)};
-    const size_t sizes[5] = {4, 8, 8, 4, 4};
-    for (int i = 0; i < 5; ++i)
-        if (offset >= starts[i] && offset < starts[i] + sizes[i])
-            return 1;
-    return 0;
+    return offset < offsetof(nf_shading_point, check_) + sizeof(uint32_t);
 }
 
 static int prior_byte(size_t offset)
