@@ -1,8 +1,8 @@
 /*
- * test_flow.c - the coupling flow of docs/theory.md section 4 through the public API, on models with
- * random parameters (initial + N(0, sigma^2): sigma 0.15 gives moderately curved flows,
- * sigma 0.3 wild ones whose features are ~1e-3 wide, so finite differences need steps of
- * ~1e-4 and one-sided fallbacks at kinks).
+ * test_flow.c - the coupling flow of docs/theory.md section 4 through the public API, on models
+ * with random parameters (initial + N(0, sigma^2): sigma 0.15 gives moderately curved flows, sigma
+ * 0.3 wild ones whose features are ~1e-3 wide, so finite differences need steps of ~1e-4 and
+ * one-sided fallbacks at kinks).
  *
  * With the uniform-angle prior nf_sample maps u to z = u exactly and then s = F(z), so the
  * flow itself is observable: s(u) = (theta/pi, phi/(2 pi)) of the sampled direction. Then
@@ -182,12 +182,13 @@ static int compare_doubles(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* ---- tests ------------------------------------------------------------------------------------ */
+/* ---- tests --------------------------------------------------------------------------------- */
 
 /* nf_pdf at the sampled directions against the sampled pdfs, for every prior and both
- * of the first `presets` presets, with parameters initial + N(0, sigma^2). Counts the samples (away from the poles)
- * whose relative difference exceeds 1e-4 (docs/theory.md section 1's bound) and checks that none exceeds
- * `max_rel`; returns nothing, fails if more than `max_outside` of them exceed 1e-4. */
+ * of the first `presets` presets, with parameters initial + N(0, sigma^2). Counts the samples (away
+ * from the poles) whose relative difference exceeds 1e-4 (docs/theory.md section 1's bound) and
+ * checks that none exceeds `max_rel`; returns nothing, fails if more than `max_outside` of them
+ * exceed 1e-4. */
 static void check_sample_pdf(int presets, double sigma, double max_outside, double max_rel)
 {
     enum { N = 2000 };

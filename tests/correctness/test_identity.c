@@ -1,8 +1,8 @@
 /*
- * test_identity.c - a fresh model is the identity flow (docs/theory.md section 4): its density is its
- * prior's, nf_prior_pdf agrees with the analytic densities of docs/theory.md section 2, and with the
- * uniform-angle prior nf_sample maps u to (theta, phi) = (pi u0, 2 pi u1). Also the version
- * and status strings.
+ * test_identity.c - a fresh model is the identity flow (docs/theory.md section 4): its density is
+ * its prior's, nf_prior_pdf agrees with the analytic densities of docs/theory.md section 2, and
+ * with the uniform-angle prior nf_sample maps u to (theta, phi) = (pi u0, 2 pi u1). Also the
+ * version and status strings.
  */
 #include <stdarg.h>
 #include <stddef.h>

@@ -20,7 +20,8 @@
  *     the model's, with their own user pointer and the point's copy of the context;
  *   - n = 0 is a no-op, copies of points are as valid as the originals, and each call stays
  *     within the 5 KiB of stack that point.h asks fiber-stack renderers to allow.
- * (Concurrency: tests/robustness/test_threads.c; no allocation: tests/robustness/test_alloc_failure.c.)
+ * (Concurrency: tests/robustness/test_threads.c; no allocation:
+ * tests/robustness/test_alloc_failure.c.)
  */
 #define _POSIX_C_SOURCE 200809L /* pthread_attr_setstack */
 

@@ -1,6 +1,6 @@
 /*
- * test_spline.c - the monotone rational-quadratic spline of docs/theory.md section 3 through the public
- * nf_spline_forward / nf_spline_inverse: an independent double-precision reference written
+ * test_spline.c - the monotone rational-quadratic spline of docs/theory.md section 3 through the
+ * public nf_spline_forward / nf_spline_inverse: an independent double-precision reference written
  * from the equations of docs/theory.md, exact end points, round trips, derivatives against finite
  * differences, the identity at zero raw parameters, monotonicity, and the inverse's dydx.
  */
@@ -24,7 +24,7 @@
 /* One float ulp at 1: the absolute rounding unit of values in [0.5, 1). */
 #define ULP1 (1.0 / 16777216.0) /* 2^-24 */
 
-/* ---- reference implementation of docs/theory.md section 3, in double --------------------------------- */
+/* ---- reference implementation of docs/theory.md section 3, in double ------------------------- */
 
 typedef struct ref_spline {
     uint32_t bins;
@@ -586,8 +586,8 @@ static void test_inverse_derivative(void **state)
     }
 }
 
-/* The knots follow the formulas of docs/theory.md: the library's spline passes through the reference's
- * knots (x_k, y_k) of random and extreme parameters. */
+/* The knots follow the formulas of docs/theory.md: the library's spline passes through the
+ * reference's knots (x_k, y_k) of random and extreme parameters. */
 static void test_knots_interpolated(void **state)
 {
     (void)state;

@@ -118,7 +118,7 @@ int nft_model_sample(void *user, size_t n, const float *u, float *dir);
 double nft_integrate_sphere(nft_pdf_fn pdf, void *user, uint32_t theta_res, uint32_t phi_res,
                             const double frame[3][3]);
 
-/* ---- chi-square goodness of fit --------------------------------------------------------------- */
+/* ---- chi-square goodness of fit -------------------------------------------------------------- */
 
 /* Q(a, x) = Gamma(a, x) / Gamma(a), the regularized upper incomplete gamma function (series
  * for x < a + 1, Lentz continued fraction otherwise, as Numerical Recipes' gammq). */

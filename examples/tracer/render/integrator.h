@@ -25,8 +25,8 @@ typedef struct tracer {
     int bsdf_prior;        /* the model uses the BSDF prior: publish shading points        */
 } tracer;
 
-/* A training sample (docs/theory.md section 6): at a guided vertex, the context, the sampled direction
- * and weight = mean over RGB of f_s L_i |cos| / p_mix, with L_i the radiance the rest of
+/* A training sample (docs/theory.md section 6): at a guided vertex, the context, the sampled
+ * direction and weight = mean over RGB of f_s L_i |cos| / p_mix, with L_i the radiance the rest of
  * the path brought back along the direction. The material is kept for the BSDF prior. */
 typedef struct train_record {
     nf_context ctx;
