@@ -60,13 +60,16 @@ static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset,
 {
     float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
     int first = (int)vb - 1; /* vb >= 0, so truncation is floor */
+    /* Slot c is Q(t_{c+1}) - Q(t_c) with t_k = (first + k) - vb: adjacent slots share a Q,
+     * so four evaluations serve the three slots (the same values as two per slot). */
+    float q[4];
+    for (int k = 0; k < 4; ++k)
+        q[k] = nf_quartic_cdf((float)(first + k) - vb);
     for (int c = 0; c < 3; ++c) {
         int j = first + c;
         int inside = (j >= 0) & (j < (int)bins);
-        float hi = (float)(j + 1) - vb, lo = (float)j - vb;
-        float q = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
         row[c] = row_offset + (uint32_t)(inside ? j : 0);
-        value[c] = inside ? q : 0.0f;
+        value[c] = inside ? q[c + 1] - q[c] : 0.0f;
     }
 }
 
