@@ -1,6 +1,7 @@
 /*
  * config.c - presets, defaults and validation of nf_config.
  */
+#include <float.h>
 #include <math.h>
 #include <string.h>
 
@@ -46,6 +47,19 @@ static nf_status nf_check_range(const char *fn, const char *field, uint32_t v, u
     return NF_OK;
 }
 
+/* Every float of the configuration goes through here (docs/robustness.md, "Configuration
+ * ranges"): NaN, infinities, denormals and values outside [lo, hi] are refused, with a
+ * message naming the field and its range. -0 counts as 0. */
+static nf_status nf_check_float(const char *fn, const char *field, float v, float lo, float hi)
+{
+    int denormal = fpclassify(v) == FP_SUBNORMAL;
+    if (!(v >= lo && v <= hi) || denormal)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.%s = %g is outside [%g, %g]%s", fn,
+                       field, (double)v, (double)lo, (double)hi,
+                       denormal ? " (denormals are refused)" : "");
+    return NF_OK;
+}
+
 nf_status nf_config_validate(const nf_config *cfg, const char *fn)
 {
     if (!cfg)
@@ -64,33 +78,40 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn)
     if (prior > (unsigned)NF_PRIOR_CUSTOM)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.prior = %u is not a prior kind", fn,
                        prior);
-    if (!(cfg->prior_epsilon > 0.0f && cfg->prior_epsilon <= 1.0f))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.prior_epsilon = %g is outside (0, 1]",
-                       fn, (double)cfg->prior_epsilon);
+    if ((st = nf_check_float(fn, "prior_epsilon", cfg->prior_epsilon, NF_PRIOR_EPSILON_MIN, 1.0f)))
+        return st;
     if (cfg->prior == NF_PRIOR_CUSTOM && (!cfg->custom_prior.sample || !cfg->custom_prior.pdf))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: config.prior is NF_PRIOR_CUSTOM but custom_prior.sample or .pdf "
                        "is NULL",
                        fn);
+    static const char *const min_names[3] = {"bounds_min[0]", "bounds_min[1]", "bounds_min[2]"};
+    static const char *const max_names[3] = {"bounds_max[0]", "bounds_max[1]", "bounds_max[2]"};
     for (int a = 0; a < 3; ++a) {
-        if (!isfinite(cfg->bounds_min[a]) || !isfinite(cfg->bounds_max[a]) ||
-            !(cfg->bounds_max[a] > cfg->bounds_min[a]) ||
-            !isfinite(cfg->bounds_max[a] - cfg->bounds_min[a]))
+        if ((st = nf_check_float(fn, min_names[a], cfg->bounds_min[a], -FLT_MAX, FLT_MAX)) ||
+            (st = nf_check_float(fn, max_names[a], cfg->bounds_max[a], -FLT_MAX, FLT_MAX)))
+            return st;
+        /* The position encoding divides by the extent: a normal extent keeps 1 / extent
+         * finite (1 / FLT_MIN is 8.5e37). */
+        float extent = cfg->bounds_max[a] - cfg->bounds_min[a];
+        if (!(extent >= FLT_MIN && extent <= FLT_MAX))
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: config.bounds on axis %d are not finite with max > min", fn, a);
+                           "%s: config.bounds_max[%d] - bounds_min[%d] = %g is outside [%g, %g]",
+                           fn, a, a, (double)extent, (double)FLT_MIN, (double)FLT_MAX);
     }
-    if (!(cfg->learning_rate > 0.0f) || !isfinite(cfg->learning_rate))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.learning_rate must be > 0", fn);
-    if (!(cfg->beta1 >= 0.0f && cfg->beta1 < 1.0f) || !(cfg->beta2 >= 0.0f && cfg->beta2 < 1.0f))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.beta1/beta2 must be in [0, 1)", fn);
-    if (!(cfg->adam_epsilon > 0.0f) || !isfinite(cfg->adam_epsilon))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.adam_epsilon must be > 0", fn);
+    if ((st = nf_check_float(fn, "learning_rate", cfg->learning_rate, NF_LEARNING_RATE_MIN,
+                             NF_LEARNING_RATE_MAX)) ||
+        (st = nf_check_float(fn, "beta1", cfg->beta1, 0.0f, NF_BETA1_MAX)) ||
+        (st = nf_check_float(fn, "beta2", cfg->beta2, 0.0f, NF_BETA2_MAX)) ||
+        (st = nf_check_float(fn, "adam_epsilon", cfg->adam_epsilon, NF_ADAM_EPSILON_MIN,
+                             NF_ADAM_EPSILON_MAX)) ||
+        (st = nf_check_float(fn, "weight_decay", cfg->weight_decay, 0.0f, NF_WEIGHT_DECAY_MAX)))
+        return st;
     /* Decoupled decay multiplies parameters by (1 - lr * wd), which must stay positive. */
-    if (!(cfg->weight_decay >= 0.0f) || !(cfg->learning_rate * cfg->weight_decay < 1.0f))
+    if (!(cfg->learning_rate * cfg->weight_decay < 1.0f))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                       "%s: config.weight_decay must be >= 0 with learning_rate * "
-                       "weight_decay < 1",
-                       fn);
+                       "%s: config.learning_rate * weight_decay = %g must be < 1", fn,
+                       (double)(cfg->learning_rate * cfg->weight_decay));
     if ((cfg->allocator.alloc == NULL) != (cfg->allocator.free == NULL))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: config.allocator needs both alloc and free, or neither", fn);

@@ -2,10 +2,18 @@
  * prior.c - the public nf_prior_pdf: the prior's solid-angle density, computed directly in
  * solid-angle terms (the kernels work on the square; see prior.h).
  */
+#include <float.h>
 #include <math.h>
 
 #include "kernels/conditioner.h"
 #include "kernels/prior.h"
+
+/* The clamp of nf_pdf (model.h): with prior_epsilon >= NF_PRIOR_EPSILON_MIN it never binds
+ * for the built-in priors, but it keeps the two functions' contracts the same. */
+static float nf_prior_clamp(float pdf)
+{
+    return pdf < FLT_MIN ? FLT_MIN : (pdf > FLT_MAX ? FLT_MAX : pdf);
+}
 
 float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
 {
@@ -24,19 +32,19 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
     switch (m->cfg.prior) {
     case NF_PRIOR_UNIFORM_DIRECTION: return NF_INV_FOUR_PI;
     case NF_PRIOR_UNIFORM_ANGLE:
-        return 1.0f /
-               (NF_TWO_PI_SQUARED * nf_maxf(sqrtf(w[0] * w[0] + w[1] * w[1]), NF_SIN_THETA_MIN));
+        return nf_prior_clamp(1.0f / (NF_TWO_PI_SQUARED *
+                                      nf_maxf(sqrtf(w[0] * w[0] + w[1] * w[1]), NF_SIN_THETA_MIN)));
     case NF_PRIOR_COSINE: {
         const float *n = pt.ctx.normal;
         float c = nf_maxf(n[0] * w[0] + n[1] * w[1] + n[2] * w[2], 0.0f);
-        return (1.0f - eps) * c / NF_PI + eps * NF_INV_FOUR_PI;
+        return nf_prior_clamp((1.0f - eps) * c / NF_PI + eps * NF_INV_FOUR_PI);
     }
     case NF_PRIOR_CUSTOM: {
         float pc = 0.0f;
         nf_prior_point pp = {pt.user, pt.prior, {0.0f, 0.0f, 0.0f}};
         if (nf_custom_pdf(&pp, w, &pc) != NF_OK)
             return -1.0f;
-        return (1.0f - eps) * pc + eps * NF_INV_FOUR_PI;
+        return nf_prior_clamp((1.0f - eps) * pc + eps * NF_INV_FOUR_PI);
     }
     }
     return -1.0f;

@@ -161,11 +161,12 @@ nf_status nf_set_learning_rate(nf_model *m, float learning_rate)
 {
     if (!m)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_learning_rate: model is NULL");
-    if (!(learning_rate > 0.0f) || !isfinite(learning_rate) ||
-        !(learning_rate * m->cfg.weight_decay < 1.0f))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                       "nf_set_learning_rate: %g must be finite, > 0 and < 1 / weight_decay",
-                       (double)learning_rate);
+    /* The same check as nf_model_create's, on the configuration it would leave. */
+    nf_config next = m->cfg;
+    next.learning_rate = learning_rate;
+    nf_status st = nf_config_validate(&next, "nf_set_learning_rate");
+    if (st != NF_OK)
+        return st;
     m->cfg.learning_rate = learning_rate;
     return NF_OK;
 }

@@ -29,6 +29,20 @@ NF_EXTERN_C_BEGIN
 #define NF_MAX_ONEBLOB_BINS 64u
 #define NF_MAX_SH_BANDS 6u
 
+/* Ranges of the configuration's floats, checked by nf_model_create, nf_model_load /
+ * nf_model_deserialize (as NF_ERROR_FORMAT) and nf_set_learning_rate, with a message naming the
+ * field and its range. Every float field also refuses NaN, infinities and denormals. Each
+ * bound keeps the arithmetic the value feeds away from underflow and overflow (the reasons:
+ * docs/robustness.md, "Configuration ranges"). */
+#define NF_PRIOR_EPSILON_MIN 1e-6f /* eps / (4 pi) >= 8e-8 per sr: a floor, not an underflow  */
+#define NF_LEARNING_RATE_MIN 1e-9f /* below, a step is under half an ulp of any weight > 0.03 */
+#define NF_LEARNING_RATE_MAX 1.0f  /* AdamW moves a weight by about lr per step               */
+#define NF_BETA1_MAX 0.9999f       /* bias correction 1 - beta1^t >= 1e-4: step <= 1e4 lr      */
+#define NF_BETA2_MAX 0.99999f      /* 1 - beta2^t >= 1e-5: 1 / sqrt of it <= 317              */
+#define NF_ADAM_EPSILON_MIN 1e-12f /* m / eps stays small where v underflowed to 0            */
+#define NF_ADAM_EPSILON_MAX 1.0f   /* beyond, AdamW is plain SGD with a tiny step              */
+#define NF_WEIGHT_DECAY_MAX 100.0f /* with learning_rate * weight_decay < 1                   */
+
 /* An opaque model. Create with nf_model_create, nf_model_clone or nf_model_load; destroy with
  * nf_model_destroy. */
 typedef struct nf_model nf_model;
@@ -117,15 +131,18 @@ typedef struct nf_config {
     uint32_t oneblob_bins;    /* B, 2..NF_MAX_ONEBLOB_BINS (default 32)                       */
     uint32_t sh_bands;        /* S, 0..NF_MAX_SH_BANDS, S*S values per direction (default 4)  */
     nf_prior_kind prior;      /* default NF_PRIOR_COSINE                                      */
-    float prior_epsilon;      /* defensive mixture weight for cosine/custom, (0, 1]; 0.01     */
+    float prior_epsilon;      /* defensive mixture weight for cosine/custom,
+                                 [NF_PRIOR_EPSILON_MIN = 1e-6, 1] (default 0.01)             */
     nf_prior_callbacks custom_prior; /* required when prior == NF_PRIOR_CUSTOM                 */
-    float bounds_min[3];    /* scene bounds for the position encoding, world units;        */
-    float bounds_max[3];    /* max > min on every axis (default the unit cube)              */
-    float learning_rate;    /* AdamW, > 0 (default 1e-3)                                    */
-    float beta1, beta2;     /* AdamW, in [0, 1) (defaults 0.9, 0.999)                       */
-    float adam_epsilon;     /* AdamW, > 0 (default 1e-8)                                    */
-    float weight_decay;     /* AdamW decoupled decay, >= 0 with learning_rate * weight_decay
-                               < 1, so the decay factor stays positive (default 0.01)      */
+    float bounds_min[3];    /* scene bounds for the position encoding, world units: finite,  */
+    float bounds_max[3];    /* max - min in [FLT_MIN, FLT_MAX] on every axis (default the unit
+                               cube)                                                          */
+    float learning_rate;    /* AdamW, [1e-9, 1] (default 1e-3)                                */
+    float beta1, beta2;     /* AdamW, beta1 in [0, 0.9999], beta2 in [0, 0.99999] (defaults 0.9,
+                               0.999)                                                         */
+    float adam_epsilon;     /* AdamW, [1e-12, 1] (default 1e-8)                               */
+    float weight_decay;     /* AdamW decoupled decay, [0, 100] with learning_rate * weight_decay
+                               < 1, so the decay factor stays positive (default 0.01)         */
     uint64_t seed;          /* seed of the weight initialisation (default 1)                */
     nf_allocator allocator; /* optional; not saved with the model                          */
     nf_isa isa;             /* kernels to use (default NF_ISA_AUTO); not saved             */
@@ -187,7 +204,9 @@ NF_API nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, cons
                         float *pdf);
 
 /* The solid-angle density of the model's prior (with its epsilon mixture) at `dir`: the
- * density a fresh model has. Returns -1 when an argument is invalid (the message says why).
+ * density a fresh model has, clamped to [FLT_MIN, FLT_MAX] as nf_pdf's (with prior_epsilon >=
+ * NF_PRIOR_EPSILON_MIN it is at least 1e-6 / (4 pi) for the cosine and custom priors wherever
+ * the custom density is 0). Returns -1 when an argument is invalid (the message says why).
  * Thread-safe; never allocates. */
 NF_API float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]);
 

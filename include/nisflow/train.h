@@ -76,8 +76,10 @@ NF_API nf_status nf_apply_gradient(nf_model *m, const float *grad);
  * NULL. Thread-safe. */
 NF_API uint64_t nf_model_step_count(const nf_model *m);
 
-/* Changes the AdamW learning rate of an existing model (for schedules): finite, > 0 and
- * below 1 / weight_decay. Not thread-safe. */
+/* Changes the AdamW learning rate of an existing model (for schedules): in
+ * [NF_LEARNING_RATE_MIN, NF_LEARNING_RATE_MAX] = [1e-9, 1] and below 1 / weight_decay, checked
+ * as nf_model_create checks nf_config.learning_rate (NF_ERROR_INVALID_ARGUMENT otherwise, the
+ * model unchanged). Not thread-safe. */
 NF_API nf_status nf_set_learning_rate(nf_model *m, float learning_rate);
 
 NF_EXTERN_C_END
