@@ -209,6 +209,7 @@ static int bad_config(int i, nf_config *c, const char **what)
     CASE("prior_epsilon 2", c->prior_epsilon = 2.0f)
     CASE("prior_epsilon NaN", c->prior_epsilon = NAN)
     CASE("prior_epsilon Inf", c->prior_epsilon = INFINITY)
+    CASE("prior_epsilon denormal", c->prior_epsilon = 1.4e-45f)
     CASE("prior_epsilon 0 (custom prior)",
          (*c = nft_config(NF_PRESET_SMALL, NF_PRIOR_CUSTOM), c->prior_epsilon = 0.0f))
     CASE("custom prior without sample",
@@ -334,7 +335,7 @@ static void test_create_accepts_boundary_configs(void **state)
         case 9: c.sh_bands = 0; what = "sh_bands 0"; break;
         case 10: c.sh_bands = NF_MAX_SH_BANDS; what = "sh_bands max"; break;
         case 11: c.prior_epsilon = 1.0f; what = "prior_epsilon 1"; break;
-        case 12: c.prior_epsilon = 1e-7f; what = "prior_epsilon 1e-7"; break;
+        case 12: c.prior_epsilon = NF_PRIOR_EPSILON_MIN; what = "prior_epsilon min"; break;
         case 13: c.beta1 = 0.0f; c.beta2 = 0.0f; what = "betas 0"; break;
         case 14: c.weight_decay = 0.0f; what = "weight_decay 0"; break;
         case 15:
