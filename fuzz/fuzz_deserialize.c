@@ -8,11 +8,91 @@
  *     model loaded without callbacks; never a crash, a leak or a sanitizer report;
  *   - on failure *out is NULL and a message is recorded;
  *   - on success, serializing the model gives back exactly the input bytes, and the model
- *     loads again from them.
+ *     loads again from them;
+ *   - nf_model_create agrees with the loader about the configuration in the header: it
+ *     accepts a loaded model's, and refuses (NF_ERROR_INVALID_ARGUMENT) one the loader
+ *     refused as an invalid configuration; nf_set_learning_rate accepts a rate taken from the
+ *     input exactly when nf_model_create accepts the configuration with it, and leaves the
+ *     model unchanged when it refuses.
  */
 #include "fuzz_common.h"
 
-static void try_buffer(const unsigned char *data, size_t size)
+static float get_f32(const unsigned char *p)
+{
+    uint32_t bits =
+        (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+    float v;
+    memcpy(&v, &bits, 4);
+    return v;
+}
+
+/* The configuration of a header (docs/format.md); 0 if its prior kind is unknown. */
+static int header_config(const unsigned char *p, nf_config *cfg)
+{
+    nf_config_init(cfg, NF_PRESET_SMALL);
+    uint32_t u[7];
+    for (int i = 0; i < 7; ++i)
+        u[i] = (uint32_t)p[12 + 4 * i] | (uint32_t)p[13 + 4 * i] << 8 |
+               (uint32_t)p[14 + 4 * i] << 16 | (uint32_t)p[15 + 4 * i] << 24;
+    if (u[6] > (uint32_t)NF_PRIOR_CUSTOM)
+        return 0;
+    cfg->coupling_layers = u[0];
+    cfg->spline_bins = u[1];
+    cfg->hidden_layers = u[2];
+    cfg->hidden_width = u[3];
+    cfg->oneblob_bins = u[4];
+    cfg->sh_bands = u[5];
+    cfg->prior = (nf_prior_kind)u[6];
+    cfg->custom_prior = nf_fuzz_callbacks();
+    cfg->prior_epsilon = get_f32(p + 40);
+    for (int a = 0; a < 3; ++a) {
+        cfg->bounds_min[a] = get_f32(p + 44 + 4 * a);
+        cfg->bounds_max[a] = get_f32(p + 56 + 4 * a);
+    }
+    cfg->learning_rate = get_f32(p + 68);
+    cfg->beta1 = get_f32(p + 72);
+    cfg->beta2 = get_f32(p + 76);
+    cfg->adam_epsilon = get_f32(p + 80);
+    cfg->weight_decay = get_f32(p + 84);
+    return 1;
+}
+
+/* nf_model_create and nf_set_learning_rate against the loader's verdict `st` on `data`
+ * (whose checksum is valid); `m` is the loaded model when st is NF_OK. */
+static void check_create_agrees(const unsigned char *data, size_t size, nf_status st, nf_model *m)
+{
+    nf_config cfg;
+    if (size < NF_FUZZ_HEADER + NF_FUZZ_TRAILER || !header_config(data, &cfg))
+        return;
+    nf_model *made = NULL;
+    if (st == NF_OK) {
+        NF_FUZZ_CHECK(nf_model_create(&cfg, &made) == NF_OK, "create refuses a loaded config");
+        nf_model_destroy(made);
+        /* A learning rate from the input's last bytes (the checksum: any bit pattern). */
+        float lr = get_f32(data + size - 4);
+        nf_config with = cfg;
+        with.learning_rate = lr;
+        nf_status created = nf_model_create(&with, &made);
+        nf_model_destroy(made);
+        size_t before_size = 0, after_size = 0;
+        unsigned char *before = nf_fuzz_serialize(m, &before_size);
+        nf_status set = nf_set_learning_rate(m, lr);
+        unsigned char *after = nf_fuzz_serialize(m, &after_size);
+        NF_FUZZ_CHECK(before && after && before_size == after_size, "serialize");
+        NF_FUZZ_CHECK(created == set, "learning rate %g: create %d, set %d", (double)lr,
+                      (int)created, (int)set);
+        NF_FUZZ_CHECK(set == NF_OK || memcmp(before, after, before_size) == 0,
+                      "a refused nf_set_learning_rate changed the model");
+        free(before);
+        free(after);
+    } else if (st == NF_ERROR_FORMAT && strstr(nf_last_error_message(), "invalid configuration")) {
+        made = (nf_model *)&cfg;
+        NF_FUZZ_CHECK(nf_model_create(&cfg, &made) == NF_ERROR_INVALID_ARGUMENT && !made,
+                      "create accepts a configuration the loader refused");
+    }
+}
+
+static void try_buffer(const unsigned char *data, size_t size, int crc_valid)
 {
     static const nf_prior_callbacks none = {NULL, NULL, NULL};
     const nf_prior_callbacks cb = nf_fuzz_callbacks();
@@ -22,6 +102,8 @@ static void try_buffer(const unsigned char *data, size_t size)
         NF_FUZZ_CHECK(st == NF_ERROR_FORMAT, "status %d with callbacks", (int)st);
         NF_FUZZ_CHECK(m == NULL, "*out not cleared");
         NF_FUZZ_CHECK(nf_last_error_message()[0] != '\0', "no message");
+        if (crc_valid)
+            check_create_agrees(data, size, st, NULL);
         return;
     }
     NF_FUZZ_CHECK(m != NULL, "NF_OK without a model");
@@ -42,6 +124,7 @@ static void try_buffer(const unsigned char *data, size_t size)
         NF_FUZZ_CHECK(st == NF_OK && again != NULL, "status %d without callbacks", (int)st);
         nf_model_destroy(again);
     }
+    check_create_agrees(data, size, st, m);
     nf_model_destroy(m);
 }
 
@@ -56,14 +139,16 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         return 0;
     if (size)
         memcpy(copy, data, size);
-    try_buffer(copy, size);
+    int crc_valid = 0;
     if (size >= NF_FUZZ_TRAILER) {
         uint32_t stored = (uint32_t)copy[size - 4] | (uint32_t)copy[size - 3] << 8 |
                           (uint32_t)copy[size - 2] << 16 | (uint32_t)copy[size - 1] << 24;
-        if (stored != nf_fuzz_crc32(copy, size - NF_FUZZ_TRAILER)) {
-            nf_fuzz_fix_crc(copy, size);
-            try_buffer(copy, size);
-        }
+        crc_valid = stored == nf_fuzz_crc32(copy, size - NF_FUZZ_TRAILER);
+    }
+    try_buffer(copy, size, crc_valid);
+    if (size >= NF_FUZZ_TRAILER && !crc_valid) {
+        nf_fuzz_fix_crc(copy, size);
+        try_buffer(copy, size, 1);
     }
     free(copy);
     return 0;
