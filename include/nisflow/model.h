@@ -176,10 +176,13 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * is not NULL, pdf[i] the solid-angle density of that direction, equal to what nf_pdf returns
  * for it: away from the poles (sin theta > 1e-2) the relative difference is below 1e-4 for
  * well-conditioned flows. pdf[i] belongs to the exact latent point, nf_pdf's value to the
- * inverse of the float direction; for sharp trained flows (densities of 100-2000 per sr) the
- * float round trip drifts and a few percent of samples differ by up to ~2e-3 (measured by
- * tests/correctness/test_sampling.c), which one-sample MIS tolerates. Densities are clamped to
- * [FLT_MIN, FLT_MAX], so that pdf and 1 / pdf are finite whatever the parameters
+ * inverse of the float direction; on sharp flows the float round trip drifts. Randomized
+ * flows with peaks of 100-2000 per sr: up to 3% of samples differ by more than 1e-4, none by
+ * 1e-2 (tests/correctness/test_sampling.c). Trained flows with peaks of 450-5400 per sr: at
+ * most 1 sample in 10,000 differs by more than 2e-3 and 1 in 25,000 by more than 1e-2, and
+ * isolated samples by up to ~12% (the largest of 32 trained models measured by
+ * tests/correctness/test_sample_pdf_trained.c). One-sample MIS tolerates both. Densities are
+ * clamped to [FLT_MIN, FLT_MAX], so that pdf and 1 / pdf are finite whatever the parameters
  * (docs/robustness.md). The map from u to dir is deterministic, and bit-identical however a
  * batch is split into calls (batches run in groups of 16 samples, calls of 1 or 2 samples per
  * sample, with the same arithmetic). n = 0 is a no-op (pointers may then be NULL). The whole
