@@ -225,8 +225,7 @@ static void check_create_and_load(const nf_config *cfg, const unsigned char *val
     m = (nf_model *)buf;
     st = nf_model_deserialize(buf, size, &cb, &m);
     if (st != (ok ? NF_OK : NF_ERROR_FORMAT)) {
-        print_error("load: %s %s: status %d (%s)\n", name, what, (int)st,
-                    nf_last_error_message());
+        print_error("load: %s %s: status %d (%s)\n", name, what, (int)st, nf_last_error_message());
         fail();
     }
     if (ok)
