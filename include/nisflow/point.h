@@ -28,8 +28,10 @@
  * current parameters. Any change of the parameters (a training step, nf_set_params,
  * nf_apply_gradient) makes every point prepared before it stale: using it then returns
  * NF_ERROR_STALE and writes nothing; prepare it again. A point used with another model (a
- * clone included) returns NF_ERROR_INVALID_ARGUMENT. Both checks cost two compares per call.
- * A point may be copied with memcpy or assignment; a copy is as valid as the original.
+ * clone included) returns NF_ERROR_INVALID_ARGUMENT, and so does a point whose header (the
+ * fields before check_) was overwritten: a hash of the header is checked on every call, with
+ * the model's id and generation, for about 50 instructions. A point may be copied with memcpy
+ * or assignment; a copy is as valid as the original.
  *
  * Thread-safety: every function here takes a const model and may run concurrently with the
  * others and with nf_sample / nf_pdf, provided no thread changes the model meanwhile. A point
