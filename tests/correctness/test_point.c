@@ -913,31 +913,6 @@ static void test_other_models_refused(void **state)
 
 /* ---- bad input ----------------------------------------------------------------------------- */
 
-/* The classes of bad context field: NaN, +Inf, -Inf in each component, zero vectors, vectors
- * whose squared length is not above 1e-30 (3e-32: (1e-16)^2 x 3; 1e-76 underflows). */
-enum { CTX_BAD_COUNT = 27 + 6 };
-
-static nf_context bad_context(const nf_context *good, int which, char *what, size_t size)
-{
-    nf_context c = *good;
-    const float values[3] = {NAN, INFINITY, -INFINITY};
-    const char *names[3] = {"position", "normal", "wo"};
-    if (which < 27) {
-        int field = which / 9, comp = (which / 3) % 3, v = which % 3;
-        float *f = field == 0 ? c.position : field == 1 ? c.normal : c.wo;
-        f[comp] = values[v];
-        snprintf(what, size, "%s[%d] = %g", names[field], comp, (double)values[v]);
-    } else {
-        int k = which - 27;
-        float *f = k % 2 == 0 ? c.normal : c.wo;
-        const float v[3] = {0.0f, 1e-16f, 1e-38f};
-        f[0] = f[1] = f[2] = v[k / 2];
-        snprintf(what, size, "%s of components %g", k % 2 == 0 ? "normal" : "wo",
-                 (double)v[k / 2]);
-    }
-    return c;
-}
-
 /* Batch sizes whose byte counts overflow size_t. */
 static const size_t huge_n[3] = {SIZE_MAX, SIZE_MAX / 2u, SIZE_MAX / (3u * sizeof(float)) + 1u};
 
@@ -962,8 +937,8 @@ static void test_prepare_bad_input(void **state)
     EXPECT_INVALID("nf_point_prepare", nf_point_prepare(m, NULL, NULL, &sp));
     EXPECT_INVALID("nf_point_prepare", nf_point_prepare(m, good, NULL, NULL));
     assert_memory_equal(&sp, &before, sizeof sp);
-    for (int which = 0; which < CTX_BAD_COUNT; ++which) {
-        nf_context bad = bad_context(good, which, what, sizeof what);
+    for (int which = 0; which < NFT_BAD_CONTEXTS; ++which) {
+        nf_context bad = nft_bad_context(good, which, what, sizeof what);
         prime();
         nf_status st = nf_point_prepare(m, &bad, NULL, &sp);
         check_refusal(st, NF_ERROR_INVALID_ARGUMENT, "nf_point_prepare", what, __LINE__);
@@ -997,7 +972,7 @@ static void test_prepare_bad_input(void **state)
     memset(&half, 0, sizeof half);
     EXPECT_INVALID("nf_point_prepare", nf_point_prepare(custom, good, &half, &cp));
     /* A bad context with good callbacks. */
-    nf_context bad = bad_context(good, 0, what, sizeof what);
+    nf_context bad = nft_bad_context(good, 0, what, sizeof what);
     EXPECT_INVALID("nf_point_prepare", nf_point_prepare(custom, &bad, &cb, &cp));
     assert_memory_equal(&cp, &cp_before, sizeof cp);
     assert_int_equal(l.samples + l.pdfs, 0);

@@ -140,27 +140,6 @@ static nf_model *trained_model(nf_prior_kind prior)
     return m;
 }
 
-/* The classes of bad context field: NaN, +Inf, -Inf in each component, zero vectors. */
-enum { CTX_BAD_COUNT = 3 * 3 * 3 + 2 };
-
-static nf_context bad_context(const nf_context *good, int which, char *what, size_t size)
-{
-    nf_context c = *good;
-    const float values[3] = {NAN, INFINITY, -INFINITY};
-    const char *names[3] = {"position", "normal", "wo"};
-    if (which < 27) {
-        int field = which / 9, comp = (which / 3) % 3, v = which % 3;
-        float *f = field == 0 ? c.position : field == 1 ? c.normal : c.wo;
-        f[comp] = values[v];
-        snprintf(what, size, "%s[%d] = %g", names[field], comp, (double)values[v]);
-    } else {
-        float *f = which == 27 ? c.normal : c.wo;
-        f[0] = f[1] = f[2] = 0.0f;
-        snprintf(what, size, "zero %s", which == 27 ? "normal" : "wo");
-    }
-    return c;
-}
-
 /* Batch sizes whose byte counts overflow size_t. */
 static const size_t huge_n[3] = {SIZE_MAX, SIZE_MAX / 2u, SIZE_MAX / (3u * sizeof(float)) + 1u};
 
@@ -399,9 +378,9 @@ static void test_sample_bad_input(void **state)
         assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     /* A bad context in the last element: nothing of the batch may be written. */
-    for (int which = 0; which < CTX_BAD_COUNT; ++which) {
+    for (int which = 0; which < NFT_BAD_CONTEXTS; ++which) {
         batch bad = b;
-        bad.ctx[N - 1] = bad_context(&b.ctx[N - 1], which, what, sizeof what);
+        bad.ctx[N - 1] = nft_bad_context(&b.ctx[N - 1], which, what, sizeof what);
         prime(0);
         nf_status st = nf_sample(m, N, bad.ctx, bad.u, dir, pdf);
         if (st != NF_ERROR_INVALID_ARGUMENT || message_is_primer(0))
@@ -471,9 +450,9 @@ static void test_pdf_bad_input(void **state)
     for (int k = 0; k < 3; ++k)
         EXPECT_INVALID(nf_pdf(m, huge_n[k], b.ctx, b.dir, pdf));
     assert_true(nft_untouched(pdf, N));
-    for (int which = 0; which < CTX_BAD_COUNT; ++which) {
+    for (int which = 0; which < NFT_BAD_CONTEXTS; ++which) {
         batch bad = b;
-        bad.ctx[N - 1] = bad_context(&b.ctx[N - 1], which, what, sizeof what);
+        bad.ctx[N - 1] = nft_bad_context(&b.ctx[N - 1], which, what, sizeof what);
         prime(0);
         nf_status st = nf_pdf(m, N, bad.ctx, bad.dir, pdf);
         if (st != NF_ERROR_INVALID_ARGUMENT || message_is_primer(0))
@@ -509,8 +488,8 @@ static void test_prior_pdf_bad_input(void **state)
         make_bad_direction(d, which);
         EXPECT_PRIOR_PDF_INVALID(nf_prior_pdf(m, b.ctx, d));
     }
-    for (int which = 0; which < CTX_BAD_COUNT; ++which) {
-        nf_context c = bad_context(&b.ctx[0], which, what, sizeof what);
+    for (int which = 0; which < NFT_BAD_CONTEXTS; ++which) {
+        nf_context c = nft_bad_context(&b.ctx[0], which, what, sizeof what);
         prime(0);
         float v = nf_prior_pdf(m, &c, b.dir);
         if (v != -1.0f || message_is_primer(0))
@@ -527,11 +506,11 @@ static void test_prior_pdf_bad_input(void **state)
 static int bad_batch(int which, const batch *b, batch *out, char *what, size_t size)
 {
     *out = *b;
-    if (which < CTX_BAD_COUNT) {
-        out->ctx[N - 1] = bad_context(&b->ctx[N - 1], which, what, size);
+    if (which < NFT_BAD_CONTEXTS) {
+        out->ctx[N - 1] = nft_bad_context(&b->ctx[N - 1], which, what, size);
         return 1;
     }
-    which -= CTX_BAD_COUNT;
+    which -= NFT_BAD_CONTEXTS;
     if (which < 4) {
         make_bad_direction(out->dir + 3 * (N - 1), which);
         snprintf(what, size, "bad direction %d", which);

@@ -696,3 +696,24 @@ int nft_untouched(const float *v, size_t n)
             return 0;
     return 1;
 }
+
+nf_context nft_bad_context(const nf_context *good, int which, char *what, size_t size)
+{
+    nf_context c = *good;
+    const float values[3] = {NAN, INFINITY, -INFINITY};
+    const char *names[3] = {"position", "normal", "wo"};
+    if (which < 27) {
+        int field = which / 9, comp = (which / 3) % 3, v = which % 3;
+        float *f = field == 0 ? c.position : field == 1 ? c.normal : c.wo;
+        f[comp] = values[v];
+        snprintf(what, size, "%s[%d] = %g", names[field], comp, (double)values[v]);
+    } else {
+        int k = which - 27;
+        float *f = k % 2 == 0 ? c.normal : c.wo;
+        const float v[3] = {0.0f, 1e-16f, 1e-38f};
+        f[0] = f[1] = f[2] = v[k / 2];
+        snprintf(what, size, "%s of components %g", k % 2 == 0 ? "normal" : "wo",
+                 (double)v[k / 2]);
+    }
+    return c;
+}
