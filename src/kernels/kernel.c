@@ -1,11 +1,11 @@
 /*
- * kernel.c - the batch kernels behind nf_sample, nf_pdf, nf_loss_gradient and the AdamW step.
- * CMake compiles this file once per instruction set with NF_KERNEL_ISA set to generic, avx2 or
- * avx512 (and the matching -m flags); each copy defines the table nf_kernels_<isa>. Inputs
- * arrive validated from flow.c, point.c and train.c. nf_sample and nf_pdf run on tiles of 16
- * samples (flow_tile.h), or through a shading point on the stack (point.h) for calls of
- * 1 or 2; the shading-point API always per direction; the gradient on tiles (flow_tile_backward.h),
- * or per sample for calls of 1 to 3.
+ * kernel.c - the kernels behind nf_sample, nf_pdf, the shading-point API, nf_loss_gradient and
+ * the AdamW step. CMake compiles this file once per instruction set with NF_KERNEL_ISA set to
+ * generic, avx2 or avx512 (and the matching -m flags); each copy defines the table
+ * nf_kernels_<isa> (kernels.h). Inputs arrive validated from flow.c, point.c and train.c.
+ * nf_sample and nf_pdf run on tiles of 16 samples (flow_tile.h), or through a shading point on
+ * the stack (point.h) for calls of 1 or 2; the shading-point API runs one direction at a time;
+ * the gradient runs on tiles (flow_tile_backward.h), or per sample for calls of 1 to 3.
  */
 #include <float.h>
 #include <math.h>
