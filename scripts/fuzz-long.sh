@@ -39,6 +39,7 @@ ALL_TARGETS=(
     "fuzz_deserialize:fuzz/corpus/model:"
     "fuzz_model_api:fuzz/corpus/model:"
     "fuzz_point:fuzz/corpus/point:"
+    "fuzz_blocks:fuzz/corpus/blocks:"
     "fuzz_scene_load:examples/tracer/fuzz/corpus:-dict=$ROOT/examples/tracer/fuzz/scene.dict"
 )
 
