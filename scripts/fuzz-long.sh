@@ -14,12 +14,13 @@
 #   NF_FUZZ_MERGE=0       do not merge new coverage into fuzz/corpus/
 #   NF_JOBS=2             parallel build jobs
 #
-# How long: the build takes 2 to 4 minutes on 2 cores; then SECONDS per target, one after the
-# other, on one core. The goal of at least 10 million executions per loader needs about 17
-# minutes for fuzz_deserialize (~9,900 exec/s), 100 minutes for fuzz_model_api (~1,700/s),
-# 11 hours for fuzz_point (~250/s); fuzz_scene_load varies with the scenes it reaches. A smoke
-# run (`scripts/fuzz-long.sh 5`, NF_FUZZ_MERGE=0) takes the build plus about half a minute;
-# it is not part of CI, whose .ci/robustness already runs every target for 60 s.
+# How long: the build takes 1 to 4 minutes; then SECONDS per target, one after the other, on
+# one core. The goal of at least 10 million executions per loader needs (rates measured on one
+# core, docs/robustness.md) about 15 minutes for fuzz_deserialize (~11,500 exec/s), 2 hours
+# for fuzz_model_api (~1,300/s), 1.5 days for fuzz_point (~80/s), 22 minutes for
+# fuzz_scene_load (~7,500/s) and 2 minutes for fuzz_blocks (~92,000/s). A smoke run
+# (`NF_FUZZ_MERGE=0 scripts/fuzz-long.sh 5`) takes the build plus about half a minute; it is
+# not part of CI, whose .ci/robustness already runs every target for 60 s.
 # Exit status: 0 when no target crashed, 1 otherwise.
 set -euo pipefail
 
