@@ -30,8 +30,10 @@
  * NF_ERROR_STALE and writes nothing; prepare it again. A point used with another model (a
  * clone included) returns NF_ERROR_INVALID_ARGUMENT, and so does a point whose header (the
  * fields before check_) was overwritten: a hash of the header is checked on every call, with
- * the model's id and generation, for about 50 instructions. A point may be copied with memcpy
- * or assignment; a copy is as valid as the original.
+ * the model's id and generation, for about 50 instructions. The cache after the header is not
+ * checked (that would cost a pass over it per call): a point whose cache was overwritten gives
+ * wrong but finite results, never a crash. A point may be copied with memcpy or assignment; a
+ * copy is as valid as the original.
  *
  * Thread-safety: every function here takes a const model and may run concurrently with the
  * others and with nf_sample / nf_pdf, provided no thread changes the model meanwhile. A point

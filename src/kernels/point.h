@@ -121,9 +121,16 @@ static inline const float *nf_point_context_sums(const nf_model *m, const nf_sha
 {
     if (p->cached_)
         return p->cache_ + (size_t)layer * m->packed_linear[layer][0].stride;
+    /* The hash covers the header, not the cache: a point whose cache was overwritten must
+     * still not read outside the weights. Position rows lie in [B, 4B) (nf_context_features);
+     * anything else, NaN included, becomes row B, so such a point gives wrong but finite
+     * results, as point.h promises. */
+    const uint32_t blob = m->cfg.oneblob_bins;
     uint32_t rows[9];
-    for (uint32_t r = 0; r < 9; ++r)
-        rows[r] = (uint32_t)p->cache_[NF_POINT_ROWS + r];
+    for (uint32_t r = 0; r < 9; ++r) {
+        float f = p->cache_[NF_POINT_ROWS + r];
+        rows[r] = f >= (float)blob && f < (float)(4u * blob) ? (uint32_t)f : blob;
+    }
     nf_point_layer_sums(m, rows, p->cache_ + NF_POINT_VALUES, p->cache_ + NF_POINT_SH, layer, into);
     return into;
 }
