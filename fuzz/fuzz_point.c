@@ -278,6 +278,22 @@ static void check_against_pdf(const nf_model *m, const nf_context *rep, size_t n
     }
 }
 
+/* The points of a call: one slot for nf_point_* (returned), or a slot per entry for
+ * nf_points_* (copied into arr); their contexts go to ctx and their states into *e. */
+static slot *pick_points(machine *mc, int batch, size_t n, nf_shading_point *arr,
+                         nf_context *ctx, expect *e)
+{
+    reader *r = &mc->in;
+    slot *one = &mc->slots[rd_u8(r) % SLOTS];
+    for (size_t i = 0; i < n; ++i) {
+        slot *s = batch ? &mc->slots[rd_u8(r) % SLOTS] : one;
+        arr[i] = s->sp;
+        ctx[i] = s->ctx;
+        expect_slot(e, s, mc->epoch);
+    }
+    return one;
+}
+
 static void op_sample(machine *mc, int batch)
 {
     reader *r = &mc->in;
@@ -285,13 +301,7 @@ static void op_sample(machine *mc, int batch)
     expect e = {0, 0, 1, 1};
     nf_shading_point arr[MAX_N];
     nf_context ctx[MAX_N];
-    slot *one = &mc->slots[rd_u8(r) % SLOTS];
-    for (size_t i = 0; i < n; ++i) {
-        slot *s = batch ? &mc->slots[rd_u8(r) % SLOTS] : one;
-        arr[i] = s->sp;
-        ctx[i] = s->ctx;
-        expect_slot(&e, s, mc->epoch);
-    }
+    slot *one = pick_points(mc, batch, n, arr, ctx, &e);
     float u[2 * MAX_N], dir[3 * MAX_N], pdf[MAX_N];
     for (size_t i = 0; i < 2 * n; ++i) {
         u[i] = rd_float(r);
@@ -324,13 +334,7 @@ static void op_pdf(machine *mc, int batch)
     expect e = {0, 0, 1, 1};
     nf_shading_point arr[MAX_N];
     nf_context ctx[MAX_N];
-    slot *one = &mc->slots[rd_u8(r) % SLOTS];
-    for (size_t i = 0; i < n; ++i) {
-        slot *s = batch ? &mc->slots[rd_u8(r) % SLOTS] : one;
-        arr[i] = s->sp;
-        ctx[i] = s->ctx;
-        expect_slot(&e, s, mc->epoch);
-    }
+    slot *one = pick_points(mc, batch, n, arr, ctx, &e);
     float dir[3 * MAX_N], pdf[MAX_N];
     for (size_t i = 0; i < n; ++i) {
         for (int a = 0; a < 3; ++a)

@@ -45,23 +45,6 @@ static double vmf_pdf(const double mu[3], const float dir[3])
            exp(KAPPA * (nft_dot3(mu, w) - 1.0));
 }
 
-/* Samples the vMF lobe by inversion: cos = 1 + log(u + (1 - u) e^(-2 kappa)) / kappa. */
-static void vmf_sample(nft_rng *r, const double mu[3], float dir[3])
-{
-    double t[3], b[3], n[3];
-    nft_frame(mu, t, b, n);
-    double u = nft_rng_double(r);
-    double c = 1.0 + log(u + (1.0 - u) * exp(-2.0 * KAPPA)) / KAPPA;
-    c = fmin(fmax(c, -1.0), 1.0);
-    double s = sqrt(fmax(0.0, 1.0 - c * c)), phi = 2.0 * NFT_PI * nft_rng_double(r);
-    double w[3];
-    for (int k = 0; k < 3; ++k)
-        w[k] = s * cos(phi) * t[k] + s * sin(phi) * b[k] + c * n[k];
-    double len = sqrt(nft_dot3(w, w));
-    for (int k = 0; k < 3; ++k)
-        dir[k] = (float)(w[k] / len);
-}
-
 /* The cosine target of a context: max(0, n . w) / pi. */
 static double cosine_pdf(const nf_context *ctx, const float dir[3])
 {
@@ -179,7 +162,7 @@ static void test_learns_vmf_lobe(void **state)
     nft_rng_seed(&r, 4001u, 1u);
     for (int i = 0; i < HELD_OUT; ++i) {
         held_ctx[i] = ctx;
-        vmf_sample(&r, mu, held_dir + 3 * i);
+        nft_vmf_sample(&r, mu, KAPPA, held_dir + 3 * i);
     }
     /* The analytic entropy of the target. */
     double entropy = -(log(KAPPA / (2.0 * NFT_PI * (1.0 - exp(-2.0 * KAPPA)))) +

@@ -30,23 +30,6 @@
 
 enum { BATCH = 256, SAMPLES = 200000 };
 
-/* Samples a vMF lobe around mu by inversion: cos = 1 + log(u + (1 - u) e^(-2 kappa)) / kappa. */
-static void vmf_sample(nft_rng *r, const double mu[3], double kappa, float dir[3])
-{
-    double t[3], b[3], n[3];
-    nft_frame(mu, t, b, n);
-    double u = nft_rng_double(r);
-    double c = 1.0 + log(u + (1.0 - u) * exp(-2.0 * kappa)) / kappa;
-    c = fmin(fmax(c, -1.0), 1.0);
-    double s = sqrt(fmax(0.0, 1.0 - c * c)), phi = 2.0 * NFT_PI * nft_rng_double(r);
-    double w[3];
-    for (int k = 0; k < 3; ++k)
-        w[k] = s * cos(phi) * t[k] + s * sin(phi) * b[k] + c * n[k];
-    double len = sqrt(nft_dot3(w, w));
-    for (int k = 0; k < 3; ++k)
-        dir[k] = (float)(w[k] / len);
-}
-
 typedef struct result {
     int beyond_2e3, beyond_1e2, compared;
     double worst, peak;
@@ -77,7 +60,7 @@ static result measure(nf_prior_kind prior, double kappa, int steps, uint64_t see
     }
     for (int s = 0; s < steps; ++s) {
         for (int i = 0; i < BATCH; ++i)
-            vmf_sample(&r, mu, kappa, train_dir + 3 * i);
+            nft_vmf_sample(&r, mu, kappa, train_dir + 3 * i);
         assert_int_equal(nf_train_step(m, BATCH, ctx, train_dir, weight, NULL), NF_OK);
     }
     /* Stratified u: a 400 x 500 grid, jittered. */

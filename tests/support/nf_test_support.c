@@ -717,3 +717,19 @@ nf_context nft_bad_context(const nf_context *good, int which, char *what, size_t
     }
     return c;
 }
+
+void nft_vmf_sample(nft_rng *r, const double mu[3], double kappa, float dir[3])
+{
+    double t[3], b[3], n[3];
+    nft_frame(mu, t, b, n);
+    double u = nft_rng_double(r);
+    double c = 1.0 + log(u + (1.0 - u) * exp(-2.0 * kappa)) / kappa;
+    c = fmin(fmax(c, -1.0), 1.0);
+    double s = sqrt(fmax(0.0, 1.0 - c * c)), phi = 2.0 * NFT_PI * nft_rng_double(r);
+    double w[3];
+    for (int k = 0; k < 3; ++k)
+        w[k] = s * cos(phi) * t[k] + s * sin(phi) * b[k] + c * n[k];
+    double len = sqrt(nft_dot3(w, w));
+    for (int k = 0; k < 3; ++k)
+        dir[k] = (float)(w[k] / len);
+}

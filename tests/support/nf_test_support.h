@@ -59,6 +59,10 @@ double nft_length3f(const float v[3]);
 /* An orthonormal frame (t, b, n) with n = normalize(axis), computed in double. */
 void nft_frame(const double axis[3], double t[3], double b[3], double n[3]);
 
+/* A unit direction from the von Mises-Fisher lobe of concentration kappa > 0 around the unit
+ * vector mu, by inversion: cos = 1 + log(u + (1 - u) e^(-2 kappa)) / kappa. */
+void nft_vmf_sample(nft_rng *r, const double mu[3], double kappa, float dir[3]);
+
 /* ---- models --------------------------------------------------------------------------------- */
 
 /* The custom prior of the tests: a normalized Phong lobe in solid-angle terms around the
