@@ -64,6 +64,7 @@ nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
      * context is copied first, so that ctx may alias the point's own copy. */
     nf_context copy = *ctx;
     m->kernels->point_prepare(m, &copy, prior, point);
+    point->check_ = nf_point_hash(point); /* what every later call verifies */
     return NF_OK;
 }
 

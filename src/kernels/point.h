@@ -191,7 +191,7 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
     p->cached_ = (size_t)layers * hp <= NF_SHADING_POINT_CACHE_FLOATS;
     for (uint32_t r = 0; r < sizeof p->reserved_ / sizeof p->reserved_[0]; ++r)
         p->reserved_[r] = 0;
-    p->check_ = nf_point_hash(p);
+    p->check_ = 0; /* nf_point_prepare (point.c) seals public points; stack points need none */
     if (p->cached_) {
         for (uint32_t i = 0; i < layers; ++i)
             nf_point_layer_sums(m, feat.rows, feat.values, feat.sh, i, p->cache_ + (size_t)i * hp);
