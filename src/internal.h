@@ -94,8 +94,9 @@ size_t nf_layer_param_count(const nf_config *cfg);
  * by `fn`, and returns NF_ERROR_INVALID_ARGUMENT. */
 nf_status nf_config_validate(const nf_config *cfg, const char *fn);
 
-/* Allocates a model for a validated config with zeroed parameters and optimizer state. */
-nf_status nf_model_allocate(const nf_config *cfg, nf_model **out);
+/* Allocates a model for a validated config with zeroed parameters and optimizer state; `fn`
+ * prefixes the message of a refusal (an unsupported cfg->isa, no memory). */
+nf_status nf_model_allocate(const nf_config *cfg, const char *fn, nf_model **out);
 
 /* Rebuilds the packed weights from params; every change of params must call it. */
 void nf_model_pack(nf_model *m);

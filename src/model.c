@@ -48,9 +48,9 @@ static void nf_model_layout(nf_model *m, size_t *public_count, size_t *packed_co
     *packed_count = pk;
 }
 
-nf_status nf_model_allocate(const nf_config *cfg, nf_model **out)
+nf_status nf_model_allocate(const nf_config *cfg, const char *fn, nf_model **out)
 {
-    const nf_kernels *kernels = nf_select_kernels(cfg->isa, "nf_model_create");
+    const nf_kernels *kernels = nf_select_kernels(cfg->isa, fn);
     if (!kernels)
         return NF_ERROR_INVALID_ARGUMENT;
     nf_allocator alloc = cfg->allocator;
@@ -70,7 +70,8 @@ nf_status nf_model_allocate(const nf_config *cfg, nf_model **out)
     size_t bytes = nf_header_bytes() + (7u * p + packed) * sizeof(float);
     unsigned char *block = (unsigned char *)alloc.alloc(alloc.user, bytes);
     if (!block)
-        return nf_fail(NF_ERROR_OUT_OF_MEMORY, "could not allocate %zu bytes for a model", bytes);
+        return nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate %zu bytes for a model", fn,
+                       bytes);
     memset(block, 0, bytes);
     nf_model *m = (nf_model *)block;
     *m = probe;
@@ -156,7 +157,7 @@ nf_status nf_model_create(const nf_config *cfg, nf_model **out)
     if (st != NF_OK)
         return st;
     nf_model *m = NULL;
-    if ((st = nf_model_allocate(cfg, &m)) != NF_OK)
+    if ((st = nf_model_allocate(cfg, "nf_model_create", &m)) != NF_OK)
         return st;
     nf_initialise_params(m);
     nf_model_pack(m);
@@ -180,7 +181,7 @@ nf_status nf_model_clone(const nf_model *model, nf_model **out)
     if (!model)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_clone: model is NULL");
     nf_model *copy = NULL;
-    nf_status st = nf_model_allocate(&model->cfg, &copy);
+    nf_status st = nf_model_allocate(&model->cfg, "nf_model_clone", &copy);
     if (st != NF_OK)
         return st;
     size_t p = model->param_count;

@@ -2,6 +2,7 @@
  * serialize.c - the model file format (docs/format.md): explicit little-endian fields, the
  * configuration, parameters, AdamW state and a CRC-32, validated field by field on load.
  */
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -14,6 +15,10 @@
 #define NF_TRAILER_BYTES 4u
 /* No valid configuration needs more; a larger file is refused before it is read. */
 #define NF_MAX_FILE_BYTES ((size_t)1 << 28)
+
+/* strerror's text for an errno value, or a fixed text when the C library set none. Known
+ * values map to static strings in glibc, musl and the BSDs, so concurrent calls are safe. */
+static const char *nf_errno_text(int err) { return err ? strerror(err) : "unknown error"; }
 
 static const unsigned char nf_magic[8] = {'N', 'I', 'S', 'F', 'L', 'O', 'W', 0};
 
@@ -121,15 +126,11 @@ nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity, size
     return NF_OK;
 }
 
-nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_callbacks *custom,
-                               nf_model **out)
+/* Decodes a model for nf_model_deserialize and nf_model_load; `fn` begins every message (the
+ * function the caller called, and for a file its path). */
+static nf_status nf_decode(const char *fn, const void *buf, size_t size,
+                           const nf_prior_callbacks *custom, nf_model **out)
 {
-    static const char fn[] = "nf_model_deserialize";
-    if (!out)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: out is NULL", fn);
-    *out = NULL;
-    if (!buf)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: buf is NULL", fn);
     const unsigned char *p = (const unsigned char *)buf;
     if (size < NF_HEADER_BYTES + NF_TRAILER_BYTES)
         return nf_fail(NF_ERROR_FORMAT, "%s: %zu bytes is too short for a model", fn, size);
@@ -194,7 +195,7 @@ nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_call
     if (nf_config_validate(&cfg, fn) != NF_OK) {
         char reason[256]; /* nf_fail overwrites the message it would otherwise quote */
         snprintf(reason, sizeof reason, "%s", nf_last_error_message());
-        return nf_fail(NF_ERROR_FORMAT, "invalid configuration in file: %s", reason);
+        return nf_fail(NF_ERROR_FORMAT, "%s (invalid configuration in file)", reason);
     }
     size_t expected = (size_t)cfg.coupling_layers * nf_layer_param_count(&cfg);
     if (count != (uint64_t)expected || size != nf_serialized_size(expected))
@@ -211,7 +212,7 @@ nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_call
     }
 
     nf_model *m = NULL;
-    nf_status st = nf_model_allocate(&cfg, &m);
+    nf_status st = nf_model_allocate(&cfg, fn, &m);
     if (st != NF_OK)
         return st;
     float *arrays[3] = {m->params, m->adam_m, m->adam_v};
@@ -222,6 +223,29 @@ nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_call
     nf_model_pack(m);
     *out = m;
     return NF_OK;
+}
+
+nf_status nf_model_deserialize(const void *buf, size_t size, const nf_prior_callbacks *custom,
+                               nf_model **out)
+{
+    static const char fn[] = "nf_model_deserialize";
+    if (!out)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: out is NULL", fn);
+    *out = NULL;
+    if (!buf)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: buf is NULL", fn);
+    return nf_decode(fn, buf, size, custom, out);
+}
+
+/* "fn: 'path'" for messages about a file, keeping the end of a long path (its file name) so
+ * that the message after it still fits nf_last_error_message's 256 bytes. */
+static void nf_file_prefix(char *dst, size_t cap, const char *fn, const char *path)
+{
+    size_t len = strlen(path);
+    if (len <= 120)
+        snprintf(dst, cap, "%s: '%s'", fn, path);
+    else
+        snprintf(dst, cap, "%s: '...%s'", fn, path + len - 117);
 }
 
 nf_status nf_model_save(const nf_model *m, const char *path)
@@ -237,13 +261,18 @@ nf_status nf_model_save(const nf_model *m, const char *path)
         return nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate %zu bytes", fn, size);
     nf_model_serialize(m, buf, size, &size);
     nf_status st = NF_OK;
+    char who[160];
+    nf_file_prefix(who, sizeof who, fn, path);
+    errno = 0;
     FILE *f = fopen(path, "wb");
     if (!f) {
-        st = nf_fail(NF_ERROR_IO, "%s: cannot open '%s' for writing", fn, path);
+        st = nf_fail(NF_ERROR_IO, "%s: cannot open for writing: %s", who, nf_errno_text(errno));
     } else {
         size_t written = fwrite(buf, 1, size, f);
+        int err = errno;
         if (fclose(f) != 0 || written != size)
-            st = nf_fail(NF_ERROR_IO, "%s: could not write all of '%s'", fn, path);
+            st = nf_fail(NF_ERROR_IO, "%s: could not write all of it: %s", who,
+                         nf_errno_text(errno ? errno : err));
     }
     a->free(a->user, buf);
     return st;
@@ -257,9 +286,12 @@ nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom, nf_m
     *out = NULL;
     if (!path)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: path is NULL", fn);
+    char who[160];
+    nf_file_prefix(who, sizeof who, fn, path);
+    errno = 0;
     FILE *f = fopen(path, "rb");
     if (!f)
-        return nf_fail(NF_ERROR_IO, "%s: cannot open '%s'", fn, path);
+        return nf_fail(NF_ERROR_IO, "%s: cannot open: %s", who, nf_errno_text(errno));
     /* Read in bounded chunks rather than trusting a seek: the path may be a pipe. */
     size_t cap = 1u << 16, size = 0;
     unsigned char *buf = (unsigned char *)malloc(cap);
@@ -269,7 +301,7 @@ nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom, nf_m
         if (size < cap)
             break;
         if (cap >= NF_MAX_FILE_BYTES) {
-            st = nf_fail(NF_ERROR_FORMAT, "%s: '%s' is larger than any model", fn, path);
+            st = nf_fail(NF_ERROR_FORMAT, "%s: larger than any model", who);
             break;
         }
         unsigned char *grown = (unsigned char *)realloc(buf, cap * 2);
@@ -282,12 +314,12 @@ nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom, nf_m
         cap *= 2;
     }
     if (!buf)
-        st = nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate a read buffer", fn);
+        st = nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate a read buffer", who);
     else if (st == NF_OK && ferror(f))
-        st = nf_fail(NF_ERROR_IO, "%s: error while reading '%s'", fn, path);
+        st = nf_fail(NF_ERROR_IO, "%s: error while reading: %s", who, nf_errno_text(errno));
     fclose(f);
     if (st == NF_OK)
-        st = nf_model_deserialize(buf, size, custom, out);
+        st = nf_decode(who, buf, size, custom, out);
     free(buf);
     return st;
 }
