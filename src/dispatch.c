@@ -23,6 +23,7 @@ static int nf_cpu_has_avx512(void)
 
 const nf_kernels *nf_select_kernels(nf_isa isa, const char *fn)
 {
+    const char *lacks = "the x86-64 kernels (this build has only the generic ones)";
     switch (isa) {
     case NF_ISA_AUTO:
 #if defined(NF_HAVE_X86_KERNELS)
@@ -37,18 +38,38 @@ const nf_kernels *nf_select_kernels(nf_isa isa, const char *fn)
 #if defined(NF_HAVE_X86_KERNELS)
         if (nf_cpu_has_avx2())
             return &nf_kernels_avx2;
+        lacks = "AVX2 and FMA (this CPU lacks one of them)";
 #endif
         break;
     case NF_ISA_AVX512:
 #if defined(NF_HAVE_X86_KERNELS)
         if (nf_cpu_has_avx512())
             return &nf_kernels_avx512;
+        lacks = "AVX-512 F/VL/DQ/BW and AVX2 (this CPU lacks one of them)";
 #endif
         break;
+    default:
+        nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: isa = %u is not an nf_isa value", fn,
+                (unsigned)isa);
+        return NULL;
     }
-    nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.isa = %u is not supported by this CPU or build",
-            fn, (unsigned)isa);
+    nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: isa = %u (%s) needs %s", fn, (unsigned)isa,
+            isa == NF_ISA_AVX2 ? "NF_ISA_AVX2" : "NF_ISA_AVX512", lacks);
     return NULL;
 }
 
 const char *nf_model_isa_name(const nf_model *m) { return m ? m->kernels->name : ""; }
+
+nf_status nf_model_set_isa(nf_model *m, nf_isa isa)
+{
+    if (!m)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_set_isa: model is NULL");
+    const nf_kernels *kernels = nf_select_kernels(isa, "nf_model_set_isa");
+    if (!kernels)
+        return NF_ERROR_INVALID_ARGUMENT; /* the message says what is missing */
+    if (kernels != m->kernels)
+        m->generation += 1; /* points hold context sums of the old kernels: prepare again */
+    m->kernels = kernels;
+    m->cfg.isa = isa;
+    return NF_OK;
+}

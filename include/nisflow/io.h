@@ -19,15 +19,19 @@
 NF_EXTERN_C_BEGIN
 
 /* Writes the model to a file (created or truncated). NF_ERROR_IO if the file cannot be
- * written completely. Allocates one temporary buffer of the file's size through the model's
- * allocator. Thread-safe on a const model. */
+ * written completely (the message names the path and gives strerror's reason). Allocates one
+ * temporary buffer of the file's size through the model's allocator. Thread-safe on a const model.
+ */
 NF_API nf_status nf_model_save(const nf_model *m, const char *path);
 
 /* Reads a model written by nf_model_save. `custom` supplies the callbacks of a model saved
  * with NF_PRIOR_CUSTOM (required then, ignored otherwise); it is copied. A custom-prior model
  * without callbacks is refused with NF_ERROR_INVALID_ARGUMENT (the file is fine, the call is
- * not). NF_ERROR_IO when the file cannot be opened or read. The model uses the default
- * allocator and NF_ISA_AUTO. *out is NULL on failure. Thread-safe. */
+ * not). NF_ERROR_IO when the file cannot be opened or read (the message gives the C
+ * library's reason, strerror). Every message begins with "nf_model_load: '<path>':" (a path
+ * over 120 bytes keeps its last 117). The model uses the default allocator and NF_ISA_AUTO;
+ * nf_model_set_isa chooses another instruction set, for results identical across machines.
+ * *out is NULL on failure. Thread-safe. */
 NF_API nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom, nf_model **out);
 
 /* Serializes into a caller-owned buffer. With buf NULL only *size is set (the bytes needed).

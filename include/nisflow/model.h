@@ -8,7 +8,7 @@
  *
  * Thread-safety: functions taking a `const nf_model *` may run concurrently on one model from
  * any number of threads, provided no thread modifies it at the same time (training, set
- * params, destroy). nf_sample and nf_pdf never allocate memory.
+ * params, set isa, destroy). nf_sample and nf_pdf never allocate memory.
  */
 #ifndef NISFLOW_MODEL_H
 #define NISFLOW_MODEL_H
@@ -65,6 +65,15 @@ typedef enum nf_prior_kind {
     NF_PRIOR_COSINE = 2,            /* max(0, n.w)/pi around the context's normal, eps-mixed  */
     NF_PRIOR_CUSTOM = 3             /* user callbacks (for example a BSDF lobe), eps-mixed    */
 } nf_prior_kind;
+/* Transmission. The cosine prior covers only the hemisphere of the context's normal: its
+ * eps-mixed uniform part (prior_epsilon of the mass, over the whole sphere) puts just eps / 2
+ * below the surface, and a flow must learn to move mass there, which trains poorly. For glass,
+ * thin translucent and other transmissive surfaces choose a prior that covers both
+ * hemispheres: NF_PRIOR_UNIFORM_DIRECTION (simplest; NF_PRIOR_UNIFORM_ANGLE also covers the
+ * sphere, denser towards the z poles), or NF_PRIOR_CUSTOM with a BSDF lobe whose density is
+ * positive on both sides (reflection and transmission lobes mixed by their probabilities).
+ * The prior is per model: a scene with opaque and transmissive materials can keep a model
+ * per kind. docs/integration.md, section 5. */
 
 /* A user prior in solid-angle terms (docs/theory.md section 2). The library mixes it with the
  * uniform direction density: q = (1 - eps) q_custom + eps / (4 pi), eps = nf_config.prior_epsilon.
@@ -77,10 +86,16 @@ typedef enum nf_prior_kind {
  * pdf:    the solid-angle density of `dir`, finite and >= 0. It must agree with what `sample`
  *         returns for the directions it draws: nf_sample reports the sample callback's value,
  *         nf_pdf and training the pdf callback's.
- * ctx:    the caller's own context, a pointer into the array passed to nf_sample, nf_pdf or
- *         training (or the one given to nf_prior_pdf), with normal and wo as the caller gave
- *         them. `ctx - base` is therefore the sample's index, through which a renderer can
- *         reach per-sample data such as the shading point's BSDF.
+ * ctx:    the caller's own context, never a copy the library made: for nf_sample, nf_pdf,
+ *         nf_loss_gradient and nf_train_step it is &ctx[i] of the array the caller passed, for
+ *         sample i (every batch size, every instruction set), and for nf_prior_pdf the
+ *         pointer passed; normal and wo are as the caller gave them (not normalized).
+ *         `ctx - base` is therefore the sample's index, through which a renderer can reach
+ *         per-sample data such as the shading point's BSDF. Through the shading-point API
+ *         (point.h) it points to the copy of the context inside the caller's
+ *         nf_shading_point (for nf_points_* inside points[i]), which nf_point_prepare made;
+ *         per-point data travel there in the point's own callbacks' `user`.
+ *         tests/correctness/test_prior_context.c checks every entry point.
  * user:   passed back unchanged; the library never dereferences or frees it.
  * Both callbacks are called from whichever threads call nf_sample / nf_pdf / training, and
  * must therefore be thread-safe themselves. They must not call back into the same model's
@@ -114,7 +129,8 @@ typedef enum nf_preset {
  * tests, benchmarks and reproducibility. AVX2 and AVX-512 give bit-identical results (both
  * fuse the conditioners' multiply-adds); the generic kernels round those twice and differ by
  * about 1e-6 relative. A render farm mixing CPUs with and without AVX2 that needs identical
- * results can name NF_ISA_GENERIC everywhere. Values are explicit and never renumbered. */
+ * results can name NF_ISA_GENERIC everywhere (nf_model_set_isa for loaded models). Values are
+ * explicit and never renumbered. */
 typedef enum nf_isa {
     NF_ISA_AUTO = 0,    /* the best available (default)                                   */
     NF_ISA_GENERIC = 1, /* portable C, the compiler's baseline for the target             */
@@ -145,7 +161,8 @@ typedef struct nf_config {
                                < 1, so the decay factor stays positive (default 0.01)         */
     uint64_t seed;          /* seed of the weight initialisation (default 1)                */
     nf_allocator allocator; /* optional; not saved with the model                          */
-    nf_isa isa;             /* kernels to use (default NF_ISA_AUTO); not saved             */
+    nf_isa isa;             /* kernels to use (default NF_ISA_AUTO); not saved: a loaded
+                               model runs NF_ISA_AUTO until nf_model_set_isa             */
 } nf_config;
 
 /* Fills `cfg` with the preset's architecture and the defaults above. `cfg` NULL is ignored.
@@ -216,6 +233,22 @@ NF_API float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float 
 /* The name of the kernels the model runs ("generic", "avx2", "avx512"). Static string;
  * "" for NULL. Thread-safe. */
 NF_API const char *nf_model_isa_name(const nf_model *m);
+
+/* Switches the model to the kernels of `isa`, as if it had been created with nf_config.isa =
+ * isa. This is how a loaded model (nf_model_load and nf_model_deserialize pick NF_ISA_AUTO,
+ * since the file does not store the set) chooses its instruction set: a render farm that
+ * mixes CPUs resumes a checkpoint to identical results by calling
+ * nf_model_set_isa(m, NF_ISA_GENERIC) on every machine (or NF_ISA_AVX2 where all have it;
+ * AVX2 and AVX-512 give the same bits). Parameters, optimizer state and step count are kept;
+ * later samples, densities, gradients and steps are bit-identical to those of a model created
+ * with that isa from the same state. nf_model_config reports the new isa; a clone keeps it.
+ * Shading points prepared before a change of kernels become stale (NF_ERROR_STALE), since
+ * their cached sums came from the old kernels; setting the isa the model already runs
+ * changes nothing. Errors, which leave the model unchanged: NF_ERROR_INVALID_ARGUMENT for
+ * NULL, a value that is not an nf_isa, or a set this CPU or build cannot run (the message
+ * names what is missing, for example "AVX2 and FMA"). Not thread-safe: it modifies the model,
+ * so no other call may use `m` meanwhile (like nf_train_step). Never allocates. */
+NF_API nf_status nf_model_set_isa(nf_model *m, nf_isa isa);
 
 /* The smallest value of sin(theta) the library divides by when it converts a density on the
  * (theta, phi) square to a solid-angle density. */
