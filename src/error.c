@@ -27,6 +27,7 @@ const char *nf_status_string(nf_status s)
     case NF_ERROR_FORMAT: return "invalid model format";
     case NF_ERROR_NUMERIC: return "non-finite numeric result";
     case NF_ERROR_STALE: return "stale shading point";
+    case NF_ERROR_CAPACITY: return "output buffer too small";
     }
     return "unknown status";
 }

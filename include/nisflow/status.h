@@ -20,8 +20,10 @@ typedef enum nf_status {
     NF_ERROR_IO = 3,               /* a file could not be opened, read or written            */
     NF_ERROR_FORMAT = 4,           /* a model file or buffer is truncated, corrupt or foreign */
     NF_ERROR_NUMERIC = 5,          /* a result would be non-finite (the call was refused)    */
-    NF_ERROR_STALE = 6             /* a shading point predates a change of the model's
+    NF_ERROR_STALE = 6,            /* a shading point predates a change of the model's
                                       parameters: prepare it again (nisflow/point.h)       */
+    NF_ERROR_CAPACITY = 7          /* an output buffer is too small; nothing was written and
+                                      the call says how much it needs (nisflow/path.h)     */
 } nf_status;
 
 /* A short static description of a status code ("invalid argument", ...); "unknown status" for
