@@ -3,7 +3,9 @@
  *
  * The three macros are the single source of the version number: CMake reads them from this
  * file. Compare NF_VERSION_MAJOR against nf_version_string() to detect a header/library
- * mismatch. The ABI is stable within one major version once the major version is >= 1.
+ * mismatch. The ABI is stable within one major version once the major version is >= 1;
+ * before 1.0 each minor version is an ABI of its own (SONAME libnisflow.so.0.MINOR, and the
+ * CMake package accepts only the same minor version: docs/integration.md).
  *
  * It also defines NF_API (the symbols the shared library exports) and NF_EXTERN_C_BEGIN/END
  * (C linkage under C++), which every other public header uses through this one.
