@@ -23,6 +23,18 @@
 
 NF_EXTERN_C_BEGIN
 
+/* The stack, in bytes, to allow for one nf_loss_gradient or nf_train_step call: 192 KiB,
+ * whatever the configuration within its limits and the instruction set. The calls keep the
+ * work area of a tile of 16 samples on the stack, sized for the largest networks the limits
+ * allow, so the presets use as much as the largest networks. Measured by stack painting
+ * (tests/robustness/test_training_stack.c, which fails above this figure), libm included:
+ * at most 180,008 bytes (175.8 KiB) with GCC 12 -O3 and 175,744 bytes (171.6 KiB) with
+ * clang 14; the allowance adds 16 KiB (9%) for other compilers and versions. A custom prior's
+ * callbacks run on top of it. Threads that train need this much beyond their own use: the
+ * default stacks of glibc (8 MiB), macOS (512 KiB) and Windows (1 MiB) suffice, musl's 128 KiB
+ * and small fiber stacks do not (pthread_attr_setstacksize). */
+#define NF_TRAINING_STACK_BYTES 196608u
+
 /* One optimisation step on a batch: nf_loss_gradient into the model's own gradient buffer,
  * then nf_apply_gradient. *loss (if not NULL) receives the batch's loss before the step.
  * Weights must be finite and >= 0; a batch whose weights are all zero leaves the model
@@ -30,7 +42,7 @@ NF_EXTERN_C_BEGIN
  * or a step whose loss, gradient or new parameters would not be finite (NF_ERROR_NUMERIC,
  * possible with extreme parameters or learning rates) leaves the model exactly as it was.
  * n = 0 is a no-op. Not thread-safe: no other call may use `m` meanwhile. Does not allocate;
- * uses about 160 KiB of the caller's stack (as nf_loss_gradient). */
+ * uses up to NF_TRAINING_STACK_BYTES (192 KiB) of the caller's stack, as nf_loss_gradient. */
 NF_API nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                                const float *weight, float *loss);
 
@@ -58,9 +70,10 @@ NF_API nf_status nf_set_params(nf_model *m, const float *params);
  * Batches of 4 or more samples are evaluated 16 at a time and single samples one by one; the
  * two sum in different orders, so splitting a batch differently changes the gradient by
  * rounding (~1e-7 relative), not more.
- * Thread-safe on a const model (each thread passes its own grad); never allocates; uses about
- * 160 KiB of the caller's stack (the activations of 16 samples for the largest networks the
- * configuration limits allow). */
+ * Thread-safe on a const model (each thread passes its own grad); never allocates; uses up to
+ * NF_TRAINING_STACK_BYTES (192 KiB; 176 KiB measured) of the caller's stack, for every
+ * configuration: the activations of 16 samples for the largest networks the configuration
+ * limits allow. */
 NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *dir, const float *weight, float *loss, float *grad);
 

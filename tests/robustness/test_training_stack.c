@@ -1,0 +1,162 @@
+/*
+ * test_training_stack.c - the stack nf_loss_gradient and nf_train_step use, against the figure
+ * train.h documents (NF_TRAINING_STACK_BYTES, 176 KiB). A renderer that trains on its own
+ * threads sizes their stacks from it (musl's default 128 KiB is too small), so the figure must
+ * stay true: this test fails when the training kernels grow past it.
+ *
+ * A thread runs each call on a stack of our own that is painted first; the deepest byte
+ * changed, minus that of the same thread doing everything but the library call, is what the
+ * call used, libm included. Every instruction set the CPU runs, the presets and the largest
+ * network the configuration allows, batches that take the per-sample path (1, 3) and the
+ * tiled one (16, 37). Only in optimized builds without sanitizers: the figure is for those,
+ * and sanitizers grow every frame.
+ */
+#define _POSIX_C_SOURCE 200809L /* pthread_attr_setstack */
+
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "nf_test_support.h"
+
+#if !NFT_UNDER_SANITIZER && defined(NDEBUG) && defined(__OPTIMIZE__)
+#define STACK_CHECK 1
+#else
+#define STACK_CHECK 0
+#endif
+
+#if STACK_CHECK
+enum { STACK_BYTES = 512 * 1024, STACK_PAINT = 0x5a, N = 37 };
+
+typedef struct stack_job {
+    nf_model *m;
+    size_t n;
+    const nf_context *ctx;
+    const float *dir, *weight;
+    float *grad;
+    int call; /* 0: nothing, 1: nf_loss_gradient, 2: nf_train_step */
+    nf_status status;
+} stack_job;
+
+static void *stack_thread(void *arg)
+{
+    stack_job *j = arg;
+    float loss = 0.0f;
+    switch (j->call) {
+    case 1:
+        j->status = nf_loss_gradient(j->m, j->n, j->ctx, j->dir, j->weight, &loss, j->grad);
+        break;
+    case 2: j->status = nf_train_step(j->m, j->n, j->ctx, j->dir, j->weight, &loss); break;
+    default: j->status = NF_OK; break;
+    }
+    volatile float sink = loss; /* the same frame for every case */
+    (void)sink;
+    return NULL;
+}
+
+static size_t stack_used(stack_job *j)
+{
+    unsigned char *stack = malloc(STACK_BYTES);
+    assert_non_null(stack);
+    memset(stack, STACK_PAINT, STACK_BYTES);
+    pthread_attr_t attr;
+    pthread_t t;
+    assert_int_equal(pthread_attr_init(&attr), 0);
+    assert_int_equal(pthread_attr_setstack(&attr, stack, STACK_BYTES), 0);
+    assert_int_equal(pthread_create(&t, &attr, stack_thread, j), 0);
+    assert_int_equal(pthread_join(t, NULL), 0);
+    pthread_attr_destroy(&attr);
+    size_t low = 0;
+    while (low < STACK_BYTES && stack[low] == STACK_PAINT)
+        ++low;
+    free(stack);
+    return STACK_BYTES - low;
+}
+#endif
+
+static void test_training_stack_bound(void **state)
+{
+    (void)state;
+#if !STACK_CHECK
+    skip();
+#else
+    static const nf_isa isas[3] = {NF_ISA_GENERIC, NF_ISA_AVX2, NF_ISA_AVX512};
+    static const char *shapes[3] = {"small preset", "large preset", "largest network"};
+    static const size_t sizes[4] = {1, 3, 16, N};
+    static nf_context ctx[N];
+    static float dir[3 * N], weight[N];
+    nft_rng r;
+    nft_rng_seed(&r, 21u, 1u);
+    for (size_t i = 0; i < N; ++i) {
+        nft_random_context(&r, &ctx[i]);
+        nft_random_unit_vector(&r, dir + 3 * i);
+        weight[i] = 0.25f + nft_rng_float(&r);
+    }
+    size_t worst[3] = {0, 0, 0};
+    char where[3][96] = {"", "", ""};
+    for (int k = 0; k < 3; ++k) {
+        for (int s = 0; s < 3; ++s) {
+            nf_config cfg;
+            nf_config_init(&cfg, s == 0 ? NF_PRESET_SMALL : NF_PRESET_LARGE);
+            cfg.isa = isas[k];
+            if (s == 2) { /* every limit at once: the tape cannot hold all layers */
+                cfg.coupling_layers = NF_MAX_COUPLING_LAYERS;
+                cfg.spline_bins = NF_MAX_SPLINE_BINS;
+                cfg.hidden_layers = NF_MAX_HIDDEN_LAYERS;
+                cfg.hidden_width = NF_MAX_HIDDEN_WIDTH;
+                cfg.oneblob_bins = NF_MAX_ONEBLOB_BINS;
+                cfg.sh_bands = NF_MAX_SH_BANDS;
+            }
+            nf_model *m = NULL;
+            if (nf_model_create(&cfg, &m) != NF_OK)
+                continue; /* a CPU without the set */
+            float *grad = malloc(nf_param_count(m) * sizeof(float));
+            assert_non_null(grad);
+            stack_job j = {m, 0, ctx, dir, weight, grad, 0, NF_OK};
+            size_t base = stack_used(&j);
+            for (int call = 1; call <= 2; ++call) {
+                for (size_t b = 0; b < 4; ++b) {
+                    j.call = call;
+                    j.n = sizes[b];
+                    size_t used = stack_used(&j);
+                    assert_int_equal(j.status, NF_OK);
+                    size_t extra = used > base ? used - base : 0;
+                    if (extra > worst[call]) {
+                        worst[call] = extra;
+                        snprintf(where[call], sizeof where[call], "%s, n = %zu, %s", shapes[s],
+                                 sizes[b], nf_model_isa_name(m));
+                    }
+                }
+            }
+            free(grad);
+            nf_model_destroy(m);
+        }
+    }
+    print_message("nf_loss_gradient at most %zu bytes of stack (%s)\n", worst[1], where[1]);
+    print_message("nf_train_step    at most %zu bytes of stack (%s)\n", worst[2], where[2]);
+    /* Not vacuous: the tiled gradient keeps its whole work area on the stack. */
+    assert_true(worst[1] > 64 * 1024);
+    for (int call = 1; call <= 2; ++call)
+        if (worst[call] > NF_TRAINING_STACK_BYTES)
+            fail_msg("%s used %zu bytes of stack, more than train.h's NF_TRAINING_STACK_BYTES "
+                     "= %u (%s)",
+                     call == 1 ? "nf_loss_gradient" : "nf_train_step", worst[call],
+                     (unsigned)NF_TRAINING_STACK_BYTES, where[call]);
+#endif
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_training_stack_bound),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
