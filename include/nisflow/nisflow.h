@@ -7,6 +7,7 @@
  *   model.h    configuration, model life cycle, nf_sample / nf_pdf
  *   point.h    shading points: prepare a context once, sample and evaluate many directions
  *   train.h    loss, gradients, AdamW steps, parameter access
+ *   path.h     training samples from a traced path (the backward radiance walk)
  *   io.h       save / load / serialize
  *   blocks.h   spline, encodings and direction <-> square maps
  */
@@ -18,6 +19,7 @@
 #include "model.h"
 #include "point.h"
 #include "train.h"
+#include "path.h"
 #include "io.h"
 #include "blocks.h"
 
