@@ -203,7 +203,19 @@ static void test_points_pass_the_points_context(void **state)
         assert_int_equal(nf_point_pdf(m, &points[i], 1, dir + 3 * i, pdf + i), NF_OK);
         check_recorded("nf_point_pdf", 1);
     }
-    /* The batch forms: point i's callbacks see a context inside points[i]. */
+    /* The batch forms, one point per call: point i's callbacks see a context inside points[i]. */
+    for (size_t i = 0; i < P; ++i) {
+        expect_range(&points[i], 1, sizeof(nf_shading_point));
+        rec.stride = 1;
+        assert_int_equal(nf_points_sample(m, 1, &points[i], u + 2 * i, dir + 3 * i, pdf + i),
+                         NF_OK);
+        check_recorded("nf_points_sample", 1);
+        expect_range(&points[i], 1, sizeof(nf_shading_point));
+        rec.stride = 1;
+        assert_int_equal(nf_points_pdf(m, 1, &points[i], dir + 3 * i, pdf + i), NF_OK);
+        check_recorded("nf_points_pdf", 1);
+    }
+    /* and a whole array at once. */
     expect_range(points, P, sizeof(nf_shading_point));
     rec.stride = 1;
     assert_int_equal(nf_points_sample(m, P, points, u, dir, pdf), NF_OK);
