@@ -16,7 +16,7 @@
  *     S = 0
  *     for j = last .. 0:
  *         L_i(w_j) = emitted_j + S
- *         if learn_j:  f_j = mean(f_over_p_j * L_i(w_j))          (a sample if f_j > 0)
+ *         if learn_j:  f_j = mean(f_over_p_j * L_i(w_j))    (a sample if 0 < f_j <= FLT_MAX)
  *         S = direct_j + beta_j * (emitted_mis_j * emitted_j + S)
  *
  * Written forwards, L_i(w_j) = E_j + sum over k > j of (prod_{j<m<k} beta_m) (D_k + beta_k H_k
@@ -39,7 +39,8 @@
  *     have drawn, so it scales the target f_s L_i |cos| at that context and not its shape;
  *     the loss's minimizer at each context is the same with or without it. Leaving it out
  *     spares the batch weights as large as 1/q (for q near 0 a single sample would dominate
- *     the batch) for no gain. docs/theory.md section 6 has the argument.
+ *     the batch), and each context counts as often as the renderer really visits it.
+ *     docs/theory.md section 6, "Russian roulette", has the argument.
  * A renderer without Russian roulette sets beta = f_over_p.
  *
  * Dropped samples: a learned vertex gives no sample when its weight is 0 (the path found no
@@ -131,9 +132,9 @@ typedef struct nf_path_vertex {
  *                              finite".
  * vertex_count = 0 gives NF_OK and no samples. Outputs must not overlap the vertices.
  *
- * A pure function of its arguments: thread-safe, never allocates, needs no model, and uses
- * under 200 bytes of the caller's stack. Its cost is a few dozen floating-point operations per
- * vertex. */
+ * A pure function of its arguments: thread-safe, never allocates, needs no model. Stack: 176
+ * bytes at most (GCC 12 -O2, -fstack-usage), plus the C library's vsnprintf when a refused
+ * call formats its message. Its cost is a few dozen floating-point operations per vertex. */
 NF_API nf_status nf_path_training_samples(size_t vertex_count, const nf_path_vertex *vertices,
                                           size_t capacity, nf_context *ctx_out, float *dir_out,
                                           float *weight_out, size_t *vertex_out, size_t *count_out);
