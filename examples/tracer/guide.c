@@ -8,40 +8,24 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* The shading points the callbacks of this thread may be asked about while training: the
- * whole batch, sorted and searched by bisection. */
-static _Thread_local const guide_point *tls_points;
-static _Thread_local size_t tls_count;
+/* The batch being trained on: the contexts the library passes to the callbacks and their
+ * points (guide.h). Written before the training calls, only read during them. */
+static const nf_context *batch_ctx;
+static const guide_point *batch_points;
+static size_t batch_count;
 
-static int compare_position(const float a[3], const float b[3])
+void guide_begin_batch(const nf_context *ctx, const guide_point *points, size_t n)
 {
-    /* Compare the bit patterns: exact identity is what we look for, and it gives a total
-     * order even for -0.0 and 0.0. */
-    uint32_t ua[3], ub[3];
-    memcpy(ua, a, sizeof ua);
-    memcpy(ub, b, sizeof ub);
-    for (int i = 0; i < 3; ++i)
-        if (ua[i] != ub[i])
-            return ua[i] < ub[i] ? -1 : 1;
-    return 0;
-}
-
-static int compare_points(const void *a, const void *b)
-{
-    return compare_position(((const guide_point *)a)->position, ((const guide_point *)b)->position);
-}
-
-void guide_begin_batch(guide_point *points, size_t n)
-{
-    qsort(points, n, sizeof *points, compare_points);
-    tls_points = points;
-    tls_count = n;
+    batch_ctx = ctx;
+    batch_points = points;
+    batch_count = n;
 }
 
 void guide_end(void)
 {
-    tls_points = NULL;
-    tls_count = 0;
+    batch_ctx = NULL;
+    batch_points = NULL;
+    batch_count = 0;
 }
 
 /* Lookups that found no shading point (and fell back to a cosine lobe). */
@@ -52,34 +36,25 @@ unsigned long long guide_lookup_failures(void)
     return atomic_load(&lookup_failures);
 }
 
-static const guide_point *find_point(const float position[3])
+static const guide_point *find_point(const nf_context *ctx)
 {
-    const guide_point *p = NULL;
-    size_t lo = 0, hi = tls_count;
-    while (lo < hi) {
-        size_t mid = lo + (hi - lo) / 2;
-        int c = compare_position(tls_points[mid].position, position);
-        if (c == 0) {
-            p = &tls_points[mid];
-            break;
-        }
-        if (c < 0)
-            lo = mid + 1;
-        else
-            hi = mid;
-    }
-    if (!p)
-        atomic_fetch_add(&lookup_failures, 1);
-    return p;
+    /* Compare addresses as integers: relational operators between pointers into different
+     * objects are undefined. */
+    uintptr_t p = (uintptr_t)ctx, base = (uintptr_t)batch_ctx;
+    if (batch_ctx && p >= base && (p - base) % sizeof *ctx == 0 &&
+        (p - base) / sizeof *ctx < batch_count)
+        return &batch_points[(p - base) / sizeof *ctx];
+    atomic_fetch_add(&lookup_failures, 1);
+    return NULL;
 }
 
 /* ---- The BSDF prior ------------------------------------------------------------------------ */
 
 /* The shading point of a callback: its own (user, from guide_point_callbacks) when the call
- * comes through a prepared nf_shading_point, else the table's (training). */
+ * comes through a prepared nf_shading_point, else the published batch's (training). */
 static const guide_point *point_of(void *user, const nf_context *ctx)
 {
-    return user ? (const guide_point *)user : find_point(ctx->position);
+    return user ? (const guide_point *)user : find_point(ctx);
 }
 
 static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, float u1,

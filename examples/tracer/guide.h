@@ -6,16 +6,15 @@
  * While rendering, the BSDF prior needs no table: each guided vertex prepares an
  * nf_shading_point with callbacks bound to its own material (guide_point_callbacks).
  *
- * Why a table while training: the model's nf_prior_callbacks receive only an nf_context
- * (position, normal, wo) and one model-wide user pointer, but the BSDF prior needs the
- * material at that point. The library passes the context's position through unchanged (it
- * normalizes only normal and wo), so the callbacks look the material up by the exact bits of
- * the position in a thread-local table: the single training thread publishes the whole batch
- * (guide_begin_batch) before nf_train_step, which calls the prior for every record.
+ * While training, the model's nf_prior_callbacks receive an nf_context and one model-wide
+ * user pointer, and the BSDF prior needs the material at that context. The library hands the
+ * callbacks the caller's own nf_context pointers (nisflow/model.h), so the callbacks find the
+ * material by the context's index in the batch: the training code publishes the batch's
+ * contexts and their points (guide_begin_batch) before the training calls, which may run on
+ * several threads (sharded gradients); they only read the table.
  *
- * The table is thread-local, so render threads never see each other's points, and it is
- * only read inside the library calls it was published for. A lookup that fails (which no
- * caller here allows to happen) falls back to a cosine lobe: the callbacks never fail.
+ * A context outside the published batch (which no caller here allows to happen) falls back
+ * to a cosine lobe, counted by guide_lookup_failures: the callbacks never fail.
  */
 #ifndef TRACER_GUIDE_H
 #define TRACER_GUIDE_H
@@ -71,9 +70,10 @@ int guide_create(const scene *s, const guide_settings *settings, nf_model **out,
 /* Loads a model saved with --save-model; the BSDF prior's callbacks are supplied. */
 int guide_load(const char *path, nf_model **out, tr_error *err);
 
-/* Publishes a batch of n points (sorted in place by position) for nf_train_step; the
- * array must stay alive until guide_end(). */
-void guide_begin_batch(guide_point *points, size_t n);
+/* Publishes a batch: points[i] is the shading point of ctx[i], i < n. Both arrays must stay
+ * alive and unchanged until guide_end(). Not thread-safe: call it before the training calls
+ * start their threads. */
+void guide_begin_batch(const nf_context *ctx, const guide_point *points, size_t n);
 void guide_end(void);
 
 const char *guide_prior_name(guide_prior p);

@@ -20,7 +20,7 @@
 typedef struct batch_arrays {
     nf_context *ctx;
     float *dir, *weight;
-    guide_point *points; /* for the BSDF prior's lookup table */
+    guide_point *points; /* the BSDF prior's material of each context */
     size_t capacity;
 } batch_arrays;
 
@@ -120,7 +120,7 @@ int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
             batch.points[i].bp = r->bp;
         }
         if (t->bsdf_prior) /* the BSDF prior's callbacks look the materials up here */
-            guide_begin_batch(batch.points, n);
+            guide_begin_batch(batch.ctx, batch.points, n);
         float loss = 0.0f;
         double s0 = thread_cpu_seconds();
         nf_status st = nf_train_step(model, n, batch.ctx, batch.dir, batch.weight, &loss);
