@@ -22,6 +22,7 @@
 #include "render.h"
 #include "scene.h"
 #include "training.h"
+#include "budget.h"
 
 /* ---- Output names ------------------------------------------------------------------------ */
 
@@ -132,6 +133,7 @@ int main(int argc, char **argv)
            o.scene, s.nshapes, (unsigned long long)triangles, s.nlights, now_seconds() - t_start);
     printf("image      %d x %d, max depth %d, %d threads, seed %llu\n", s.width, s.height,
            s.max_depth, o.threads, (unsigned long long)o.seed);
+    const double t_job = now_seconds(); /* a time budget counts from here */
 
     int status = 1;
     image reference = {0}, img = {0};
@@ -167,7 +169,12 @@ int main(int argc, char **argv)
     }
 
     tracer t;
+    memset(&t, 0, sizeof t);
     t.s = &s;
+    t.guide_depth = o.guide_depth;
+    t.guide_min_roughness = o.guide_min_roughness;
+    t.mis_training = o.mis_training;
+    t.plain_mixture = o.plain_mixture;
     t.model = NULL;
     t.guide_prob = o.guiding ? o.guide_prob : 0.0f;
     t.bsdf_prior = 0;
@@ -207,6 +214,49 @@ int main(int argc, char **argv)
         t.model = model;
     } else {
         printf("guiding    off%s\n", o.reference_mode ? " (reference mode)" : "");
+    }
+
+    path_stats stats;
+    memset(&stats, 0, sizeof stats);
+    if (o.time_budget > 0.0f) {
+        budget_settings bs = budget_default_settings();
+        budget_report br;
+        bs.seconds = o.time_budget;
+        bs.start = t_job;
+        bs.train_fraction = o.train_fraction;
+        bs.step_samples = o.step_samples;
+        bs.steps_per_pass = o.steps_per_pass;
+        bs.patience = o.patience;
+        bs.combine = o.combine;
+        bs.clamp_quantile = o.clamp_quantile;
+        bs.learn_selection = o.learn_selection;
+        bs.threads = o.threads;
+        bs.seed = o.seed;
+        if (!render_with_budget(&t, model, &bs, &img, &br, &err)) {
+            fail("render", &err);
+            goto done;
+        }
+        stats = br.stats;
+        if (model)
+            printf("trained    %d passes, %d steps on %llu samples in %.2f s (steps %.2f s), last "
+                   "loss %.4f%s\n",
+                   br.train_passes, br.steps, (unsigned long long)br.samples, br.train_seconds,
+                   br.step_seconds, (double)br.last_loss,
+                   br.stopped_early ? ", stopped: the loss stopped improving" : "");
+        if (o.learn_selection && model)
+            printf("selection  guiding off in %.0f%% of the visited cells\n",
+                   100.0 * br.selection_off);
+        printf("budget     %.2f s of %.2f: %d training passes, %d render passes in %.2f s; the "
+               "training passes weigh %.2f of the image\n",
+               br.seconds, (double)o.time_budget, br.train_passes, br.render_passes,
+               br.render_seconds, br.train_weight);
+        printf("paths      %.2f rays and %.2f guided vertices per path; a render pass takes "
+               "%.3f CPU s, its relative variance %.4g\n",
+               (double)stats.rays / (double)(stats.paths ? stats.paths : 1),
+               (double)stats.guided_vertices / (double)(stats.paths ? stats.paths : 1),
+               br.render_passes ? br.render_cpu_seconds / br.render_passes : 0.0,
+               br.pass_variance);
+        goto write_outputs;
     }
 
     /* Training. */
@@ -255,8 +305,6 @@ int main(int argc, char **argv)
         fail(NULL, &err);
         goto done;
     }
-    path_stats stats;
-    memset(&stats, 0, sizeof stats);
     double t0 = now_seconds(), c0 = cpu_seconds();
     if (!render_image(&t, o.spp, o.seed, 0u, o.threads, &img, &stats, "render", &err)) {
         fail("render", &err);
@@ -270,6 +318,7 @@ int main(int argc, char **argv)
            (double)stats.rays / (double)stats.paths,
            stats.nf_errors ? " (libnisflow reported errors: paths were cut short)" : "");
 
+write_outputs:
     if (stats.camera_backfaces > stats.paths / 100)
         fprintf(stderr, "nf_tracer: note: %.0f%% of the camera rays hit the back of a one-sided "
                 "material, which is black (Mitsuba's convention). If that is not intended (scenes "

@@ -56,12 +56,39 @@ void options_print_help(const char *program)
         "  --reference-mode      render an unguided reference: no training, --spp default 1024,\n"
         "                        default output out/<scene name>-reference\n"
         "\n"
+        , program);
+    printf(
+        "Time budget (the equal-time job, docs/equal-time.md):\n"
+        "  --time-budget S       the whole job, training and rendering, in S seconds of wall\n"
+        "                        time from after the scene is loaded: training passes of one\n"
+        "                        path per pixel (their radiance kept), then render passes with\n"
+        "                        the model frozen; the passes are combined by inverse variance.\n"
+        "                        Replaces --iterations, --batch and --spp\n"
+        "  --train-fraction F    at most this share of the budget trains (default 0.3)\n"
+        "  --patience N          stop training after N passes whose loss is not 1%% better\n"
+        "                        than the best (default 4, 0 never)\n"
+        "  --step-samples N      training samples per optimizer step (default 2048)\n"
+        "  --steps-per-pass N    optimizer steps after each training pass, on samples drawn\n"
+        "                        from the latest passes (default 64)\n"
+        "  --clamp-quantile Q    clamp training weights at a running Q-quantile (default 0,\n"
+        "                        off; for example 0.99)\n"
+        "  --no-combine          leave the training passes out of the image\n"
+        "  --learn-selection     learn the guiding probability per cell of a grid (position\n"
+        "                        and normal); where it falls below 0.1 the flow is not used\n"
+        "  --plain-mixture       weigh a flow sample by the flow's density and a BSDF sample\n"
+        "                        by the BSDF's (instead of both by the mixture's): the flow\n"
+        "                        is evaluated only at vertices where it samples\n"
+        "  --mis-training        train the flow on the MIS-weighted emission its directions\n"
+        "                        find (the part next-event estimation leaves to scattering)\n"
+        "  --guide-min-roughness A  rough conductors with alpha below A are not guided\n"
+        "                        (default 0)\n"
+        "  --guide-depth N       guide vertices up to N segments deep, 0 all (default 0)\n"
+        "\n"
         "Execution:\n"
         "  --threads N           worker threads (default: the number of processors)\n"
         "  --seed N              random seed (default 1); results are identical for the same\n"
         "                        seed, whatever the number of threads\n"
-        "  --help                this text\n",
-        program);
+        "  --help                this text\n");
 }
 
 static int parse_int(const char *name, const char *text, long lo, long hi, int *out,
@@ -106,6 +133,11 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->threads = processor_count();
     o->guide_prob = 0.5f;
     o->guiding = 1;
+    o->train_fraction = 0.3f;
+    o->step_samples = 2048;
+    o->steps_per_pass = 64;
+    o->patience = 4;
+    o->combine = 1;
 
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -116,6 +148,22 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
         }
         if (!strcmp(a, "--no-guiding")) {
             o->guiding = 0;
+            continue;
+        }
+        if (!strcmp(a, "--learn-selection")) {
+            o->learn_selection = 1;
+            continue;
+        }
+        if (!strcmp(a, "--plain-mixture")) {
+            o->plain_mixture = 1;
+            continue;
+        }
+        if (!strcmp(a, "--mis-training")) {
+            o->mis_training = 1;
+            continue;
+        }
+        if (!strcmp(a, "--no-combine")) {
+            o->combine = 0;
             continue;
         }
         if (!strcmp(a, "--reference-mode")) {
@@ -188,6 +236,22 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             ok = parse_float(a, v, 0.0, 0.99, &o->guide_prob, err);
         else if (!strcmp(a, "--prior-epsilon"))
             ok = parse_float(a, v, 1e-6, 1.0, &o->prior_epsilon, err);
+        else if (!strcmp(a, "--time-budget"))
+            ok = parse_float(a, v, 0.01, 1e6, &o->time_budget, err);
+        else if (!strcmp(a, "--train-fraction"))
+            ok = parse_float(a, v, 0.0, 0.95, &o->train_fraction, err);
+        else if (!strcmp(a, "--step-samples"))
+            ok = parse_int(a, v, 16, 1 << 24, &o->step_samples, err);
+        else if (!strcmp(a, "--steps-per-pass"))
+            ok = parse_int(a, v, 1, 1000000, &o->steps_per_pass, err);
+        else if (!strcmp(a, "--patience"))
+            ok = parse_int(a, v, 0, 1000000, &o->patience, err);
+        else if (!strcmp(a, "--clamp-quantile"))
+            ok = parse_float(a, v, 0.0, 1.0, &o->clamp_quantile, err);
+        else if (!strcmp(a, "--guide-min-roughness"))
+            ok = parse_float(a, v, 0.0, 1.0, &o->guide_min_roughness, err);
+        else if (!strcmp(a, "--guide-depth"))
+            ok = parse_int(a, v, 0, 100000, &o->guide_depth, err);
         else if (!strcmp(a, "--exposure"))
             ok = parse_float(a, v, -64.0, 64.0, &o->exposure, err);
         else

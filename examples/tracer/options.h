@@ -31,6 +31,19 @@ typedef struct options {
     int guiding;
     int reference_mode;
     float exposure;
+    /* The time-budgeted job (budget.h); time_budget 0: iterations, then spp.              */
+    float time_budget;        /* seconds, from after the scene is loaded                      */
+    float train_fraction;     /* at most this share of the budget trains                      */
+    int step_samples;         /* training samples per optimizer step                          */
+    int steps_per_pass;       /* optimizer steps after each training pass                     */
+    int patience;             /* passes without a better loss before training stops, 0 never  */
+    int combine;              /* 0: --no-combine, training passes left out of the image       */
+    float clamp_quantile;     /* 0: training weights unclamped                                */
+    int learn_selection;      /* --learn-selection                                            */
+    int mis_training;         /* --mis-training                                               */
+    int plain_mixture;        /* --plain-mixture                                              */
+    float guide_min_roughness; /* --guide-min-roughness                                      */
+    int guide_depth;          /* guide vertices up to this depth (segments), 0: all           */
     int help;
 } options;
 

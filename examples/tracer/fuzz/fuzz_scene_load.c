@@ -82,7 +82,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         /* A few whole paths, unguided. */
         if (s.max_depth < 0 || s.max_depth > 8)
             s.max_depth = 8;
-        tracer t = {&s, NULL, 0.0f, 0};
+        tracer t = {.s = &s};
         path_stats st;
         memset(&st, 0, sizeof st);
         rng r = rng_seed(1, RNG_TEST, 0, (uint64_t)size);

@@ -23,6 +23,7 @@
 #include <string.h>
 
 #include "guide.h"
+#include "selection.h"
 
 #define MAX_RECORDED_VERTICES 256
 
@@ -100,6 +101,8 @@ typedef struct vertex_record {
     rgb emitted;     /* E: emission found by the scattered ray, unweighted                */
     float emitted_w; /* H: that emission's MIS weight                                     */
     int guided;      /* a training sample is recorded for this vertex                     */
+    float p_flow, p_bsdf, alpha; /* the mixture at dir                                    */
+    uint32_t cell;
     nf_context ctx;
     float dir[3];
     bsdf_point bp;
@@ -199,24 +202,55 @@ static rgb next_event(const tracer *t, const shading *sh, const surface *sf,
 /* A scattered direction and what the path needs to know about it. */
 typedef struct scattered {
     vec3 wi;
+    float p_flow, p_bsdf; /* the two techniques' densities of wi (non-delta)            */
     rgb weight;  /* f |cos| / p (delta lobes: the lobe's weight / its probability)       */
     float pdf;   /* the solid-angle density of wi for MIS; 0 after a delta lobe          */
     int delta;
 } scattered;
 
-/* Chooses the next direction. With g > 0 (a guided vertex), from the flow with probability
- * g and from the BSDF otherwise; either way the weight uses the mixture density
- * p_mix = g p_flow + (1 - g) p_bsdf. With g = 0, from the BSDF alone. Returns 0 when the
- * path ends here (failed sample, direction through the geometry, zero contribution). */
-static int scatter(const tracer *t, const shading *sh, const nf_shading_point *sp, float g,
-                   rng *r, path_stats *st, scattered *out)
+/* The flow at a guided vertex. Balance mode prepares the shading point before next-event
+ * estimation; plain mode prepares it only when the flow technique is chosen. */
+typedef struct vertex_flow {
+    float g;                        /* the vertex's guiding probability; 0: not guided      */
+    int plain;                      /* plain one-sample mixture (tracer.plain_mixture)      */
+    int prepared;
+    nf_shading_point *sp;
+    const nf_context *ctx;
+    const nf_prior_callbacks *prior;
+} vertex_flow;
+
+static int flow_point(const tracer *t, vertex_flow *vf, path_stats *st)
 {
+    if (!vf->prepared) {
+        if (nf_point_prepare(t->model, vf->ctx, vf->prior, vf->sp) != NF_OK) {
+            st->nf_errors++;
+            return 0;
+        }
+        vf->prepared = 1;
+    }
+    return 1;
+}
+
+/* Chooses the next direction. With g > 0 (a guided vertex), from the flow with probability
+ * g and from the BSDF otherwise. Balance mode weighs either by the mixture density
+ * p_mix = g p_flow + (1 - g) p_bsdf; plain mode weighs each by its own density (both
+ * one-sample MIS estimators, docs/equal-time.md). With g = 0, from the BSDF alone. Returns 0
+ * when the path ends here (failed sample, direction through the geometry, zero
+ * contribution). */
+static int scatter(const tracer *t, const shading *sh, vertex_flow *vf, rng *r, path_stats *st,
+                   scattered *out)
+{
+    const float g = vf->g;
     float u_sel = rng_next(r), u_lobe = rng_next(r), u0 = rng_next(r), u1 = rng_next(r);
     float p_flow = 0.0f, p_bsdf = 0.0f;
+    int flow_chosen = g > 0.0f && u_sel < g;
     out->delta = 0;
-    if (g > 0.0f && u_sel < g) {
+    out->p_flow = out->p_bsdf = 0.0f;
+    if (flow_chosen) {
         float u[2] = {u0, u1}, d[3];
-        if (nf_point_sample(t->model, sp, 1, u, d, &p_flow) != NF_OK) {
+        if (!flow_point(t, vf, st))
+            return 0;
+        if (nf_point_sample(t->model, vf->sp, 1, u, d, &p_flow) != NF_OK) {
             st->nf_errors++;
             return 0;
         }
@@ -237,15 +271,24 @@ static int scatter(const tracer *t, const shading *sh, const nf_shading_point *s
             return 1;
         }
         p_bsdf = bs.pdf;
-        if (g > 0.0f && !flow_pdf(t, sp, out->wi, &p_flow, st))
+        if (g > 0.0f && !vf->plain &&
+            !(flow_point(t, vf, st) && flow_pdf(t, vf->sp, out->wi, &p_flow, st)))
             return 0;
     }
     vec3 wi_l;
     rgb f = shading_eval(sh, out->wi, &wi_l);
-    out->pdf = g * p_flow + (1.0f - g) * p_bsdf;
-    if (!(out->pdf > 0.0f) || rgb_is_black(f))
+    out->p_flow = p_flow;
+    out->p_bsdf = p_bsdf;
+    float p_weight; /* the density the throughput divides by */
+    if (vf->plain) {
+        p_weight = flow_chosen ? p_flow : p_bsdf;
+        out->pdf = p_bsdf; /* MIS against light sampling ignores the flow (next_event too) */
+    } else {
+        p_weight = out->pdf = g * p_flow + (1.0f - g) * p_bsdf;
+    }
+    if (!(p_weight > 0.0f) || rgb_is_black(f))
         return 0;
-    out->weight = rgb_scale(f, 1.0f / out->pdf);
+    out->weight = rgb_scale(f, 1.0f / p_weight);
     return 1;
 }
 
@@ -311,7 +354,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         }
         const bsdf *b = sh.bp.b;
         const int smooth = bsdf_has_smooth_part(b);
-        const int guided = smooth && g > 0.0f;
+        const int guided = smooth && g > 0.0f && (t->guide_depth == 0 || depth <= t->guide_depth) &&
+                           !(b->type == BSDF_ROUGHCONDUCTOR && b->alpha < t->guide_min_roughness);
 
         vertex_record *v = NULL;
         if (records && nv < MAX_RECORDED_VERTICES) {
@@ -339,21 +383,23 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
          * and the scattering below both use it (docs/integration.md). The BSDF prior gets
          * this vertex's material through the point's own callbacks. */
         nf_shading_point sp;
-        float gv = 0.0f; /* this vertex's guiding probability */
+        nf_prior_callbacks bsdf_prior = guide_point_callbacks(&gp);
+        vertex_flow vf = {0.0f, t->plain_mixture, 0, &sp, &ctx, t->bsdf_prior ? &bsdf_prior : NULL};
+        size_t cell = 0;
         if (guided) {
-            nf_prior_callbacks bsdf_prior = guide_point_callbacks(&gp);
-            if (nf_point_prepare(t->model, &ctx, t->bsdf_prior ? &bsdf_prior : NULL, &sp) ==
-                NF_OK) {
-                gv = g;
-                st->guided_vertices++;
-            } else {
-                st->nf_errors++;
+            vf.g = g;
+            if (t->selection) { /* learned per cell; 0 there: not guided at all */
+                cell = selection_cell(t->selection, sf.p, n);
+                vf.g = selection_prob(t->selection, cell);
             }
+            if (vf.g > 0.0f && !vf.plain && !flow_point(t, &vf, st))
+                vf.g = 0.0f; /* the error is counted; the vertex goes unguided */
+            st->guided_vertices += vf.g > 0.0f;
         }
 
         /* Next-event estimation. */
         if (smooth && s->has_lights) {
-            rgb d = next_event(t, &sh, &sf, &sp, gv, r, st);
+            rgb d = next_event(t, &sh, &sf, &sp, vf.plain ? 0.0f : vf.g, r, st);
             L = rgb_add(L, rgb_mul(throughput, d));
             if (v)
                 v->direct = d;
@@ -371,14 +417,14 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
 
         /* Scattering: flow or BSDF, weighted by the mixture density. */
         scattered sc;
-        if (!scatter(t, &sh, &sp, gv, r, st, &sc))
+        if (!scatter(t, &sh, &vf, r, st, &sc))
             break;
         if (!rgb_is_finite(sc.weight) || rgb_is_black(sc.weight))
             break;
         throughput = rgb_mul(throughput, rgb_scale(sc.weight, rr));
         if (v) {
             v->beta = rgb_scale(sc.weight, rr);
-            if (gv > 0.0f && !sc.delta) { /* the flow can only learn non-delta directions */
+            if (vf.g > 0.0f && !sc.delta) { /* the flow can only learn non-delta directions */
                 v->guided = 1;
                 v->f_over_p = sc.weight;
                 v->ctx = ctx;
@@ -386,6 +432,10 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
                 v->dir[1] = sc.wi.y;
                 v->dir[2] = sc.wi.z;
                 v->bp = sh.bp;
+                v->p_flow = sc.p_flow;
+                v->p_bsdf = sc.p_bsdf;
+                v->alpha = vf.g;
+                v->cell = (uint32_t)cell;
             }
         }
         prev_pdf = sc.pdf;
@@ -400,7 +450,7 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         rgb S = rgb_gray(0.0f);
         for (int j = nv - 1; j >= 0; --j) {
             const vertex_record *v = &vr[j];
-            rgb li = rgb_add(v->emitted, S);
+            rgb li = rgb_add(t->mis_training ? rgb_scale(v->emitted, v->emitted_w) : v->emitted, S);
             if (v->guided) {
                 float w = rgb_mean(rgb_mul(v->f_over_p, li));
                 if (w > 0.0f && isfinite(w)) {
@@ -410,6 +460,10 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
                         memcpy(rec->dir, v->dir, sizeof rec->dir);
                         rec->weight = w;
                         rec->bp = v->bp;
+                        rec->p_flow = v->p_flow;
+                        rec->p_bsdf = v->p_bsdf;
+                        rec->alpha = v->alpha;
+                        rec->cell = v->cell;
                     }
                 }
             }

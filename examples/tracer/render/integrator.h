@@ -23,6 +23,15 @@ typedef struct tracer {
     const nf_model *model; /* NULL: no guiding (pure BSDF sampling + NEE)                  */
     float guide_prob;      /* probability of sampling the flow at a guided vertex, [0, 1)  */
     int bsdf_prior;        /* the model uses the BSDF prior: publish shading points        */
+    int guide_depth;       /* guide only vertices up to this many segments deep; 0: all    */
+    float guide_min_roughness; /* rough conductors smoother than this are not guided: their
+                            * lobe is sharper than the flow learns, BSDF sampling wins     */
+    const struct selection_grid *selection; /* learned guiding probability per cell (selection.h);
+                            * NULL: guide_prob everywhere                                  */
+    int plain_mixture;     /* each technique weighs by its own density, MIS against lights
+                            * by the BSDF's: the flow is evaluated only where it samples   */
+    int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
+                            * (what the scattering estimator needs) instead of all of it   */
 } tracer;
 
 /* A training sample (docs/theory.md section 6): at a guided vertex, the context, the sampled
@@ -33,6 +42,8 @@ typedef struct train_record {
     float dir[3];
     float weight;
     bsdf_point bp;
+    float p_flow, p_bsdf, alpha; /* the mixture at dir, for the learned guiding probability */
+    uint32_t cell;               /* the selection grid's cell (0 without a grid)            */
 } train_record;
 
 typedef struct record_buffer {

@@ -68,6 +68,73 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
     return ok;
 }
 
+/* One sample per pixel whose training records are kept per tile, then concatenated in tile
+ * order: the same records whatever the number of threads. */
+typedef struct pass_job {
+    const tracer *t;
+    image *img;
+    int tiles_x;
+    uint64_t seed;
+    uint32_t pass;
+    record_buffer *tiles; /* one per tile; NULL: no records */
+    path_stats *stats;
+} pass_job;
+
+static void pass_tile(void *user, size_t item, int thread)
+{
+    pass_job *job = user;
+    const scene *s = job->t->s;
+    record_buffer *out = job->tiles ? &job->tiles[item] : NULL;
+    int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
+    for (int y = y0; y < y0 + TILE && y < s->height; ++y)
+        for (int x = x0; x < x0 + TILE && x < s->width; ++x) {
+            uint64_t pixel = (uint64_t)y * (uint64_t)s->width + (uint64_t)x;
+            rng r = rng_seed(job->seed, RNG_RENDER, job->pass, pixel);
+            float jx = rng_next(&r), jy = rng_next(&r);
+            rgb c = trace_path(job->t, &r, (float)x + jx, (float)y + jy, out, &job->stats[thread]);
+            if (!rgb_is_finite(c)) /* as in render_tile: a NaN must not poison the pixel */
+                c = rgb_gray(0.0f);
+            float *p = image_pixel(job->img, x, y);
+            p[0] = c.r;
+            p[1] = c.g;
+            p[2] = c.b;
+        }
+}
+
+int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
+                record_buffer *records, path_stats *stats, tr_error *err)
+{
+    pass_job job;
+    job.t = t;
+    job.img = img;
+    job.seed = seed;
+    job.pass = pass;
+    job.tiles_x = (t->s->width + TILE - 1) / TILE;
+    size_t ntiles = (size_t)job.tiles_x * (size_t)((t->s->height + TILE - 1) / TILE);
+    int nthreads = threads > 0 ? threads : 1;
+    job.tiles = records ? calloc(ntiles, sizeof *job.tiles) : NULL;
+    job.stats = calloc((size_t)nthreads, sizeof *job.stats);
+    if ((records && !job.tiles) || !job.stats) {
+        free(job.tiles);
+        free(job.stats);
+        return tr_fail(err, "out of memory");
+    }
+    int ok = parallel_for(ntiles, threads, pass_tile, &job, NULL, err);
+    if (records) {
+        records->count = 0;
+        for (size_t i = 0; i < ntiles; ++i) {
+            if (job.tiles[i].out_of_memory || !record_buffer_append(records, &job.tiles[i]))
+                ok = ok && tr_fail(err, "out of memory for training records");
+            record_buffer_free(&job.tiles[i]);
+        }
+    }
+    for (int i = 0; stats && i < nthreads; ++i)
+        path_stats_add(stats, &job.stats[i]);
+    free(job.tiles);
+    free(job.stats);
+    return ok;
+}
+
 typedef struct train_job {
     const tracer *t;
     size_t paths;

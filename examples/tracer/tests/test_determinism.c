@@ -37,7 +37,7 @@ static void train_and_render(const scene *s, guide_prior prior, int threads, uin
     guide_settings gs = guide_default_settings(prior);
     if (!guide_create(s, &gs, model, &err))
         fail_msg("%s", err.msg);
-    tracer t = {s, *model, 0.5f, prior == GUIDE_PRIOR_BSDF};
+    tracer t = {.s = s, .model = *model, .guide_prob = 0.5f, .bsdf_prior = prior == GUIDE_PRIOR_BSDF};
     training_settings ts = {3, 200, 0, 1, threads, seed, NULL, NULL};
     training_report rep;
     if (!train_guide(&t, *model, &ts, &rep, &err))
@@ -115,7 +115,7 @@ static void test_saved_model_renders_identically(void **state)
     if (!guide_load(path, &loaded, &err))
         fail_msg("%s", err.msg);
     compare_params(m, loaded, 1);
-    tracer t = {&s, loaded, 0.5f, 1};
+    tracer t = {.s = &s, .model = loaded, .guide_prob = 0.5f, .bsdf_prior = 1};
     assert_true(image_alloc(&b, s.width, s.height, &err));
     assert_true(render_image(&t, 2, 5, 0, 2, &b, NULL, NULL, &err));
     assert_memory_equal(a.data, b.data, (size_t)s.width * (size_t)s.height * 3u * sizeof(float));

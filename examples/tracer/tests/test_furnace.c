@@ -90,7 +90,7 @@ static void furnace(const char *environment, int guided, guide_prior prior, int 
     if (!scene_load_string(furnace_xml(environment), TRACER_TEST_TMP_DIR, &s, &err))
         fail_msg("%s", err.msg);
     nf_model *model = NULL;
-    tracer t = {&s, NULL, 0.0f, 0};
+    tracer t = {.s = &s};
     if (guided) {
         guide_settings gs = guide_default_settings(prior);
         gs.seed = 7;
@@ -278,7 +278,7 @@ static void test_guided_matches_unguided(void **state)
     image img[2];
     for (int guided = 0; guided < 2; ++guided) {
         nf_model *model = NULL;
-        tracer t = {&s, NULL, 0.0f, 0};
+        tracer t = {.s = &s};
         if (guided) {
             guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
             gs.seed = 7;

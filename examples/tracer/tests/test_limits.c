@@ -168,7 +168,7 @@ static void test_invalid_ray_never_reaches_embree(void **state)
 
     /* The integrator checks the rays it forms before it asks: a camera moved out of range
      * behind the loader's back ends every path at once, counted, in any build. */
-    tracer t = {&s, NULL, 0.0f, 0};
+    tracer t = {.s = &s};
     path_stats st = {0};
     rng r = rng_seed(5, RNG_TEST, 0, 0);
     s.cam.origin = v3(328.0f, 4e18f, 245.0f);
@@ -448,7 +448,7 @@ static void render_edge(int guided)
     assert_true(scene_intersect(&s, &c, &h));
 
     nf_model *model = NULL;
-    tracer t = {&s, NULL, 0.0f, 0};
+    tracer t = {.s = &s};
     if (guided) {
         guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
         gs.seed = 3;

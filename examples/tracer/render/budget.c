@@ -1,0 +1,541 @@
+/*
+ * budget.c - the time-budgeted job of budget.h: training passes, render passes, and their
+ * inverse-variance combination.
+ */
+#include "budget.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "guide.h"
+#include "metrics.h"
+#include "parallel.h"
+#include "progress.h"
+#include "render.h"
+#include "selection.h"
+
+/* Budget passes use their own random streams, apart from render_image's passes. */
+#define PASS_STREAM_BASE 0x100000u
+/* Training passes are kept in at most this many groups of equal size. */
+#define MAX_GROUPS 32
+#define MAX_SHARDS 16
+/* Samples kept for training steps: about 8 passes of a 320 x 180 film at ~0.4 samples per
+ * path; ~19 MB. */
+#define REPLAY_CAPACITY 131072u
+
+budget_settings budget_default_settings(void)
+{
+    budget_settings b;
+    b.seconds = 30.0;
+    b.start = 0.0;
+    b.train_fraction = 0.3;
+    b.step_samples = 2048;
+    b.steps_per_pass = 64;
+    b.patience = 0;
+    b.combine = 1;
+    b.clamp_quantile = 0.0f;
+    b.learn_selection = 0;
+    b.threads = 1;
+    b.seed = 1;
+    return b;
+}
+
+/* ---- Accumulating passes -------------------------------------------------------------------- */
+
+/* The training passes: group g holds the sum of `per_group` consecutive passes (the last one
+ * possibly fewer). When MAX_GROUPS are full, neighbours merge and groups double. */
+typedef struct pass_groups {
+    double *sum[MAX_GROUPS];
+    int count[MAX_GROUPS];
+    int ngroups, per_group;
+    size_t n; /* floats per image */
+} pass_groups;
+
+static void groups_free(pass_groups *g)
+{
+    for (int i = 0; i < MAX_GROUPS; ++i)
+        free(g->sum[i]);
+}
+
+static int groups_add(pass_groups *g, const image *img)
+{
+    if (g->ngroups > 0 && g->count[g->ngroups - 1] < g->per_group) {
+        double *s = g->sum[g->ngroups - 1];
+        for (size_t i = 0; i < g->n; ++i)
+            s[i] += img->data[i];
+        g->count[g->ngroups - 1]++;
+        return 1;
+    }
+    if (g->ngroups == MAX_GROUPS) { /* merge pairs: 32 groups of k become 16 of 2k */
+        double *sum[MAX_GROUPS];
+        int count[MAX_GROUPS];
+        for (int i = 0; i < MAX_GROUPS / 2; ++i) {
+            double *a = g->sum[2 * i], *b = g->sum[2 * i + 1];
+            for (size_t j = 0; j < g->n; ++j)
+                a[j] += b[j];
+            sum[i] = a;
+            count[i] = g->count[2 * i] + g->count[2 * i + 1];
+            sum[MAX_GROUPS / 2 + i] = b; /* reused by the next groups */
+            count[MAX_GROUPS / 2 + i] = 0;
+        }
+        memcpy(g->sum, sum, sizeof sum);
+        memcpy(g->count, count, sizeof count);
+        g->ngroups = MAX_GROUPS / 2;
+        g->per_group *= 2;
+        return groups_add(g, img);
+    }
+    int k = g->ngroups;
+    if (!g->sum[k] && !(g->sum[k] = malloc(g->n * sizeof(double))))
+        return 0;
+    for (size_t i = 0; i < g->n; ++i)
+        g->sum[k][i] = img->data[i];
+    g->count[k] = 1;
+    g->ngroups++;
+    return 1;
+}
+
+static double luminance(const double *p)
+{
+    return (p[0] + p[1] + p[2]) / 3.0;
+}
+
+/* The mean over pixels of the relative squared error of `mean` (a mean image) against `ref`,
+ * in luminance, as relMSE weighs pixels. */
+static double relative_error(const double *mean, double scale, const double *ref, size_t pixels)
+{
+    double sum = 0.0;
+    for (size_t i = 0; i < pixels; ++i) {
+        double r = luminance(ref + 3 * i), d = scale * luminance(mean + 3 * i) - r;
+        sum += d * d / (r * r + METRIC_EPSILON);
+    }
+    return sum / (double)pixels;
+}
+
+/* Writes into img the inverse-variance combination of the training groups and the render
+ * passes (render_sum, render_sq: per-pixel sums of RGB and of luminance squared, n passes).
+ * Each group's variance is estimated by its squared distance to the render mean, less the
+ * render mean's own variance; a slight bias, because the weights come from the same data,
+ * which Practical Path Guiding accepts too. Returns the training groups' share. */
+static double combine(const pass_groups *g, const double *render_sum, const double *render_sq,
+                      int n, int use_training, image *img, double *render_variance_out)
+{
+    double render_variance = 0.0;
+    size_t floats = g->n, pixels = floats / 3;
+    int groups = use_training ? g->ngroups : 0;
+    double w[MAX_GROUPS] = {0}, w_render = 0.0, total = 0.0;
+    if (n >= 2) {
+        double *mean = malloc(floats * sizeof *mean);
+        if (mean) {
+            double var = 0.0; /* relative variance of one render pass */
+            for (size_t i = 0; i < floats; ++i)
+                mean[i] = render_sum[i] / n;
+            for (size_t i = 0; i < pixels; ++i) {
+                double m = luminance(mean + 3 * i);
+                double s2 = (render_sq[i] - (double)n * m * m) / (n - 1);
+                var += fmax(s2, 0.0) / (m * m + METRIC_EPSILON);
+            }
+            var /= (double)pixels;
+            if (getenv("NF_BUDGET_DEBUG"))
+                fprintf(stderr, "render passes: %d, relative variance of one %.4g\n", n, var);
+            render_variance = var;
+            w_render = var > 0.0 ? n / var : 1.0;
+            for (int k = 0; k < groups; ++k) {
+                double v = relative_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var / n;
+                /* A group that looks better than the render passes is noise in the estimate:
+                 * never trust it more than its pass count says. */
+                v = fmax(v, var / g->count[k]);
+                w[k] = 1.0 / v;
+                if (getenv("NF_BUDGET_DEBUG"))
+                    fprintf(stderr, "group %d (%d passes): v %.4g, render var %.4g (n %d)\n", k,
+                            g->count[k], v, var, n);
+            }
+            free(mean);
+        }
+    }
+    if (w_render == 0.0) { /* no variance estimate: weigh by pass counts */
+        w_render = n;
+        for (int k = 0; k < groups; ++k)
+            w[k] = g->count[k];
+    }
+    for (int k = 0; k < groups; ++k)
+        total += w[k];
+    if (render_variance_out)
+        *render_variance_out = render_variance;
+    double train_share = total / (total + w_render);
+    total += w_render;
+    for (size_t i = 0; i < floats; ++i) {
+        double acc = n > 0 ? w_render * render_sum[i] / n : 0.0;
+        for (int k = 0; k < groups; ++k)
+            acc += w[k] * g->sum[k][i] / g->count[k];
+        img->data[i] = total > 0.0 ? (float)(acc / total) : 0.0f;
+    }
+    return train_share;
+}
+
+/* ---- Training on a pass's records ------------------------------------------------------------ */
+
+typedef struct trainer {
+    nf_model *model;
+    size_t params;
+    int shards;
+    float *grads, *grad;
+    nf_context *ctx;
+    float *dir, *weight;
+    guide_point *points;
+    size_t capacity;
+    float clamp;        /* running clamp of the weights (0: not yet known)            */
+    train_record *store; /* replay ring of the latest REPLAY_CAPACITY samples           */
+    size_t stored, store_next;
+} trainer;
+
+typedef struct shard_job {
+    const nf_model *m;
+    size_t n, params;
+    int shards;
+    const nf_context *ctx;
+    const float *dir, *weight;
+    float *grads;
+    double F[MAX_SHARDS], L[MAX_SHARDS];
+    nf_status st[MAX_SHARDS];
+} shard_job;
+
+static void shard_gradient(void *user, size_t k, int thread)
+{
+    (void)thread;
+    shard_job *j = user;
+    size_t b = j->n * k / (size_t)j->shards, e = j->n * (k + 1) / (size_t)j->shards;
+    double F = 0.0;
+    for (size_t i = b; i < e; ++i)
+        F += j->weight[i];
+    float loss = 0.0f;
+    j->F[k] = F;
+    j->st[k] = nf_loss_gradient(j->m, e - b, j->ctx + b, j->dir + 3 * b, j->weight + b, &loss,
+                                j->grads + k * j->params);
+    j->L[k] = loss;
+}
+
+/* One AdamW step on n samples, their gradient computed in shards on the threads
+ * (docs/integration.md, "Sharded gradients"). */
+static nf_status sharded_step(trainer *tr, size_t n, float *loss, tr_error *err)
+{
+    shard_job j;
+    j.m = tr->model;
+    j.n = n;
+    j.params = tr->params;
+    j.shards = tr->shards;
+    j.ctx = tr->ctx;
+    j.dir = tr->dir;
+    j.weight = tr->weight;
+    j.grads = tr->grads;
+    if (!parallel_for((size_t)tr->shards, tr->shards, shard_gradient, &j, NULL, err))
+        return NF_ERROR_OUT_OF_MEMORY;
+    double total = 0.0, lsum = 0.0;
+    for (int k = 0; k < tr->shards; ++k) {
+        if (j.st[k] != NF_OK)
+            return j.st[k];
+        total += j.F[k];
+        lsum += j.F[k] * j.L[k];
+    }
+    if (!(total > 0.0))
+        return NF_OK; /* nothing to learn; nf_apply_gradient would still decay the moments */
+    *loss = (float)(lsum / total);
+    for (size_t p = 0; p < tr->params; ++p) {
+        double acc = 0.0;
+        for (int k = 0; k < tr->shards; ++k)
+            acc += j.F[k] * tr->grads[(size_t)k * tr->params + p];
+        tr->grad[p] = (float)(acc / total);
+    }
+    return nf_apply_gradient(tr->model, tr->grad);
+}
+
+static int trainer_reserve(trainer *tr, size_t n)
+{
+    if (n <= tr->capacity)
+        return 1;
+    free(tr->ctx);
+    free(tr->dir);
+    free(tr->weight);
+    free(tr->points);
+    tr->ctx = malloc(n * sizeof *tr->ctx);
+    tr->dir = malloc(n * 3 * sizeof *tr->dir);
+    tr->weight = malloc(n * sizeof *tr->weight);
+    tr->points = malloc(n * sizeof *tr->points);
+    tr->capacity = tr->ctx && tr->dir && tr->weight && tr->points ? n : 0;
+    return tr->capacity != 0;
+}
+
+static void trainer_free(trainer *tr)
+{
+    free(tr->store);
+    free(tr->grads);
+    free(tr->grad);
+    free(tr->ctx);
+    free(tr->dir);
+    free(tr->weight);
+    free(tr->points);
+}
+
+static int compare_float(const void *a, const void *b)
+{
+    float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+/* The q-quantile of the records' weights, folded into a running value (geometric mean with
+ * the previous passes', so that one pass's outliers do not move it far). */
+static void update_clamp(trainer *tr, const record_buffer *rec, float q)
+{
+    size_t n = rec->count;
+    if (n == 0 || !trainer_reserve(tr, n))
+        return;
+    for (size_t i = 0; i < n; ++i)
+        tr->weight[i] = rec->data[i].weight;
+    qsort(tr->weight, n, sizeof *tr->weight, compare_float);
+    float v = tr->weight[(size_t)(q * (float)(n - 1))];
+    if (!(v > 0.0f))
+        return;
+    tr->clamp = tr->clamp > 0.0f ? sqrtf(tr->clamp * v) : v;
+}
+
+/* Copies samples into the step arrays, with the running clamp applied. */
+static void load_sample(trainer *tr, size_t i, const train_record *x)
+{
+    tr->ctx[i] = x->ctx;
+    memcpy(tr->dir + 3 * i, x->dir, sizeof x->dir);
+    tr->weight[i] = tr->clamp > 0.0f ? fminf(x->weight, tr->clamp) : x->weight;
+    memcpy(tr->points[i].position, x->ctx.position, sizeof x->ctx.position);
+    tr->points[i].bp = x->bp;
+}
+
+/* One step on the first n samples of the step arrays; returns its loss (NAN if refused). */
+static double step_on_loaded(trainer *tr, const tracer *t, size_t n, uint32_t pass,
+                             budget_report *rep, tr_error *err)
+{
+    if (t->bsdf_prior) /* the BSDF prior's callbacks find each sample's material here */
+        guide_begin_batch(tr->ctx, tr->points, n);
+    float loss = NAN;
+    nf_status st = sharded_step(tr, n, &loss, err);
+    guide_end();
+    if (st != NF_OK) {
+        if (rep->refused++ < 5)
+            fprintf(stderr, "\nnf_tracer: training pass %u: step refused: %s: %s\n", pass,
+                    nf_status_string(st), nf_last_error_message());
+        return NAN;
+    }
+    rep->steps++;
+    return loss;
+}
+
+/* Trains after one pass. The pass's samples join a replay store of the latest samples (older
+ * passes' samples stay valid: their weights f L / p_mix are importance weights for the
+ * density that drew them, so the loss estimate stays unbiased). The first step takes only new
+ * samples, which the model has not seen: its loss is a held-out loss. The other steps draw
+ * uniformly from the store. */
+static int train_on_pass(trainer *tr, const tracer *t, record_buffer *rec,
+                         const budget_settings *bs, uint32_t pass, budget_report *rep,
+                         double *pass_loss, tr_error *err)
+{
+    size_t n = rec->count, step = (size_t)bs->step_samples;
+    *pass_loss = NAN;
+    if (n == 0)
+        return 1;
+    if (bs->clamp_quantile > 0.0f)
+        update_clamp(tr, rec, bs->clamp_quantile);
+    if (!trainer_reserve(tr, step))
+        return tr_fail(err, "out of memory for %zu training samples", step);
+    if (!tr->store) {
+        tr->store = malloc(REPLAY_CAPACITY * sizeof *tr->store);
+        if (!tr->store)
+            return tr_fail(err, "out of memory for the replay store");
+    }
+    rng r = rng_seed(bs->seed, RNG_TRAIN, pass, 0);
+    for (size_t i = 0; i < n; ++i) { /* into the ring, the oldest out */
+        tr->store[tr->store_next] = rec->data[i];
+        tr->store_next = (tr->store_next + 1) % REPLAY_CAPACITY;
+        if (tr->stored < REPLAY_CAPACITY)
+            tr->stored++;
+    }
+    /* Held-out: a random subset of the new samples (records come in tile order). */
+    size_t m = n < step ? n : step;
+    for (size_t i = 0; i < m; ++i) {
+        size_t j = i + (size_t)(rng_next_u32(&r) % (uint32_t)(n - i)); /* partial shuffle */
+        train_record tmp = rec->data[i];
+        rec->data[i] = rec->data[j];
+        rec->data[j] = tmp;
+        load_sample(tr, i, &rec->data[i]);
+    }
+    *pass_loss = step_on_loaded(tr, t, m, pass, rep, err);
+    for (int s = 1; s < bs->steps_per_pass; ++s) {
+        for (size_t i = 0; i < step; ++i)
+            load_sample(tr, i, &tr->store[rng_next_u32(&r) % (uint32_t)tr->stored]);
+        step_on_loaded(tr, t, step, pass, rep, err);
+    }
+    rep->samples += n;
+    return 1;
+}
+
+/* Steps of the learned guiding probability on one pass's records, in SELECTION_STEPS
+ * minibatches (the records are in tile order, so each minibatch is a band of the image; the
+ * cells of a band get their steps from it). */
+#define SELECTION_STEPS 8
+static int learn_selection(selection_grid *g, const record_buffer *rec, tr_error *err)
+{
+    size_t n = rec->count;
+    if (n == 0)
+        return 1;
+    selection_sample *smp = malloc(n * sizeof *smp);
+    double *work = malloc(2 * g->cells * sizeof *work);
+    if (!smp || !work) {
+        free(smp);
+        free(work);
+        return tr_fail(err, "out of memory for the guiding probabilities");
+    }
+    for (size_t i = 0; i < n; ++i) {
+        const train_record *x = &rec->data[i];
+        smp[i].cell = x->cell;
+        smp[i].weight = x->weight;
+        smp[i].p_flow = x->p_flow;
+        smp[i].p_bsdf = x->p_bsdf;
+        smp[i].alpha = x->alpha;
+    }
+    /* Every cell of the pass in every step: the whole pass's gradient, SELECTION_STEPS
+     * times, would be a larger learning rate; instead each step sees all samples once. */
+    for (int k = 0; k < SELECTION_STEPS; ++k) {
+        size_t b = n * (size_t)k / SELECTION_STEPS, e = n * (size_t)(k + 1) / SELECTION_STEPS;
+        selection_step(g, smp + b, e - b, work);
+    }
+    free(smp);
+    free(work);
+    return 1;
+}
+
+/* ---- The job ------------------------------------------------------------------------------- */
+
+int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, image *img,
+                       budget_report *rep, tr_error *err)
+{
+    const scene *s = t->s;
+    size_t pixels = (size_t)s->width * (size_t)s->height;
+    pass_groups groups;
+    trainer tr;
+    selection_grid selection;
+    record_buffer records = {0};
+    image pass = {0};
+    double *render_sum = NULL, *render_sq = NULL;
+    int ok = 0;
+    memset(rep, 0, sizeof *rep);
+    memset(&groups, 0, sizeof groups);
+    memset(&tr, 0, sizeof tr);
+    memset(&selection, 0, sizeof selection);
+    groups.n = 3 * pixels;
+    groups.per_group = 1;
+    if (!image_alloc(img, s->width, s->height, err) || !image_alloc(&pass, s->width, s->height, err))
+        goto done;
+    render_sum = calloc(3 * pixels, sizeof *render_sum);
+    render_sq = calloc(pixels, sizeof *render_sq);
+    if (!render_sum || !render_sq) {
+        tr_fail(err, "out of memory for the image sums");
+        goto done;
+    }
+    if (model && bs->learn_selection) {
+        if (!selection_init(&selection, t->s->bounds_min, t->s->bounds_max, t->guide_prob)) {
+            tr_fail(err, "out of memory for the guiding probabilities");
+            goto done;
+        }
+        t->selection = &selection;
+    }
+    if (model) {
+        tr.model = model;
+        tr.params = nf_param_count(model);
+        tr.shards = bs->threads < 1 ? 1 : bs->threads > MAX_SHARDS ? MAX_SHARDS : bs->threads;
+        tr.grads = malloc((size_t)tr.shards * tr.params * sizeof *tr.grads);
+        tr.grad = malloc(tr.params * sizeof *tr.grad);
+        if (!tr.grads || !tr.grad) {
+            tr_fail(err, "out of memory for gradients");
+            goto done;
+        }
+    }
+
+    const double end = bs->start + bs->seconds;
+    const double train_end = bs->start + bs->train_fraction * bs->seconds;
+    double best_loss = INFINITY, last_pass = 0.0;
+    int since_best = 0, training = model != NULL && bs->train_fraction > 0.0;
+    uint32_t k = 0;
+    for (;; ++k) {
+        double t0 = now_seconds(), c0 = cpu_seconds();
+        if (training && (t0 >= train_end || (bs->patience > 0 && since_best >= bs->patience))) {
+            rep->stopped_early = t0 < train_end;
+            training = 0;
+            selection.frozen = 1;
+        }
+        /* Stop before a pass that would overrun (its time: the last pass's). A budget too
+         * short for a single pass still renders one. */
+        if (k > 0 && t0 + last_pass > end)
+            break;
+        if (!render_pass(t, bs->seed, PASS_STREAM_BASE + k, bs->threads, &pass,
+                         training ? &records : NULL, &rep->stats, err))
+            goto done;
+        double t1 = now_seconds();
+        if (training) {
+            double loss;
+            if (!groups_add(&groups, &pass)) {
+                tr_fail(err, "out of memory for a training pass");
+                goto done;
+            }
+            if (t->selection && !learn_selection(&selection, &records, err))
+                goto done;
+            if (!train_on_pass(&tr, t, &records, bs, k, rep, &loss, err))
+                goto done;
+            double t2 = now_seconds();
+            rep->train_passes++;
+            rep->train_seconds += t2 - t0;
+            rep->step_seconds += t2 - t1;
+            if (getenv("NF_BUDGET_DEBUG"))
+                fprintf(stderr, "pass %u: %zu samples, held-out loss %.4f, %.3f s + %.3f s\n", k,
+                        records.count, loss, t1 - t0, t2 - t1);
+            if (isfinite(loss)) {
+                rep->last_loss = (float)loss;
+                if (loss < best_loss - 0.01 * fabs(best_loss)) {
+                    best_loss = loss;
+                    since_best = 0;
+                } else {
+                    since_best++;
+                }
+            }
+            last_pass = t1 - t0; /* a render pass costs the tracing, not the step */
+        } else {
+            for (size_t i = 0; i < pixels; ++i) {
+                const float *p = pass.data + 3 * i;
+                double l = ((double)p[0] + p[1] + p[2]) / 3.0;
+                render_sum[3 * i] += p[0];
+                render_sum[3 * i + 1] += p[1];
+                render_sum[3 * i + 2] += p[2];
+                render_sq[i] += l * l;
+            }
+            rep->render_passes++;
+            last_pass = now_seconds() - t0;
+            rep->render_seconds += last_pass;
+            rep->render_cpu_seconds += cpu_seconds() - c0;
+        }
+    }
+    rep->train_weight = combine(&groups, render_sum, render_sq, rep->render_passes,
+                                bs->combine, img, &rep->pass_variance);
+    if (!bs->combine && rep->render_passes == 0)
+        rep->train_weight = combine(&groups, render_sum, render_sq, 0, 1, img, NULL);
+    rep->seconds = now_seconds() - bs->start;
+    rep->selection_off = t->selection ? selection_off_share(&selection) : 0.0;
+    ok = 1;
+
+done:
+    t->selection = NULL;
+    selection_free(&selection);
+    groups_free(&groups);
+    trainer_free(&tr);
+    record_buffer_free(&records);
+    image_free(&pass);
+    free(render_sum);
+    free(render_sq);
+    return ok;
+}
