@@ -93,20 +93,54 @@ static vec3 offset_origin(vec3 p, vec3 ng, vec3 dir)
     return v3_add(p, v3_scale(ng, v3_dot(dir, ng) > 0.0f ? eps : -eps));
 }
 
-/* What the backward pass needs of each vertex (integration.md section 4 of the library). */
-typedef struct vertex_record {
-    rgb direct;      /* D: the MIS-weighted next-event estimate at this vertex (local)     */
-    rgb beta;        /* the throughput factor of the scattering here, 1/q included        */
-    rgb f_over_p;    /* f |cos| / p_mix for the record (no Russian roulette factor)       */
-    rgb emitted;     /* E: emission found by the scattered ray, unweighted                */
-    float emitted_w; /* H: that emission's MIS weight                                     */
-    int guided;      /* a training sample is recorded for this vertex                     */
-    float p_flow, p_bsdf, alpha; /* the mixture at dir                                    */
-    uint32_t cell;
-    nf_context ctx;
-    float dir[3];
+/* What a recorded vertex keeps beside the library's nf_path_vertex (nisflow/path.h, which
+ * does the backward walk): the material for the BSDF prior, and the mixture at the sampled
+ * direction for the learned guiding probability. */
+typedef struct vertex_extra {
     bsdf_point bp;
-} vertex_record;
+    float p_flow, p_bsdf, alpha;
+    uint32_t cell;
+} vertex_extra;
+
+static void put_rgb(float out[3], rgb c)
+{
+    out[0] = c.r;
+    out[1] = c.g;
+    out[2] = c.b;
+}
+
+/* Appends the training samples of a recorded path (nf_path_training_samples does the walk:
+ * next-event estimates, MIS weights, roulette). Returns 0 if the library refused the path. */
+static int record_path(const tracer *t, nf_path_vertex *pv, const vertex_extra *ex, int nv,
+                       record_buffer *records)
+{
+    nf_context ctx[MAX_RECORDED_VERTICES];
+    float dir[3 * MAX_RECORDED_VERTICES], weight[MAX_RECORDED_VERTICES];
+    size_t from[MAX_RECORDED_VERTICES], n = 0;
+    if (t->mis_training) /* L_i counts the emission found with its MIS weight (options.h) */
+        for (int j = 0; j < nv; ++j) {
+            for (int c = 0; c < 3; ++c)
+                pv[j].emitted[c] *= pv[j].emitted_mis;
+            pv[j].emitted_mis = 1.0f;
+        }
+    if (nf_path_training_samples((size_t)nv, pv, (size_t)nv, ctx, dir, weight, from, &n) != NF_OK)
+        return 0;
+    for (size_t i = 0; i < n; ++i) {
+        train_record *rec = record_push(records);
+        if (!rec)
+            return 1; /* out_of_memory is set: the caller reports it */
+        const vertex_extra *x = &ex[from[i]];
+        rec->ctx = ctx[i];
+        memcpy(rec->dir, dir + 3 * i, sizeof rec->dir);
+        rec->weight = weight[i];
+        rec->bp = x->bp;
+        rec->p_flow = x->p_flow;
+        rec->p_bsdf = x->p_bsdf;
+        rec->alpha = x->alpha;
+        rec->cell = x->cell;
+    }
+    return 1;
+}
 
 /* The shading setup at a hit: material, frame and orientation. Returns 0 when the surface
  * cannot scatter towards wo (the back of a one-sided material). */
@@ -298,7 +332,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
     const scene *s = t->s;
     const int max_depth = s->max_depth < 0 ? 1 << 30 : s->max_depth;
     const float g = t->model ? t->guide_prob : 0.0f;
-    vertex_record vr[MAX_RECORDED_VERTICES];
+    nf_path_vertex pv[MAX_RECORDED_VERTICES]; /* the library's record of the path */
+    vertex_extra ex[MAX_RECORDED_VERTICES];
     int nv = 0; /* recorded vertices (only when training) */
 
     rgb L = rgb_gray(0.0f), throughput = rgb_gray(1.0f);
@@ -314,7 +349,7 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         }
         st->rays++;
         /* The previous vertex's record receives what this ray finds. */
-        vertex_record *prev = records && nv > 0 && nv <= MAX_RECORDED_VERTICES ? &vr[nv - 1] : NULL;
+        nf_path_vertex *prev = records && nv > 0 && nv <= MAX_RECORDED_VERTICES ? &pv[nv - 1] : NULL;
         if (!scene_intersect(s, &ry, &h)) {
             rgb le = env_eval(s, ry.d);
             if (!rgb_is_black(le)) {
@@ -322,8 +357,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
                 if (!(depth == 1 && s->hide_emitters))
                     L = rgb_add(L, rgb_mul(throughput, rgb_scale(le, w)));
                 if (prev) {
-                    prev->emitted = le;
-                    prev->emitted_w = w;
+                    put_rgb(prev->emitted, le);
+                    prev->emitted_mis = w;
                 }
             }
             break;
@@ -340,8 +375,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
             if (!(depth == 1 && s->hide_emitters))
                 L = rgb_add(L, rgb_mul(throughput, rgb_scale(shp->radiance, w)));
             if (prev) {
-                prev->emitted = shp->radiance;
-                prev->emitted_w = w;
+                put_rgb(prev->emitted, shp->radiance);
+                prev->emitted_mis = w;
             }
         }
         if (depth >= max_depth)
@@ -357,9 +392,11 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         const int guided = smooth && g > 0.0f && (t->guide_depth == 0 || depth <= t->guide_depth) &&
                            !(b->type == BSDF_ROUGHCONDUCTOR && b->alpha < t->guide_min_roughness);
 
-        vertex_record *v = NULL;
+        nf_path_vertex *v = NULL;
+        vertex_extra *vx = NULL;
         if (records && nv < MAX_RECORDED_VERTICES) {
-            v = &vr[nv++];
+            v = &pv[nv];
+            vx = &ex[nv++];
             memset(v, 0, sizeof *v);
         } else if (records) {
             nv = MAX_RECORDED_VERTICES + 1; /* past the cap: stop recording this path */
@@ -402,7 +439,7 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
             rgb d = next_event(t, &sh, &sf, &sp, vf.plain ? 0.0f : vf.g, r, st);
             L = rgb_add(L, rgb_mul(throughput, d));
             if (v)
-                v->direct = d;
+                put_rgb(v->direct, d);
         }
 
         /* Russian roulette, before scattering, so that a vertex either scatters fully or
@@ -423,19 +460,19 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
             break;
         throughput = rgb_mul(throughput, rgb_scale(sc.weight, rr));
         if (v) {
-            v->beta = rgb_scale(sc.weight, rr);
+            put_rgb(v->beta, rgb_scale(sc.weight, rr));
             if (vf.g > 0.0f && !sc.delta) { /* the flow can only learn non-delta directions */
-                v->guided = 1;
-                v->f_over_p = sc.weight;
+                v->learn = 1;
+                put_rgb(v->f_over_p, sc.weight);
                 v->ctx = ctx;
                 v->dir[0] = sc.wi.x;
                 v->dir[1] = sc.wi.y;
                 v->dir[2] = sc.wi.z;
-                v->bp = sh.bp;
-                v->p_flow = sc.p_flow;
-                v->p_bsdf = sc.p_bsdf;
-                v->alpha = vf.g;
-                v->cell = (uint32_t)cell;
+                vx->bp = sh.bp;
+                vx->p_flow = sc.p_flow;
+                vx->p_bsdf = sc.p_bsdf;
+                vx->alpha = vf.g;
+                vx->cell = (uint32_t)cell;
             }
         }
         prev_pdf = sc.pdf;
@@ -444,31 +481,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         ry.tmax = INFINITY;
     }
 
-    /* Training: walk the path backwards. S is the radiance scattered from vertex j + 1
-     * towards j (its own emission excluded); L_i along wi_j is E_j + S. */
-    if (records && nv > 0 && nv <= MAX_RECORDED_VERTICES) {
-        rgb S = rgb_gray(0.0f);
-        for (int j = nv - 1; j >= 0; --j) {
-            const vertex_record *v = &vr[j];
-            rgb li = rgb_add(t->mis_training ? rgb_scale(v->emitted, v->emitted_w) : v->emitted, S);
-            if (v->guided) {
-                float w = rgb_mean(rgb_mul(v->f_over_p, li));
-                if (w > 0.0f && isfinite(w)) {
-                    train_record *rec = record_push(records);
-                    if (rec) {
-                        rec->ctx = v->ctx;
-                        memcpy(rec->dir, v->dir, sizeof rec->dir);
-                        rec->weight = w;
-                        rec->bp = v->bp;
-                        rec->p_flow = v->p_flow;
-                        rec->p_bsdf = v->p_bsdf;
-                        rec->alpha = v->alpha;
-                        rec->cell = v->cell;
-                    }
-                }
-            }
-            S = rgb_add(v->direct, rgb_mul(v->beta, rgb_add(rgb_scale(v->emitted, v->emitted_w), S)));
-        }
-    }
+    /* Training: the library walks the path backwards (nisflow/path.h). */
+    if (records && nv > 0 && nv <= MAX_RECORDED_VERTICES && !record_path(t, pv, ex, nv, records))
+        st->nf_errors++;
     return L;
 }

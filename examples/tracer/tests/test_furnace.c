@@ -29,6 +29,8 @@
 #include "scene.h"
 #include "training.h"
 
+#include "mixed_scene.h"
+
 /* 24 x 24 pixels at 16 paths each: a standard error of about 0.4% for the cosine prior, so
  * that a 5% bias is caught. Small enough to run in seconds under the sanitizers too. */
 #define SIZE 24
@@ -56,21 +58,6 @@ static const char *furnace_xml(const char *environment)
         "%s\n"
         "</scene>\n", SIZE, SIZE, environment);
     return xml;
-}
-
-/* Mean and standard error of the pixel values (all channels: the scene is grey). */
-static void image_stats(const image *img, double *mean, double *stderr_)
-{
-    size_t n = (size_t)img->width * (size_t)img->height;
-    double s = 0.0, s2 = 0.0;
-    for (size_t i = 0; i < n; ++i) {
-        double v = img->data[3 * i + 1];
-        s += v;
-        s2 += v * v;
-    }
-    *mean = s / (double)n;
-    double var = (s2 / (double)n - *mean * *mean) * (double)n / (double)(n - 1);
-    *stderr_ = sqrt(fmax(var, 0.0) / (double)n);
 }
 
 /* The acceptance rule: |mean - 1| below 4 standard errors. For an unbiased estimator that
@@ -254,26 +241,9 @@ static void test_envmap_sampling_density(void **state)
 static void test_guided_matches_unguided(void **state)
 {
     (void)state;
-    static const char xml[] =
-        "<scene version=\"3.0.0\">\n"
-        "<integrator type=\"path\"><integer name=\"max_depth\" value=\"6\"/></integrator>\n"
-        "<sensor type=\"perspective\"><float name=\"fov\" value=\"55\"/>\n"
-        "  <transform name=\"to_world\"><lookat origin=\"0.6, 0.4, 1.8\" target=\"-0.2, -0.3, -0.3\" up=\"0, 1, 0\"/></transform>\n"
-        "  <film type=\"hdrfilm\"><integer name=\"width\" value=\"20\"/><integer name=\"height\" value=\"20\"/></film>\n"
-        "</sensor>\n"
-        "<shape type=\"rectangle\"><transform name=\"to_world\"><translate z=\"-1\"/></transform>"
-        "<bsdf type=\"plastic\"><rgb name=\"diffuse_reflectance\" value=\"0.2, 0.5, 0.7\"/></bsdf></shape>\n"
-        "<shape type=\"rectangle\"><transform name=\"to_world\"><rotate x=\"1\" angle=\"-90\"/><translate y=\"-1\"/></transform>"
-        "<bsdf type=\"roughconductor\"><string name=\"distribution\" value=\"ggx\"/><float name=\"alpha\" value=\"0.3\"/></bsdf></shape>\n"
-        "<shape type=\"sphere\"><point name=\"center\" value=\"0, -0.5, -0.4\"/><float name=\"radius\" value=\"0.4\"/>"
-        "<bsdf type=\"roughplastic\"><float name=\"alpha\" value=\"0.2\"/></bsdf></shape>\n"
-        "<shape type=\"rectangle\"><transform name=\"to_world\"><scale value=\"0.3\"/><rotate x=\"1\" angle=\"90\"/><translate y=\"1\"/></transform>"
-        "<emitter type=\"area\"><rgb name=\"radiance\" value=\"8\"/></emitter></shape>\n"
-        "<emitter type=\"constant\"><rgb name=\"radiance\" value=\"0.3\"/></emitter>\n"
-        "</scene>\n";
     scene s;
     tr_error err;
-    if (!scene_load_string(xml, TRACER_TEST_TMP_DIR, &s, &err))
+    if (!scene_load_string(MIXED_SCENE_XML, TRACER_TEST_TMP_DIR, &s, &err))
         fail_msg("%s", err.msg);
     image img[2];
     for (int guided = 0; guided < 2; ++guided) {

@@ -1,0 +1,256 @@
+/*
+ * test_budget.c - the equal-time levers stay unbiased, and the time-budgeted job keeps its
+ * budget:
+ *   - every lever of the guided vertex (plain mixture, guiding depth, smooth conductors left
+ *     unguided, MIS-aware training, a learned guiding probability with cells switched off)
+ *     renders the mixed scene with the same mean as plain path tracing;
+ *   - render_with_budget, guided, with its training passes combined into the image, agrees
+ *     with plain path tracing too, ends within its budget and reports consistent counts;
+ *   - the learned guiding probability moves towards the technique whose density is larger
+ *     where the integrand is.
+ */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "budget.h"
+#include "guide.h"
+#include "integrator.h"
+#include "progress.h"
+#include "render.h"
+#include "scene.h"
+#include "selection.h"
+#include "training.h"
+
+#include "mixed_scene.h"
+
+#ifdef TRACER_SANITIZED
+#define SPP 16
+#else
+#define SPP 64
+#endif
+
+static scene load_mixed(void)
+{
+    scene s;
+    tr_error err;
+    if (!scene_load_string(MIXED_SCENE_XML, TRACER_TEST_TMP_DIR, &s, &err))
+        fail_msg("%s", err.msg);
+    return s;
+}
+
+static nf_model *trained_model(tracer *t)
+{
+    tr_error err;
+    nf_model *model = NULL;
+    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+    gs.seed = 7;
+    if (!guide_create(t->s, &gs, &model, &err))
+        fail_msg("%s", err.msg);
+    t->model = model;
+    t->guide_prob = 0.5f;
+    /* A few steps, so that the flow is no longer its prior: the estimator must stay unbiased
+     * for any model. */
+    training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL};
+    training_report rep;
+    if (!train_guide(t, model, &ts, &rep, &err))
+        fail_msg("%s", err.msg);
+    assert_true(rep.samples > 0);
+    assert_int_equal(rep.refused, 0);
+    return model;
+}
+
+static void render(const tracer *t, int spp, uint64_t seed, image *img)
+{
+    tr_error err;
+    path_stats st = {0};
+    assert_true(image_alloc(img, t->s->width, t->s->height, &err));
+    if (!render_image(t, spp, seed, 0, 2, img, &st, NULL, &err))
+        fail_msg("%s", err.msg);
+    assert_int_equal(st.nf_errors, 0);
+}
+
+/* a and b independent renders of one scene: their pixel-by-pixel difference has mean 0
+ * within 4 standard errors (the image's structure cancels). 4: an unbiased pair fails with
+ * probability 6e-5, and the standard error is itself estimated; the seeds are fixed, so the
+ * outcome is reproducible. The test must also be able to see a 5% bias. */
+static void assert_same_mean(const char *label, const image *a, const image *b)
+{
+    tr_error err;
+    image diff;
+    assert_true(image_alloc(&diff, a->width, a->height, &err));
+    size_t n = (size_t)a->width * (size_t)a->height * 3u;
+    double mean_a = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+        diff.data[i] = b->data[i] - a->data[i];
+        mean_a += a->data[i] / (double)n;
+    }
+    double d, se;
+    image_stats(&diff, &d, &se);
+    printf("  %-44s difference %.5f +- %.5f (mean %.4f)\n", label, d, se, mean_a);
+    if (!(fabs(d) < 4.0 * se))
+        fail_msg("%s: the mean differs from plain path tracing by %g +- %g", label, d, se);
+    assert_true(0.05 * mean_a > 4.0 * se);
+    image_free(&diff);
+}
+
+typedef struct lever {
+    const char *name;
+    int plain, depth, mis_training, selection;
+    float min_roughness;
+} lever;
+
+static void test_levers_match_unguided(void **state)
+{
+    (void)state;
+    static const lever levers[] = {
+        {"balance mixture (default)", 0, 0, 0, 0, 0.0f},
+        {"plain mixture", 1, 0, 0, 0, 0.0f},
+        {"guiding depth 1", 0, 1, 0, 0, 0.0f},
+        {"rough conductor (alpha 0.3) unguided", 0, 0, 0, 0, 0.5f},
+        {"MIS-aware training", 0, 0, 1, 0, 0.0f},
+        {"guiding probability per cell, some off", 0, 0, 0, 1, 0.0f},
+        {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f},
+    };
+    scene s = load_mixed();
+    tracer plain = {.s = &s};
+    image reference;
+    render(&plain, 4 * SPP, 100, &reference);
+    for (size_t i = 0; i < sizeof levers / sizeof *levers; ++i) {
+        const lever *l = &levers[i];
+        tracer t = {.s = &s};
+        t.plain_mixture = l->plain;
+        t.guide_depth = l->depth;
+        t.mis_training = l->mis_training;
+        t.guide_min_roughness = l->min_roughness;
+        selection_grid grid;
+        if (l->selection) {
+            assert_true(selection_init(&grid, s.bounds_min, s.bounds_max, 0.5f));
+            rng r = rng_seed(5, RNG_TEST, 0, 0);
+            for (size_t c = 0; c < grid.cells; ++c) /* alphas from 0 (off) to 0.8 */
+                grid.theta[c] = 8.0f * rng_next(&r) - 4.0f;
+            grid.frozen = 1;
+        }
+        nf_model *model = trained_model(&t);
+        if (l->selection)
+            t.selection = &grid;
+        image img;
+        render(&t, 4 * SPP, 200 + i, &img);
+        assert_same_mean(l->name, &reference, &img);
+        image_free(&img);
+        if (l->selection)
+            selection_free(&grid);
+        nf_model_destroy(model);
+    }
+    image_free(&reference);
+    scene_free(&s);
+}
+
+static void check_budget_job(int learn_selection)
+{
+    scene s = load_mixed();
+    tr_error err;
+    tracer plain = {.s = &s};
+    image reference;
+    render(&plain, 4 * SPP, 300, &reference);
+
+    tracer t = {.s = &s};
+    nf_model *model = NULL;
+    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+    if (!guide_create(&s, &gs, &model, &err))
+        fail_msg("%s", err.msg);
+    t.model = model;
+    t.guide_prob = 0.5f;
+    budget_settings bs = budget_default_settings();
+    bs.seconds = 1.0;
+    bs.start = now_seconds();
+    bs.train_fraction = 0.5;
+    bs.step_samples = 256;
+    bs.steps_per_pass = 4;
+    bs.threads = 2;
+    bs.seed = 9;
+    bs.learn_selection = learn_selection;
+    image img;
+    budget_report rep;
+    if (!render_with_budget(&t, model, &bs, &img, &rep, &err))
+        fail_msg("%s", err.msg);
+    double elapsed = now_seconds() - bs.start;
+    printf("  budget job: %d training passes, %d render passes, %.3f s, training weight %.3f\n",
+           rep.train_passes, rep.render_passes, elapsed, rep.train_weight);
+    assert_true(rep.train_passes >= 1);
+    assert_true(rep.render_passes >= 2);
+    assert_int_equal(rep.refused, 0);
+    assert_int_equal(rep.steps, rep.train_passes * bs.steps_per_pass);
+    assert_int_equal(nf_model_step_count(model), (uint64_t)rep.steps);
+    assert_true(rep.train_weight >= 0.0 && rep.train_weight <= 1.0);
+    assert_null(t.selection); /* the job's grid does not outlive it */
+    /* The job stops before a pass that would overrun; a pass of this 20 x 20 film takes
+     * milliseconds (tens under sanitizers), so 0.25 s is a wide margin for a loaded machine
+     * and still catches a job that ignores its budget. */
+    assert_true(elapsed < bs.seconds + 0.25);
+    assert_same_mean(learn_selection ? "budget job, learned guiding probability"
+                                     : "budget job, training passes combined",
+                     &reference, &img);
+    image_free(&img);
+    image_free(&reference);
+    nf_model_destroy(model);
+    scene_free(&s);
+}
+
+static void test_budget_job(void **state)
+{
+    (void)state;
+    check_budget_job(0);
+}
+
+static void test_budget_job_learned_selection(void **state)
+{
+    (void)state;
+    check_budget_job(1);
+}
+
+/* Samples where the flow's density is the larger one (and the integrand is not zero) raise
+ * alpha; where the BSDF's is, they lower it. */
+static void test_selection_learns_direction(void **state)
+{
+    (void)state;
+    selection_grid g;
+    vec3 lo = v3(0.0f, 0.0f, 0.0f), hi = v3(1.0f, 1.0f, 1.0f);
+    assert_true(selection_init(&g, lo, hi, 0.5f));
+    size_t a = selection_cell(&g, v3(0.1f, 0.1f, 0.1f), v3(0.0f, 0.0f, 1.0f));
+    size_t b = selection_cell(&g, v3(0.9f, 0.9f, 0.9f), v3(0.0f, 0.0f, 1.0f));
+    assert_int_not_equal(a, b);
+    assert_int_not_equal(a, selection_cell(&g, v3(0.1f, 0.1f, 0.1f), v3(0.0f, 0.0f, -1.0f)));
+    selection_sample smp[2] = {{a, 1.0f, 4.0f, 0.5f, 0.5f}, {b, 1.0f, 0.5f, 4.0f, 0.5f}};
+    double work[2 * 8 * 8 * 8 * 6];
+    assert_true(2 * g.cells <= sizeof work / sizeof *work);
+    for (int i = 0; i < 20; ++i)
+        selection_step(&g, smp, 2, work);
+    printf("  alpha: flow-favoured cell %.3f, BSDF-favoured cell %.3f\n",
+           (double)selection_prob(&g, a), (double)selection_prob(&g, b));
+    assert_true(selection_prob(&g, a) > 0.7f);
+    assert_true(selection_prob(&g, b) < 0.3f);
+    /* Untouched cells keep their start. */
+    size_t c = selection_cell(&g, v3(0.5f, 0.1f, 0.9f), v3(1.0f, 0.0f, 0.0f));
+    assert_true(fabsf(selection_prob(&g, c) - 0.5f) < 1e-6f);
+    g.frozen = 1; /* rendering: a cell below off_below is off */
+    assert_true(selection_prob(&g, b) == 0.0f || selection_prob(&g, b) >= g.off_below);
+    selection_free(&g);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_selection_learns_direction),
+        cmocka_unit_test(test_levers_match_unguided),
+        cmocka_unit_test(test_budget_job),
+        cmocka_unit_test(test_budget_job_learned_selection),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
