@@ -4,6 +4,7 @@
 #
 #   ./scripts/install-deps.sh           what the build, the tests and the tracer need
 #   ./scripts/install-deps.sh --study   also gnuplot and python3, for scripts/paper-study.sh
+#                                       and scripts/equal-time.sh
 set -euo pipefail
 
 # Add packages here as the project grows.

@@ -230,6 +230,7 @@ int main(int argc, char **argv)
         bs.combine = o.combine;
         bs.clamp_quantile = o.clamp_quantile;
         bs.learn_selection = o.learn_selection;
+        bs.selection_cost = o.selection_cost;
         bs.threads = o.threads;
         bs.seed = o.seed;
         if (!render_with_budget(&t, model, &bs, &img, &br, &err)) {

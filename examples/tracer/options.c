@@ -74,7 +74,10 @@ void options_print_help(const char *program)
         "                        off; for example 0.99)\n"
         "  --no-combine          leave the training passes out of the image\n"
         "  --learn-selection     learn the guiding probability per cell of a grid (position\n"
-        "                        and normal); where it falls below 0.1 the flow is not used\n"
+        "                        and normal); where it falls below 0.1, or where the mixture\n"
+        "                        does not cut the estimate's second moment by 1 + C, the\n"
+        "                        flow is not used\n"
+        "  --selection-cost C    a guided vertex's relative extra cost (default 1)\n"
         "  --plain-mixture       weigh a flow sample by the flow's density and a BSDF sample\n"
         "                        by the BSDF's (instead of both by the mixture's): the flow\n"
         "                        is evaluated only at vertices where it samples\n"
@@ -138,6 +141,7 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->steps_per_pass = 64;
     o->patience = 4;
     o->combine = 1;
+    o->selection_cost = -1.0f;
 
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -248,6 +252,8 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             ok = parse_int(a, v, 0, 1000000, &o->patience, err);
         else if (!strcmp(a, "--clamp-quantile"))
             ok = parse_float(a, v, 0.0, 1.0, &o->clamp_quantile, err);
+        else if (!strcmp(a, "--selection-cost"))
+            ok = parse_float(a, v, 0.0, 1000.0, &o->selection_cost, err);
         else if (!strcmp(a, "--guide-min-roughness"))
             ok = parse_float(a, v, 0.0, 1.0, &o->guide_min_roughness, err);
         else if (!strcmp(a, "--guide-depth"))

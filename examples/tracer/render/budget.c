@@ -37,6 +37,7 @@ budget_settings budget_default_settings(void)
     b.combine = 1;
     b.clamp_quantile = 0.0f;
     b.learn_selection = 0;
+    b.selection_cost = -1.0f;
     b.threads = 1;
     b.seed = 1;
     return b;
@@ -406,6 +407,7 @@ static int learn_selection(selection_grid *g, const record_buffer *rec, tr_error
         size_t b = n * (size_t)k / SELECTION_STEPS, e = n * (size_t)(k + 1) / SELECTION_STEPS;
         selection_step(g, smp + b, e - b, work);
     }
+    selection_observe(g, smp, n);
     free(smp);
     free(work);
     return 1;
@@ -444,6 +446,8 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
             tr_fail(err, "out of memory for the guiding probabilities");
             goto done;
         }
+        if (bs->selection_cost >= 0.0f)
+            selection.cost = bs->selection_cost;
         t->selection = &selection;
     }
     if (model) {
@@ -468,7 +472,8 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
         if (training && (t0 >= train_end || (bs->patience > 0 && since_best >= bs->patience))) {
             rep->stopped_early = t0 < train_end;
             training = 0;
-            selection.frozen = 1;
+            if (t->selection)
+                selection_freeze(&selection);
         }
         /* Stop before a pass that would overrun (its time: the last pass's). A budget too
          * short for a single pass still renders one. */

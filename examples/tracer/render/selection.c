@@ -16,8 +16,14 @@ int selection_init(selection_grid *g, vec3 lo, vec3 hi, float initial)
     memset(g, 0, sizeof *g);
     g->cells = (size_t)SELECTION_RES * SELECTION_RES * SELECTION_RES * NORMAL_BINS;
     g->theta = malloc(3 * g->cells * sizeof *g->theta);
-    if (!g->theta)
+    g->moment_mix = calloc(3 * g->cells, sizeof *g->moment_mix);
+    if (!g->theta || !g->moment_mix) {
+        free(g->theta);
+        free(g->moment_mix);
         return 0;
+    }
+    g->moment_bsdf = g->moment_mix + g->cells;
+    g->count = g->moment_bsdf + g->cells;
     g->m = g->theta + g->cells;
     g->v = g->m + g->cells;
     float t0 = logf(initial / (1.0f - initial));
@@ -33,12 +39,14 @@ int selection_init(selection_grid *g, vec3 lo, vec3 hi, float initial)
     g->min_prob = 0.05f;
     g->max_prob = 0.8f;
     g->off_below = 0.1f;
+    g->cost = 1.0f;
     return 1;
 }
 
 void selection_free(selection_grid *g)
 {
     free(g->theta);
+    free(g->moment_mix);
     memset(g, 0, sizeof *g);
 }
 
@@ -94,15 +102,44 @@ void selection_step(selection_grid *g, const selection_sample *s, size_t n, doub
     }
 }
 
+void selection_observe(selection_grid *g, const selection_sample *s, size_t n)
+{
+    for (size_t c = 0; c < g->cells; ++c) {
+        g->moment_mix[c] *= 0.5;
+        g->moment_bsdf[c] *= 0.5;
+        g->count[c] *= 0.5;
+    }
+    for (size_t i = 0; i < n; ++i) {
+        const selection_sample *x = &s[i];
+        if (x->cell >= g->cells || !(x->weight > 0.0f))
+            continue;
+        double w2 = (double)x->weight * (double)x->weight;
+        double p_mix = (double)x->alpha * x->p_flow + (1.0 - (double)x->alpha) * x->p_bsdf;
+        g->moment_mix[x->cell] += w2;
+        /* Where BSDF sampling cannot reach a direction that carries light, it cannot do
+         * without the flow: an infinite moment keeps the cell on. */
+        g->moment_bsdf[x->cell] += x->p_bsdf > 0.0f ? w2 * p_mix / x->p_bsdf : INFINITY;
+        g->count[x->cell] += 1.0;
+    }
+}
+
+void selection_freeze(selection_grid *g)
+{
+    for (size_t c = 0; c < g->cells; ++c)
+        if (g->count[c] >= 16.0 &&
+            g->moment_mix[c] * (1.0 + (double)g->cost) >= g->moment_bsdf[c])
+            g->theta[c] = -8.0f; /* below any clamp: off once frozen */
+    g->frozen = 1;
+}
+
 double selection_off_share(const selection_grid *g)
 {
     size_t visited = 0, off = 0;
     for (size_t c = 0; c < g->cells; ++c) {
-        if (g->v[c] == 0.0f)
-            continue; /* never trained */
+        if (g->count[c] == 0.0)
+            continue; /* never seen */
         visited++;
-        float a = 1.0f / (1.0f + expf(-g->theta[c]));
-        off += a < g->off_below;
+        off += selection_prob(g, c) == 0.0f;
     }
     return visited ? (double)off / (double)visited : 0.0;
 }

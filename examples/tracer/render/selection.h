@@ -33,6 +33,11 @@ typedef struct selection_grid {
     float min_prob, max_prob; /* alpha's range while learning                             */
     float off_below;     /* rendering: alpha below this is 0 (the vertex is not guided)  */
     int frozen;          /* 1: rendering (off_below applies)                             */
+    /* The cost test (selection_freeze): per cell, decayed sums of the second moments of the
+     * scattering estimate f L |cos| / p under the mixture and under BSDF sampling alone. */
+    double *moment_mix, *moment_bsdf, *count;
+    float cost;          /* a guided vertex's extra cost, relative: guiding must cut the
+                          * second moment by 1 + cost to stay on                          */
 } selection_grid;
 
 /* A grid over [lo, hi] starting at alpha = initial. Returns 0 when out of memory. */
@@ -56,7 +61,18 @@ typedef struct selection_sample {
  * own weight sum. `work` holds 2 * cells doubles. */
 void selection_step(selection_grid *g, const selection_sample *s, size_t n, double *work);
 
-/* The share of cells visited by samples whose alpha is below off_below (for the report). */
+/* Folds one pass's samples into the second moments of the cost test (older passes decay by
+ * half: the flow they saw has changed). Both are estimated from the mixture's samples,
+ * E_mix[w^2] and E_bsdf[(F / p_bsdf)^2] = E_mix[w^2 p_mix / p_bsdf]. */
+void selection_observe(selection_grid *g, const selection_sample *s, size_t n);
+
+/* Ends learning: a cell whose mixture does not cut the second moment by 1 + cost (with at
+ * least 16 samples seen) is switched off; then alpha below off_below is 0 (frozen). The
+ * second moment stands for the variance: their difference, the squared mean, is the same for
+ * both techniques and small where the variance matters. */
+void selection_freeze(selection_grid *g);
+
+/* The share of visited cells where guiding is off (for the report). */
 double selection_off_share(const selection_grid *g);
 
 #endif /* TRACER_SELECTION_H */

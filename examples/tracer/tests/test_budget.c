@@ -244,10 +244,45 @@ static void test_selection_learns_direction(void **state)
     selection_free(&g);
 }
 
+/* The cost test: a cell where the mixture cuts the second moment by less than 1 + cost is
+ * switched off when learning ends; one where it cuts it by more stays on. */
+static void test_selection_cost_switches_off(void **state)
+{
+    (void)state;
+    selection_grid g;
+    assert_true(selection_init(&g, v3(0.0f, 0.0f, 0.0f), v3(1.0f, 1.0f, 1.0f), 0.5f));
+    g.cost = 1.0f;
+    size_t helps = selection_cell(&g, v3(0.1f, 0.1f, 0.1f), v3(0.0f, 1.0f, 0.0f));
+    size_t useless = selection_cell(&g, v3(0.9f, 0.1f, 0.1f), v3(0.0f, 1.0f, 0.0f));
+    size_t rare = selection_cell(&g, v3(0.1f, 0.9f, 0.1f), v3(0.0f, 1.0f, 0.0f));
+    selection_sample smp[41];
+    for (int i = 0; i < 20; ++i) {
+        /* p_mix / p_bsdf = 2.5 / 1 (the mixture finds what the BSDF misses): moment x 2.5 */
+        selection_sample a = {helps, 1.0f, 4.0f, 1.0f, 0.5f};
+        /* p_mix / p_bsdf = 1.5 / 2: the mixture's moment is the larger, 1 + cost fails */
+        selection_sample b = {useless, 1.0f, 1.0f, 2.0f, 0.5f};
+        smp[2 * i] = a;
+        smp[2 * i + 1] = b;
+    }
+    selection_sample c = {rare, 1.0f, 1.0f, 2.0f, 0.5f}; /* too few samples to judge */
+    smp[40] = c;
+    selection_observe(&g, smp, 41);
+    selection_freeze(&g);
+    assert_true(selection_prob(&g, helps) > 0.0f);
+    assert_true(selection_prob(&g, useless) == 0.0f);
+    assert_true(selection_prob(&g, rare) > 0.0f);
+    g.frozen = 0;
+    g.cost = 2.0f; /* 2.5 > 1 + 2 is false: with a dearer flow the helpful cell goes off too */
+    selection_freeze(&g);
+    assert_true(selection_prob(&g, helps) == 0.0f);
+    selection_free(&g);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_selection_learns_direction),
+        cmocka_unit_test(test_selection_cost_switches_off),
         cmocka_unit_test(test_levers_match_unguided),
         cmocka_unit_test(test_budget_job),
         cmocka_unit_test(test_budget_job_learned_selection),

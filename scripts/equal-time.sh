@@ -1,0 +1,153 @@
+#!/usr/bin/env bash
+# The equal-time benchmark: renders each scene at fixed wall-clock budgets with plain path
+# tracing and with the guided tracer (nf_tracer --time-budget: training included, scene
+# loading excluded), measures relMSE and MAPE against converged references of our own, and
+# regenerates docs/equal-time.md with its table, plots (docs/equal-time/*.png) and ablation.
+#
+# Usage (from the repository root, after ./scripts/install-deps.sh --study):
+#   ./scripts/equal-time.sh            the whole study (its run time is in docs/equal-time.md)
+#   ./scripts/equal-time.sh --smoke    about one minute: one scene, one short budget, one
+#                                      seed, a tiny reference; checks that the pipeline runs
+#                                      and writes its page to out/equal-time-smoke/ only
+#
+# Environment: NF_EQ_BUDGETS (seconds, default "10 30"), NF_EQ_SEEDS (default "1 2 3"),
+# NF_EQ_SCENES, NF_EQ_REFERENCE_SECONDS (default 240 per scene), NF_EQ_ABLATION_BUDGET
+# (default 30), NF_EQ_THREADS (default 2), NF_EQ_OUT (default out/equal-time).
+#
+# References: each scene rendered once, unguided, for NF_EQ_REFERENCE_SECONDS with a seed no
+# run uses, cached in $NF_EQ_OUT/references/ (delete them to render again). Runs are cached
+# in $NF_EQ_OUT/runs/ the same way: a run whose log is complete is not run again, so an
+# interrupted study resumes. Runs are one at a time, each with NF_EQ_THREADS threads: the
+# machine should be otherwise idle. Not part of CI (CI runs --smoke).
+set -euo pipefail
+
+cd "$(dirname "$0")/.."
+SMOKE=0
+[ "${1:-}" = --smoke ] && SMOKE=1
+
+BUDGETS=${NF_EQ_BUDGETS:-10 30}
+SEEDS=${NF_EQ_SEEDS:-1 2 3}
+SCENES=${NF_EQ_SCENES:-veach-ajar cornell-box veach-bidir statue}
+REF_SECONDS=${NF_EQ_REFERENCE_SECONDS:-240}
+ABLATION_BUDGET=${NF_EQ_ABLATION_BUDGET:-30}
+THREADS=${NF_EQ_THREADS:-2}
+OUT=${NF_EQ_OUT:-out/equal-time}
+PAGE=docs/equal-time.md
+PLOTS=docs/equal-time
+ABLATION_SCENES=${NF_EQ_ABLATION_SCENES:-veach-ajar}
+if [ "$SMOKE" = 1 ]; then
+    BUDGETS=2
+    SEEDS=1
+    SCENES=cornell-box
+    REF_SECONDS=4
+    ABLATION_BUDGET=2
+    ABLATION_SCENES=cornell-box
+    OUT=out/equal-time-smoke
+    PAGE=$OUT/equal-time.md
+    PLOTS=$OUT/plots
+fi
+TRACER=build/examples/nf_tracer
+
+for tool in gnuplot python3 cmake; do
+    command -v "$tool" >/dev/null || {
+        echo "equal-time.sh: '$tool' is missing; run ./scripts/install-deps.sh --study" >&2
+        exit 1
+    }
+done
+
+declare -A SIZE=([cornell-box]="--width 256 --height 256"
+                 [veach-ajar]="--width 320 --height 180"
+                 [veach-bidir]="--width 256 --height 256"
+                 [statue]="--width 256 --height 256")
+
+# The guided tracer as the study runs it: every option of the equal-time configuration
+# (docs/equal-time.md, "The guided configuration"); the tracer's defaults for the rest.
+GUIDED="--guide-min-roughness 0.3 --guide-depth 2 --clamp-quantile 0.99"
+# The ablation: one lever changed at a time from GUIDED, name|options.
+ABLATION=(
+    "plain path tracing|--no-guiding"
+    "guided, the study's configuration|$GUIDED"
+    "all vertices guided (no depth limit)|--guide-min-roughness 0.3 --clamp-quantile 0.99"
+    "smooth conductors guided too|--guide-depth 2 --clamp-quantile 0.99"
+    "weights not clamped|--guide-min-roughness 0.3 --guide-depth 2"
+    "training passes dropped, not combined|$GUIDED --no-combine"
+    "learned guiding probability|$GUIDED --learn-selection"
+    "MIS-aware training|$GUIDED --mis-training"
+    "plain mixture (flow evaluated only where it samples)|$GUIDED --plain-mixture"
+    "train 15 % of the budget, not 30 %|$GUIDED --train-fraction 0.15"
+    "train 50 % of the budget|$GUIDED --train-fraction 0.5"
+)
+
+start=$(date +%s)
+mkdir -p "$OUT/references" "$OUT/runs" "$PLOTS"
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build build -j"$(nproc)" --target nf_tracer >/dev/null
+[ -x "$TRACER" ] || { echo "equal-time.sh: $TRACER was not built" >&2; exit 1; }
+
+# A run is complete when its log has the error line; $1 log, then the tracer's arguments.
+run() {
+    local log=$1
+    shift
+    if grep -q '^error' "$log" 2>/dev/null; then
+        return 0
+    fi
+    "$TRACER" "$@" > "$log.tmp" 2>&1 || { cat "$log.tmp" >&2; exit 1; }
+    tr '\r' '\n' < "$log.tmp" | grep -v '^\s*$' > "$log"
+    rm -f "$log.tmp"
+}
+
+for scene in $SCENES; do
+    ref=$OUT/references/$scene.exr
+    if [ ! -f "$ref" ]; then
+        echo "reference: $scene, unguided, ${REF_SECONDS} s"
+        t0=$(date +%s)
+        "$TRACER" --scene "examples/scenes/$scene/scene.xml" ${SIZE[$scene]} --no-guiding \
+            --threads "$THREADS" --seed 999 --time-budget "$REF_SECONDS" \
+            --out "$OUT/references/$scene" > "$OUT/references/$scene.log.tmp" 2>&1
+        tr '\r' '\n' < "$OUT/references/$scene.log.tmp" | grep -v '^\s*$' \
+            > "$OUT/references/$scene.log"
+        rm -f "$OUT/references/$scene.log.tmp" "$OUT/references/$scene.png"
+        echo "reference_seconds $(( $(date +%s) - t0 ))" >> "$OUT/references/$scene.log"
+    fi
+done
+
+for scene in $SCENES; do
+    for budget in $BUDGETS; do
+        for seed in $SEEDS; do
+            for method in pt guided; do
+                opts=$GUIDED
+                [ "$method" = pt ] && opts=--no-guiding
+                name=$scene-$budget-$seed-$method
+                echo "run: $name"
+                run "$OUT/runs/$name.log" --scene "examples/scenes/$scene/scene.xml" \
+                    ${SIZE[$scene]} --threads "$THREADS" --seed "$seed" \
+                    --time-budget "$budget" --reference "$OUT/references/$scene.exr" \
+                    --out "$OUT/runs/$name" $opts
+            done
+        done
+    done
+done
+
+: > "$OUT/ablation.list"
+for scene in $ABLATION_SCENES; do
+    for i in "${!ABLATION[@]}"; do
+        label=${ABLATION[$i]%%|*}
+        opts=${ABLATION[$i]#*|}
+        for seed in $SEEDS; do
+            name=ablation-$scene-$i-$seed
+            echo "ablation: $scene, $label, seed $seed"
+            run "$OUT/runs/$name.log" --scene "examples/scenes/$scene/scene.xml" \
+                ${SIZE[$scene]} --threads "$THREADS" --seed "$seed" \
+                --time-budget "$ABLATION_BUDGET" --reference "$OUT/references/$scene.exr" \
+                --out "$OUT/runs/$name" $opts
+            printf '%s\t%s\t%s\t%s\t%s\n' "$scene" "$i" "$seed" "$label" "$opts" \
+                >> "$OUT/ablation.list"
+        done
+    done
+done
+
+python3 scripts/study/equal_time.py --out "$OUT" --page "$PAGE" --plots "$PLOTS" \
+    --budgets "$BUDGETS" --seeds "$SEEDS" --scenes "$SCENES" --ablation-budget "$ABLATION_BUDGET" \
+    --guided "$GUIDED" --threads "$THREADS" --seconds "$(( $(date +%s) - start ))"
+rm -f "$OUT"/runs/*.png
+echo "wrote $PAGE ($(( $(date +%s) - start )) s)"
