@@ -65,8 +65,9 @@ void options_print_help(const char *program)
         "                        the model frozen; the passes are combined by inverse variance.\n"
         "                        Replaces --iterations, --batch and --spp\n"
         "  --train-fraction F    at most this share of the budget trains (default 0.3)\n"
-        "  --patience N          stop training after N passes whose loss is not 1%% better\n"
-        "                        than the best (default 4, 0 never)\n"
+        "  --patience N          stop training after N passes in which the held-out loss\n"
+        "                        (averaged over ~3 passes) did not get 1%% better than its\n"
+        "                        best (default 6, 0 never)\n"
         "  --step-samples N      training samples per optimizer step (default 2048)\n"
         "  --steps-per-pass N    optimizer steps after each training pass, on samples drawn\n"
         "                        from the latest passes (default 64)\n"
@@ -139,7 +140,7 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->train_fraction = 0.3f;
     o->step_samples = 2048;
     o->steps_per_pass = 64;
-    o->patience = 4;
+    o->patience = 6;
     o->combine = 1;
     o->selection_cost = -1.0f;
 

@@ -102,22 +102,24 @@ static double luminance(const double *p)
     return (p[0] + p[1] + p[2]) / 3.0;
 }
 
-/* The mean over pixels of the relative squared error of `mean` (a mean image) against `ref`,
- * in luminance, as relMSE weighs pixels. */
-static double relative_error(const double *mean, double scale, const double *ref, size_t pixels)
+/* The mean over pixels of the squared error of `mean` (a mean image, times scale) against
+ * `ref`, in luminance. Absolute, not relative: a relative error divides by the reference,
+ * which for a render pass's own spread contains that pass's outliers and for a training
+ * group's distance does not, and on a scene with fireflies the two would differ tenfold. */
+static double squared_error(const double *mean, double scale, const double *ref, size_t pixels)
 {
     double sum = 0.0;
     for (size_t i = 0; i < pixels; ++i) {
-        double r = luminance(ref + 3 * i), d = scale * luminance(mean + 3 * i) - r;
-        sum += d * d / (r * r + METRIC_EPSILON);
+        double d = scale * luminance(mean + 3 * i) - luminance(ref + 3 * i);
+        sum += d * d;
     }
     return sum / (double)pixels;
 }
 
 /* Writes into img the inverse-variance combination of the training groups and the render
  * passes (render_sum, render_sq: per-pixel sums of RGB and of luminance squared, n passes).
- * Each group's variance is estimated by its squared distance to the render mean, less the
- * render mean's own variance; a slight bias, because the weights come from the same data,
+ * Each group's variance is estimated by its mean squared distance to the render mean, less
+ * the render mean's own variance; a slight bias, because the weights come from the same data,
  * which Practical Path Guiding accepts too. Returns the training groups' share. */
 static double combine(const pass_groups *g, const double *render_sum, const double *render_sq,
                       int n, int use_training, image *img, double *render_variance_out)
@@ -129,21 +131,23 @@ static double combine(const pass_groups *g, const double *render_sum, const doub
     if (n >= 2) {
         double *mean = malloc(floats * sizeof *mean);
         if (mean) {
-            double var = 0.0; /* relative variance of one render pass */
+            double var = 0.0, rel = 0.0; /* variance of one render pass, and relative */
             for (size_t i = 0; i < floats; ++i)
                 mean[i] = render_sum[i] / n;
             for (size_t i = 0; i < pixels; ++i) {
                 double m = luminance(mean + 3 * i);
-                double s2 = (render_sq[i] - (double)n * m * m) / (n - 1);
-                var += fmax(s2, 0.0) / (m * m + METRIC_EPSILON);
+                double s2 = fmax((render_sq[i] - (double)n * m * m) / (n - 1), 0.0);
+                var += s2;
+                rel += s2 / (m * m + METRIC_EPSILON);
             }
             var /= (double)pixels;
+            rel /= (double)pixels;
             if (getenv("NF_BUDGET_DEBUG"))
                 fprintf(stderr, "render passes: %d, relative variance of one %.4g\n", n, var);
-            render_variance = var;
+            render_variance = rel;
             w_render = var > 0.0 ? n / var : 1.0;
             for (int k = 0; k < groups; ++k) {
-                double v = relative_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var / n;
+                double v = squared_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var / n;
                 /* A group that looks better than the render passes is noise in the estimate:
                  * never trust it more than its pass count says. */
                 v = fmax(v, var / g->count[k]);
@@ -464,7 +468,7 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
 
     const double end = bs->start + bs->seconds;
     const double train_end = bs->start + bs->train_fraction * bs->seconds;
-    double best_loss = INFINITY, last_pass = 0.0;
+    double best_loss = INFINITY, smooth_loss = NAN, last_pass = 0.0;
     int since_best = 0, training = model != NULL && bs->train_fraction > 0.0;
     uint32_t k = 0;
     for (;; ++k) {
@@ -502,8 +506,11 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
                         records.count, loss, t1 - t0, t2 - t1);
             if (isfinite(loss)) {
                 rep->last_loss = (float)loss;
-                if (loss < best_loss - 0.01 * fabs(best_loss)) {
-                    best_loss = loss;
+                /* One pass's held-out loss is noisy (a few bright samples weigh much): the
+                 * test follows an exponential average over about three passes. */
+                smooth_loss = isnan(smooth_loss) ? loss : 0.7 * smooth_loss + 0.3 * loss;
+                if (isinf(best_loss) || smooth_loss < best_loss - 0.01 * fabs(best_loss)) {
+                    best_loss = smooth_loss;
                     since_best = 0;
                 } else {
                     since_best++;

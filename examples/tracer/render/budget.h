@@ -7,7 +7,8 @@
  *      guiding probabilities, selection.h), and their radiance is kept, not thrown away;
  *   2. render passes with the model frozen, until the next pass would overrun the budget.
  * Training stops at `train_fraction` of the budget, or earlier when the loss, measured on
- * each pass's fresh samples before the model has seen them, stops improving. The image is
+ * each pass's fresh samples before the model has seen them and averaged over about three
+ * passes, has not improved by 1 % for `patience` passes. The image is
  * the inverse-variance combination of the training passes (grouped) and the render passes
  * (docs/equal-time.md, "How the budget is spent"). Without a model every pass is a render pass.
  */
