@@ -62,20 +62,20 @@ declare -A SIZE=([cornell-box]="--width 256 --height 256"
 
 # The guided tracer as the study runs it: every option of the equal-time configuration
 # (docs/equal-time.md, "The guided configuration"); the tracer's defaults for the rest.
-GUIDED="--guide-min-roughness 0.3 --guide-depth 2 --clamp-quantile 0.99"
+GUIDED="--learn-selection --guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
 # The ablation: one lever changed at a time from GUIDED, name|options.
 ABLATION=(
     "plain path tracing|--no-guiding"
     "guided, the study's configuration|$GUIDED"
-    "all vertices guided (no depth limit)|--guide-min-roughness 0.3 --clamp-quantile 0.99"
-    "smooth conductors guided too|--guide-depth 2 --clamp-quantile 0.99"
-    "weights not clamped|--guide-min-roughness 0.3 --guide-depth 2"
+    "guiding probability fixed at 0.5 (no learned selection, no cost test)|--guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
+    "cost test stricter (--selection-cost 3)|$GUIDED --selection-cost 3"
+    "all vertices guided (no depth limit)|--learn-selection --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
+    "smooth conductors guided too|--learn-selection --guide-depth 2 --clamp-quantile 0.99 --train-fraction 0.15"
+    "training weights not clamped|--learn-selection --guide-depth 2 --guide-min-roughness 0.3 --train-fraction 0.15"
     "training passes dropped, not combined|$GUIDED --no-combine"
-    "learned guiding probability|$GUIDED --learn-selection"
+    "train up to 30 % of the budget|$GUIDED --train-fraction 0.3"
     "MIS-aware training|$GUIDED --mis-training"
-    "plain mixture (flow evaluated only where it samples)|$GUIDED --plain-mixture"
-    "train 15 % of the budget, not 30 %|$GUIDED --train-fraction 0.15"
-    "train 50 % of the budget|$GUIDED --train-fraction 0.5"
+    "plain mixture (the flow evaluated only where it samples)|$GUIDED --plain-mixture"
 )
 
 start=$(date +%s)
