@@ -18,7 +18,8 @@
 # one core. The goal of at least 10 million executions per loader needs (rates measured on one
 # core, docs/robustness.md) about 15 minutes for fuzz_deserialize (~11,500 exec/s), 2 hours
 # for fuzz_model_api (~1,300/s), 1.5 days for fuzz_point (~80/s), 22 minutes for
-# fuzz_scene_load (~7,500/s) and 2 minutes for fuzz_blocks (~92,000/s). A smoke run
+# fuzz_scene_load (~7,500/s), 2 minutes for fuzz_blocks (~92,000/s) and 30 minutes for
+# fuzz_path (~5,700/s). A smoke run
 # (`NF_FUZZ_MERGE=0 scripts/fuzz-long.sh 5`) takes the build plus about half a minute; it is
 # not part of CI, whose .ci/robustness already runs every target for 60 s.
 # Exit status: 0 when no target crashed, 1 otherwise.
@@ -41,6 +42,7 @@ ALL_TARGETS=(
     "fuzz_model_api:fuzz/corpus/model:"
     "fuzz_point:fuzz/corpus/point:"
     "fuzz_blocks:fuzz/corpus/blocks:"
+    "fuzz_path:fuzz/corpus/path:"
     "fuzz_scene_load:examples/tracer/fuzz/corpus:-dict=$ROOT/examples/tracer/fuzz/scene.dict"
 )
 

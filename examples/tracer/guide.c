@@ -5,6 +5,7 @@
 
 #include <math.h>
 #include <stdatomic.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -124,6 +125,47 @@ guide_settings guide_default_settings(guide_prior prior)
     return g;
 }
 
+/* The model's position bounds for a scene: its bounds padded by 1% so that no position sits
+ * exactly on the clamp, which also gives flat scenes a non-zero extent on every axis. */
+static void model_bounds(const scene *s, float lo_out[3], float hi_out[3])
+{
+    vec3 lo = s->bounds_min, hi = s->bounds_max;
+    float pad = 0.01f * fmaxf(v3_max_abs(v3_sub(hi, lo)), 1e-3f);
+    float l[3] = {lo.x, lo.y, lo.z}, h[3] = {hi.x, hi.y, hi.z};
+    for (int a = 0; a < 3; ++a) {
+        lo_out[a] = l[a] - pad;
+        hi_out[a] = h[a] + pad;
+    }
+}
+
+int guide_bounds_match(const scene *s, const nf_model *m, char *msg, size_t size)
+{
+    float lo[3], hi[3];
+    nf_config cfg;
+    model_bounds(s, lo, hi);
+    if (nf_model_config(m, &cfg) != NF_OK)
+        return 1; /* not a model: nothing to compare (the caller's calls will say why) */
+    float extent = 0.0f;
+    for (int a = 0; a < 3; ++a)
+        extent = fmaxf(extent, hi[a] - lo[a]);
+    /* A saved model of this scene matches to the float; 1% of the extent tolerates a scene
+     * edited slightly, not one moved or another scene. */
+    int match = 1;
+    for (int a = 0; a < 3; ++a)
+        match &= fabsf(cfg.bounds_min[a] - lo[a]) <= 0.01f * extent &&
+                 fabsf(cfg.bounds_max[a] - hi[a]) <= 0.01f * extent;
+    if (!match)
+        snprintf(msg, size,
+                 "the model's position bounds [%g %g %g] - [%g %g %g] are not this scene's "
+                 "[%g %g %g] - [%g %g %g]: it was trained for another scene (or this one "
+                 "changed), so its positions mean other places and guiding will be poor",
+                 (double)cfg.bounds_min[0], (double)cfg.bounds_min[1], (double)cfg.bounds_min[2],
+                 (double)cfg.bounds_max[0], (double)cfg.bounds_max[1], (double)cfg.bounds_max[2],
+                 (double)lo[0], (double)lo[1], (double)lo[2], (double)hi[0], (double)hi[1],
+                 (double)hi[2]);
+    return match;
+}
+
 int guide_create(const scene *s, const guide_settings *settings, nf_model **out, tr_error *err)
 {
     nf_config cfg;
@@ -135,15 +177,7 @@ int guide_create(const scene *s, const guide_settings *settings, nf_model **out,
         cfg.custom_prior = guide_bsdf_callbacks();
     if (settings->prior_epsilon >= 0.0f)
         cfg.prior_epsilon = settings->prior_epsilon;
-    /* Pad the bounds by 1% so that no position sits exactly on the clamp, and give flat
-     * scenes a non-zero extent on every axis. */
-    vec3 lo = s->bounds_min, hi = s->bounds_max;
-    float pad = 0.01f * fmaxf(v3_max_abs(v3_sub(hi, lo)), 1e-3f);
-    float l[3] = {lo.x, lo.y, lo.z}, h[3] = {hi.x, hi.y, hi.z};
-    for (int a = 0; a < 3; ++a) {
-        cfg.bounds_min[a] = l[a] - pad;
-        cfg.bounds_max[a] = h[a] + pad;
-    }
+    model_bounds(s, cfg.bounds_min, cfg.bounds_max);
     cfg.learning_rate = settings->learning_rate;
     cfg.seed = settings->seed;
     nf_status st = nf_model_create(&cfg, out);

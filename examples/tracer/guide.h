@@ -67,6 +67,10 @@ guide_settings guide_default_settings(guide_prior prior);
  * little). */
 int guide_create(const scene *s, const guide_settings *settings, nf_model **out, tr_error *err);
 
+/* Whether a model's position bounds are the ones guide_create gives this scene (within 1% of
+ * its extent). Returns 1 if so; else 0 with a message for the user in msg. */
+int guide_bounds_match(const scene *s, const nf_model *m, char *msg, size_t size);
+
 /* Loads a model saved with --save-model; the BSDF prior's callbacks are supplied. */
 int guide_load(const char *path, nf_model **out, tr_error *err);
 

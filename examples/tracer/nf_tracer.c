@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <nisflow/nisflow.h>
 
@@ -61,7 +62,8 @@ static int is_directory(const char *path)
     return stat(path, &st) == 0 && S_ISDIR(st.st_mode);
 }
 
-/* Creates every missing directory of `path`'s parent (like mkdir -p). */
+/* Creates every missing directory of `path`'s parent (like mkdir -p), saying so for each: a
+ * mistyped --out must not create directories silently. */
 static int make_parent_dirs(const char *path)
 {
     char buf[4096];
@@ -70,11 +72,29 @@ static int make_parent_dirs(const char *path)
         if (*p != '/')
             continue;
         *p = '\0';
-        if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+        if (mkdir(buf, 0777) == 0)
+            fprintf(stderr, "nf_tracer: note: created the directory '%s'\n", buf);
+        else if (errno != EEXIST)
             return 0;
         *p = '/';
     }
     return 1;
+}
+
+/* Whether a file can be created at `path`: its directory exists and is writable. Checked
+ * before any work, so that a bad --save-model is not found after the whole render. */
+static int can_create(const char *path)
+{
+    char dir[4096];
+    copy_string(dir, sizeof dir, path);
+    char *slash = strrchr(dir, '/');
+    if (!slash)
+        copy_string(dir, sizeof dir, ".");
+    else if (slash == dir)
+        dir[1] = '\0';
+    else
+        *slash = '\0';
+    return access(dir, W_OK) == 0;
 }
 
 static void output_prefix(const options *o, char *out, size_t size)
@@ -118,6 +138,20 @@ int main(int argc, char **argv)
         return 0;
     }
 
+    /* Outputs first: a path that cannot be written is found before any work. */
+    char prefix[4096], path[4200];
+    output_prefix(&o, prefix, sizeof prefix);
+    if (!make_parent_dirs(prefix) || !can_create(prefix)) {
+        fprintf(stderr, "nf_tracer: --out: cannot write into the directory of '%s': %s\n",
+                prefix, strerror(errno));
+        return 1;
+    }
+    if (o.save_model && !can_create(o.save_model)) {
+        fprintf(stderr, "nf_tracer: --save-model: cannot create '%s': %s\n", o.save_model,
+                strerror(errno));
+        return 1;
+    }
+
     double t_start = now_seconds();
     scene s;
     if (!scene_load(o.scene, &s, &err))
@@ -133,6 +167,9 @@ int main(int argc, char **argv)
            o.scene, s.nshapes, (unsigned long long)triangles, s.nlights, now_seconds() - t_start);
     printf("image      %d x %d, max depth %d, %d threads, seed %llu\n", s.width, s.height,
            s.max_depth, o.threads, (unsigned long long)o.seed);
+    if (!s.has_lights)
+        fprintf(stderr, "nf_tracer: warning: the scene has no emitters (no area light, no "
+                "environment): the image will be black\n");
     const double t_job = now_seconds(); /* a time budget counts from here */
 
     int status = 1;
@@ -160,13 +197,6 @@ int main(int argc, char **argv)
         }
     }
 
-    char prefix[4096], path[4200];
-    output_prefix(&o, prefix, sizeof prefix);
-    if (!make_parent_dirs(prefix)) {
-        fprintf(stderr, "nf_tracer: cannot create the directory of '%s': %s\n", prefix,
-                strerror(errno));
-        goto done;
-    }
 
     tracer t;
     memset(&t, 0, sizeof t);
@@ -198,6 +228,9 @@ int main(int argc, char **argv)
         nf_config cfg;
         nf_model_config(model, &cfg);
         t.bsdf_prior = cfg.prior == NF_PRIOR_CUSTOM;
+        char mismatch[512];
+        if (o.load_model && !guide_bounds_match(&s, model, mismatch, sizeof mismatch))
+            fprintf(stderr, "nf_tracer: warning: --load-model %s: %s\n", o.load_model, mismatch);
         if (o.load_model) {
             static const char *const kinds[] = {"uniform-direction", "uniform-angle", "cosine",
                                                 "bsdf"};
