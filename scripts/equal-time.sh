@@ -73,7 +73,7 @@ ABLATION=(
     "smooth conductors guided too|--learn-selection --guide-depth 2 --clamp-quantile 0.99 --train-fraction 0.15"
     "training weights not clamped|--learn-selection --guide-depth 2 --guide-min-roughness 0.3 --train-fraction 0.15"
     "training passes dropped, not combined|$GUIDED --no-combine"
-    "train up to 30 % of the budget|$GUIDED --train-fraction 0.3"
+    "train up to 30 % of the budget|--learn-selection --guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.3"
     "MIS-aware training|$GUIDED --mis-training"
     "plain mixture (the flow evaluated only where it samples)|$GUIDED --plain-mixture"
 )
@@ -83,6 +83,9 @@ mkdir -p "$OUT/references" "$OUT/runs" "$PLOTS"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build -j"$(nproc)" --target nf_tracer >/dev/null
 [ -x "$TRACER" ] || { echo "equal-time.sh: $TRACER was not built" >&2; exit 1; }
+
+# The commit the runs are made at (the first run's; cached runs keep theirs).
+[ -f "$OUT/commit" ] || git rev-parse --short HEAD > "$OUT/commit" 2>/dev/null || true
 
 # A run is complete when its log has the error line; $1 log, then the tracer's arguments.
 run() {
@@ -148,6 +151,6 @@ done
 
 python3 scripts/study/equal_time.py --out "$OUT" --page "$PAGE" --plots "$PLOTS" \
     --budgets "$BUDGETS" --seeds "$SEEDS" --scenes "$SCENES" --ablation-budget "$ABLATION_BUDGET" \
-    --guided "$GUIDED" --threads "$THREADS" --seconds "$(( $(date +%s) - start ))"
+    --guided "$GUIDED" --threads "$THREADS"
 rm -f "$OUT"/runs/*.png
 echo "wrote $PAGE ($(( $(date +%s) - start )) s)"

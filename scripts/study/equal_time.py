@@ -66,7 +66,7 @@ def cell(values):
 def main():
     ap = argparse.ArgumentParser()
     for name in ("out", "page", "plots", "budgets", "seeds", "scenes", "ablation-budget",
-                 "guided", "threads", "seconds"):
+                 "guided", "threads"):
         ap.add_argument("--" + name, required=True)
     a = ap.parse_args()
     budgets = [b for b in a.budgets.split()]
@@ -211,6 +211,18 @@ unset multiplot
         pass
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() or "unknown"
+    runs_commit = commit
+    try:
+        runs_commit = open(os.path.join(a.out, "commit")).read().strip() or commit
+    except OSError:
+        pass
+    # The study's compute: every run's and reference's wall time, from their logs.
+    total = 0.0
+    for d in (runs, os.path.join(a.out, "references")):
+        for name in os.listdir(d):
+            if name.endswith(".log"):
+                m = re.search(r"^total\s+([0-9.]+) s", open(os.path.join(d, name)).read(), re.M)
+                total += float(m.group(1)) if m else 0.0
     template = open(os.path.join(os.path.dirname(__file__), "equal-time.md.in")).read()
     subs = {
         "@TABLE@": "\n".join(table),
@@ -219,8 +231,8 @@ unset multiplot
         "@REFERENCES@": "\n".join(refs),
         "@MACHINE@": f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}",
         "@COMMIT@": commit,
-        "@SECONDS@": a.seconds,
-        "@MINUTES@": str(round(int(a.seconds) / 60)),
+        "@RUNS_COMMIT@": runs_commit,
+        "@MINUTES@": str(round(total / 60)),
         "@GUIDED@": a.guided,
         "@THREADS@": a.threads,
         "@SEEDS@": ", ".join(seeds),
