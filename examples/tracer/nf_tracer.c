@@ -117,6 +117,49 @@ static void output_prefix(const options *o, char *out, size_t size)
         out[len - 4] = '\0'; /* "--out x.exr" means the prefix "x" */
 }
 
+/* ---- The time-budgeted job ------------------------------------------------------------------ */
+
+/* --time-budget: the whole job in render_with_budget (budget.h), and its report. */
+static int render_in_budget(const options *o, tracer *t, nf_model *model, double t_job,
+                            image *img, path_stats *stats, tr_error *err)
+{
+    budget_settings bs = budget_default_settings();
+    budget_report br;
+    bs.seconds = o->time_budget;
+    bs.start = t_job;
+    bs.train_fraction = o->train_fraction;
+    bs.step_samples = o->step_samples;
+    bs.steps_per_pass = o->steps_per_pass;
+    bs.patience = o->patience;
+    bs.combine = o->combine;
+    bs.clamp_quantile = o->clamp_quantile;
+    bs.learn_selection = o->learn_selection;
+    bs.selection_cost = o->selection_cost;
+    bs.threads = o->threads;
+    bs.seed = o->seed;
+    if (!render_with_budget(t, model, &bs, img, &br, err))
+        return 0;
+    *stats = br.stats;
+    if (model)
+        printf("trained    %d passes, %d steps on %llu samples in %.2f s (steps %.2f s), last "
+               "loss %.4f%s\n",
+               br.train_passes, br.steps, (unsigned long long)br.samples, br.train_seconds,
+               br.step_seconds, (double)br.last_loss,
+               br.stopped_early ? ", stopped: the loss stopped improving" : "");
+    if (o->learn_selection && model)
+        printf("selection  guiding off in %.0f%% of the visited cells\n", 100.0 * br.selection_off);
+    printf("budget     %.2f s of %.2f: %d training passes, %d render passes in %.2f s; the "
+           "training passes weigh %.2f of the image\n",
+           br.seconds, (double)o->time_budget, br.train_passes, br.render_passes,
+           br.render_seconds, br.train_weight);
+    uint64_t paths = stats->paths ? stats->paths : 1;
+    printf("paths      %.2f rays and %.2f guided vertices per path; a render pass takes %.3f CPU "
+           "s, its relative variance %.4g\n",
+           (double)stats->rays / (double)paths, (double)stats->guided_vertices / (double)paths,
+           br.render_passes ? br.render_cpu_seconds / br.render_passes : 0.0, br.pass_variance);
+    return 1;
+}
+
 /* ---- Main ------------------------------------------------------------------------------------- */
 
 static int fail(const char *what, const tr_error *e)
@@ -252,44 +295,10 @@ int main(int argc, char **argv)
     path_stats stats;
     memset(&stats, 0, sizeof stats);
     if (o.time_budget > 0.0f) {
-        budget_settings bs = budget_default_settings();
-        budget_report br;
-        bs.seconds = o.time_budget;
-        bs.start = t_job;
-        bs.train_fraction = o.train_fraction;
-        bs.step_samples = o.step_samples;
-        bs.steps_per_pass = o.steps_per_pass;
-        bs.patience = o.patience;
-        bs.combine = o.combine;
-        bs.clamp_quantile = o.clamp_quantile;
-        bs.learn_selection = o.learn_selection;
-        bs.selection_cost = o.selection_cost;
-        bs.threads = o.threads;
-        bs.seed = o.seed;
-        if (!render_with_budget(&t, model, &bs, &img, &br, &err)) {
+        if (!render_in_budget(&o, &t, model, t_job, &img, &stats, &err)) {
             fail("render", &err);
             goto done;
         }
-        stats = br.stats;
-        if (model)
-            printf("trained    %d passes, %d steps on %llu samples in %.2f s (steps %.2f s), last "
-                   "loss %.4f%s\n",
-                   br.train_passes, br.steps, (unsigned long long)br.samples, br.train_seconds,
-                   br.step_seconds, (double)br.last_loss,
-                   br.stopped_early ? ", stopped: the loss stopped improving" : "");
-        if (o.learn_selection && model)
-            printf("selection  guiding off in %.0f%% of the visited cells\n",
-                   100.0 * br.selection_off);
-        printf("budget     %.2f s of %.2f: %d training passes, %d render passes in %.2f s; the "
-               "training passes weigh %.2f of the image\n",
-               br.seconds, (double)o.time_budget, br.train_passes, br.render_passes,
-               br.render_seconds, br.train_weight);
-        printf("paths      %.2f rays and %.2f guided vertices per path; a render pass takes "
-               "%.3f CPU s, its relative variance %.4g\n",
-               (double)stats.rays / (double)(stats.paths ? stats.paths : 1),
-               (double)stats.guided_vertices / (double)(stats.paths ? stats.paths : 1),
-               br.render_passes ? br.render_cpu_seconds / br.render_passes : 0.0,
-               br.pass_variance);
         goto write_outputs;
     }
 

@@ -23,7 +23,6 @@
  * (Concurrency: tests/robustness/test_threads.c; no allocation:
  * tests/robustness/test_alloc_failure.c.)
  */
-#define _POSIX_C_SOURCE 200809L /* pthread_attr_setstack */
 
 #include <stdarg.h>
 #include <stddef.h>
@@ -33,7 +32,6 @@
 
 #include <float.h>
 #include <math.h>
-#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1439,7 +1437,7 @@ static void test_copies_are_valid(void **state)
 #endif
 
 #if STACK_CHECK
-enum { STACK_BYTES = 256 * 1024, STACK_PAINT = 0x5a };
+enum { STACK_BYTES = 256 * 1024 };
 
 typedef struct stack_job {
     const nf_model *m;
@@ -1471,21 +1469,9 @@ static void *stack_thread(void *arg)
 
 static size_t stack_used(stack_job *j)
 {
-    unsigned char *stack = malloc(STACK_BYTES);
-    assert_non_null(stack);
-    memset(stack, STACK_PAINT, STACK_BYTES);
-    pthread_attr_t attr;
-    pthread_t t;
-    assert_int_equal(pthread_attr_init(&attr), 0);
-    assert_int_equal(pthread_attr_setstack(&attr, stack, STACK_BYTES), 0);
-    assert_int_equal(pthread_create(&t, &attr, stack_thread, j), 0);
-    assert_int_equal(pthread_join(t, NULL), 0);
-    pthread_attr_destroy(&attr);
-    size_t low = 0;
-    while (low < STACK_BYTES && stack[low] == STACK_PAINT)
-        ++low;
-    free(stack);
-    return STACK_BYTES - low;
+    size_t used = nft_stack_used(stack_thread, j, STACK_BYTES);
+    assert_true(used > 0);
+    return used;
 }
 #endif
 

@@ -11,7 +11,6 @@
  * tiled one (16, 37). Only in optimized builds without sanitizers: the figure is for those,
  * and sanitizers grow every frame.
  */
-#define _POSIX_C_SOURCE 200809L /* pthread_attr_setstack */
 
 #include <setjmp.h>
 #include <stdarg.h>
@@ -20,7 +19,6 @@
 
 #include <cmocka.h>
 
-#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -34,7 +32,7 @@
 #endif
 
 #if STACK_CHECK
-enum { STACK_BYTES = 512 * 1024, STACK_PAINT = 0x5a, N = 37 };
+enum { STACK_BYTES = 512 * 1024, N = 37 };
 
 typedef struct stack_job {
     nf_model *m;
@@ -64,21 +62,9 @@ static void *stack_thread(void *arg)
 
 static size_t stack_used(stack_job *j)
 {
-    unsigned char *stack = malloc(STACK_BYTES);
-    assert_non_null(stack);
-    memset(stack, STACK_PAINT, STACK_BYTES);
-    pthread_attr_t attr;
-    pthread_t t;
-    assert_int_equal(pthread_attr_init(&attr), 0);
-    assert_int_equal(pthread_attr_setstack(&attr, stack, STACK_BYTES), 0);
-    assert_int_equal(pthread_create(&t, &attr, stack_thread, j), 0);
-    assert_int_equal(pthread_join(t, NULL), 0);
-    pthread_attr_destroy(&attr);
-    size_t low = 0;
-    while (low < STACK_BYTES && stack[low] == STACK_PAINT)
-        ++low;
-    free(stack);
-    return STACK_BYTES - low;
+    size_t used = nft_stack_used(stack_thread, j, STACK_BYTES);
+    assert_true(used > 0);
+    return used;
 }
 #endif
 

@@ -88,6 +88,10 @@ nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed);
 /* A short name of a prior, for messages. */
 const char *nft_prior_name(nf_prior_kind prior);
 
+/* Runs fn(arg) on a thread with a painted stack of stack_bytes (ours) and returns how many
+ * bytes of it the thread touched; 0 if the thread could not run (the caller asserts > 0). */
+size_t nft_stack_used(void *(*fn)(void *), void *arg, size_t stack_bytes);
+
 /* The analytic solid-angle density of docs/theory.md section 2 (with the eps mixture for cosine and
  * custom), in double, at a direction of any positive length; ctx vectors normalized here. */
 double nft_prior_density(nf_prior_kind prior, float eps, const nf_context *ctx,
