@@ -33,7 +33,7 @@ budget_settings budget_default_settings(void)
     b.train_fraction = 0.3;
     b.step_samples = 2048;
     b.steps_per_pass = 64;
-    b.patience = 0;
+    b.patience = 6;
     b.combine = 1;
     b.clamp_quantile = 0.0f;
     b.learn_selection = 0;
@@ -142,19 +142,15 @@ static double combine(const pass_groups *g, const double *render_sum, const doub
             }
             var /= (double)pixels;
             rel /= (double)pixels;
-            if (getenv("NF_BUDGET_DEBUG"))
-                fprintf(stderr, "render passes: %d, relative variance of one %.4g\n", n, var);
             render_variance = rel;
-            w_render = var > 0.0 ? n / var : 1.0;
-            for (int k = 0; k < groups; ++k) {
+            /* var == 0 (a black image): no estimate, the pass counts decide below. */
+            w_render = var > 0.0 ? n / var : 0.0;
+            for (int k = 0; k < groups && var > 0.0; ++k) {
                 double v = squared_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var / n;
                 /* A group that looks better than the render passes is noise in the estimate:
                  * never trust it more than its pass count says. */
                 v = fmax(v, var / g->count[k]);
                 w[k] = 1.0 / v;
-                if (getenv("NF_BUDGET_DEBUG"))
-                    fprintf(stderr, "group %d (%d passes): v %.4g, render var %.4g (n %d)\n", k,
-                            g->count[k], v, var, n);
             }
             free(mean);
         }
@@ -501,9 +497,6 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
             rep->train_passes++;
             rep->train_seconds += t2 - t0;
             rep->step_seconds += t2 - t1;
-            if (getenv("NF_BUDGET_DEBUG"))
-                fprintf(stderr, "pass %u: %zu samples, held-out loss %.4f, %.3f s + %.3f s\n", k,
-                        records.count, loss, t1 - t0, t2 - t1);
             if (isfinite(loss)) {
                 rep->last_loss = (float)loss;
                 /* One pass's held-out loss is noisy (a few bright samples weigh much): the

@@ -215,6 +215,47 @@ static void test_budget_job_learned_selection(void **state)
     check_budget_job(1);
 }
 
+/* A scene without light: no training sample, zero variance everywhere; the combination must
+ * fall back to pass counts, not divide by zero (which gave NaN pixels). */
+static void test_budget_job_black_scene(void **state)
+{
+    (void)state;
+    static const char xml[] =
+        "<scene version=\"3.0.0\">\n"
+        "<sensor type=\"perspective\"><float name=\"fov\" value=\"55\"/>"
+        "<film type=\"hdrfilm\"><integer name=\"width\" value=\"8\"/>"
+        "<integer name=\"height\" value=\"8\"/></film></sensor>\n"
+        "<shape type=\"rectangle\"><transform name=\"to_world\"><translate z=\"-1\"/></transform>"
+        "<bsdf type=\"diffuse\"/></shape>\n"
+        "</scene>\n";
+    scene s;
+    tr_error err;
+    if (!scene_load_string(xml, TRACER_TEST_TMP_DIR, &s, &err))
+        fail_msg("%s", err.msg);
+    tracer t = {.s = &s};
+    nf_model *model = NULL;
+    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+    if (!guide_create(&s, &gs, &model, &err))
+        fail_msg("%s", err.msg);
+    t.model = model;
+    t.guide_prob = 0.5f;
+    budget_settings bs = budget_default_settings();
+    bs.seconds = 0.2;
+    bs.start = now_seconds();
+    bs.threads = 2;
+    image img;
+    budget_report rep;
+    if (!render_with_budget(&t, model, &bs, &img, &rep, &err))
+        fail_msg("%s", err.msg);
+    assert_true(rep.train_passes >= 1 && rep.render_passes >= 2);
+    assert_int_equal(rep.samples, 0);
+    for (size_t i = 0; i < 3u * 8u * 8u; ++i)
+        assert_true(img.data[i] == 0.0f); /* NaN compares unequal */
+    image_free(&img);
+    nf_model_destroy(model);
+    scene_free(&s);
+}
+
 /* Samples where the flow's density is the larger one (and the integrand is not zero) raise
  * alpha; where the BSDF's is, they lower it. */
 static void test_selection_learns_direction(void **state)
@@ -286,6 +327,7 @@ int main(void)
         cmocka_unit_test(test_levers_match_unguided),
         cmocka_unit_test(test_budget_job),
         cmocka_unit_test(test_budget_job_learned_selection),
+        cmocka_unit_test(test_budget_job_black_scene),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
