@@ -15,6 +15,11 @@
  *     (1 - g) times its own, so its weight is divided by (1 - g);
  *   - next-event estimation weighs the light sample against p_mix, and an emitter hit by the
  *     scattered ray weighs p_mix against the light density (power heuristic).
+ * The plain mixture (tracer.plain_mixture) is the other one-sample estimator: each technique
+ * weighs its direction by its own density, and light-sampling MIS uses p_bsdf on both sides
+ * (the weights still sum to one); the flow is then called only where it samples. Which
+ * vertices are guided: non-delta ones up to guide_depth, not smooth rough conductors
+ * (guide_min_roughness), and where a learned selection grid gives g = 0 none at all.
  */
 #include "integrator.h"
 
@@ -417,8 +422,9 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         gp.bp = sh.bp;
 
         /* A guided vertex prepares the flow's shading point once; the light sample's density
-         * and the scattering below both use it (docs/integration.md). The BSDF prior gets
-         * this vertex's material through the point's own callbacks. */
+         * and the scattering below both use it (docs/integration.md). With the plain mixture
+         * it is prepared only if the flow samples. The BSDF prior gets this vertex's material
+         * through the point's own callbacks. */
         nf_shading_point sp;
         nf_prior_callbacks bsdf_prior = guide_point_callbacks(&gp);
         vertex_flow vf = {0.0f, t->plain_mixture, 0, &sp, &ctx, t->bsdf_prior ? &bsdf_prior : NULL};
