@@ -62,19 +62,28 @@ declare -A SIZE=([cornell-box]="--width 256 --height 256"
 
 # The guided tracer as the study runs it: every option of the equal-time configuration
 # (docs/equal-time.md, "The guided configuration"); the tracer's defaults for the rest.
-GUIDED="--learn-selection --guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
+GUIDED="--learn-selection --mis-training --guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
 # The ablation: one lever changed at a time from GUIDED, name|options.
+without() { # GUIDED without the option $1 (and its value, if it has one)
+    local out="" skip=0 w
+    for w in $GUIDED; do
+        if [ "$skip" = 1 ]; then skip=0; continue; fi
+        if [ "$w" = "$1" ]; then [ "${2:-}" = value ] && skip=1; continue; fi
+        out="$out $w"
+    done
+    echo "${out# }"
+}
 ABLATION=(
     "plain path tracing|--no-guiding"
     "guided, the study's configuration|$GUIDED"
-    "guiding probability fixed at 0.5 (no learned selection, no cost test)|--guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
+    "guiding probability fixed at 0.5 (no learned selection, no cost test)|$(without --learn-selection)"
     "cost test stricter (--selection-cost 3)|$GUIDED --selection-cost 3"
-    "all vertices guided (no depth limit)|--learn-selection --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
-    "smooth conductors guided too|--learn-selection --guide-depth 2 --clamp-quantile 0.99 --train-fraction 0.15"
-    "training weights not clamped|--learn-selection --guide-depth 2 --guide-min-roughness 0.3 --train-fraction 0.15"
+    "all vertices guided (no depth limit)|$(without --guide-depth value)"
+    "smooth conductors guided too|$(without --guide-min-roughness value)"
+    "training weights not clamped|$(without --clamp-quantile value)"
     "training passes dropped, not combined|$GUIDED --no-combine"
-    "train up to 30 % of the budget|--learn-selection --guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.3"
-    "MIS-aware training|$GUIDED --mis-training"
+    "train up to 30 % of the budget|$(without --train-fraction value) --train-fraction 0.3"
+    "trained on all the emission found, not its MIS-weighted part|$(without --mis-training)"
     "plain mixture (the flow evaluated only where it samples)|$GUIDED --plain-mixture"
 )
 
