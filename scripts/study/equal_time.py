@@ -14,7 +14,20 @@ SCENE_SIZE = {"cornell-box": "256 x 256", "veach-ajar": "320 x 180",
               "veach-bidir": "256 x 256", "statue": "256 x 256"}
 
 
-def parse_log(path):
+COMPARE = "build/examples/nf_compare"
+
+
+def precise_errors(image, reference):
+    """MAPE and relMSE from nf_compare (6 decimals; the tracer's log has 4, too few for the
+    Cornell box's relMSE of about 3e-4), or None."""
+    if not (os.path.exists(image) and os.path.exists(reference) and os.path.exists(COMPARE)):
+        return None
+    out = subprocess.run([COMPARE, reference, image], capture_output=True, text=True).stdout
+    m = re.search(r"^MAPE ([0-9.eE+-]+) relMSE ([0-9.eE+-]+)", out, re.M)
+    return (float(m.group(1)), float(m.group(2))) if m else None
+
+
+def parse_log(path, reference=None):
     """The figures of one nf_tracer --time-budget log, or None if it is incomplete."""
     try:
         text = open(path).read()
@@ -25,6 +38,10 @@ def parse_log(path):
     if not m:
         return None
     r["mape"], r["relmse"] = float(m.group(1)), float(m.group(2))
+    if reference:
+        precise = precise_errors(path[:-len(".log")] + ".exr", reference)
+        if precise:
+            r["mape"], r["relmse"] = precise
     m = re.search(r"^budget\s+([0-9.]+) s of ([0-9.]+): (\d+) training passes, (\d+) render "
                   r"passes in ([0-9.]+) s; the training passes weigh ([0-9.]+)", text, re.M)
     if m:
@@ -73,6 +90,7 @@ def main():
     seeds = a.seeds.split()
     scenes = a.scenes.split()
     runs = os.path.join(a.out, "runs")
+    refs = {scene: os.path.join(a.out, "references", f"{scene}.exr") for scene in scenes}
     os.makedirs(a.plots, exist_ok=True)
 
     # ---- The main table and its CSV.
@@ -85,8 +103,8 @@ def main():
         for b in budgets:
             res = {}
             for method in ("pt", "guided"):
-                res[method] = [parse_log(os.path.join(runs, f"{scene}-{b}-{s}-{method}.log"))
-                               for s in seeds]
+                res[method] = [parse_log(os.path.join(runs, f"{scene}-{b}-{s}-{method}.log"),
+                                         refs[scene]) for s in seeds]
                 res[method] = [r for r in res[method] if r]
                 for s, r in zip(seeds, res[method]):
                     rows.append((scene, b, s, method, r["mape"], r["relmse"],
@@ -118,8 +136,8 @@ def main():
             for b in budgets:
                 line = [b]
                 for method in ("pt", "guided"):
-                    rs = [parse_log(os.path.join(runs, f"{scene}-{b}-{s}-{method}.log"))
-                          for s in seeds]
+                    rs = [parse_log(os.path.join(runs, f"{scene}-{b}-{s}-{method}.log"),
+                                    refs[scene]) for s in seeds]
                     rs = [r for r in rs if r]
                     for key in ("relmse", "mape"):
                         v = [r[key] for r in rs] or [float("nan")]
@@ -155,7 +173,8 @@ unset multiplot
             if key not in abl:
                 abl[key] = {"label": label, "opts": opts, "runs": []}
                 order.append(key)
-            r = parse_log(os.path.join(runs, f"ablation-{scene}-{idx}-{seed}.log"))
+            r = parse_log(os.path.join(runs, f"ablation-{scene}-{idx}-{seed}.log"),
+                          os.path.join(a.out, "references", f"{scene}.exr"))
             if r:
                 abl[key]["runs"].append(r)
     except OSError:
