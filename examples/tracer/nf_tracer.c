@@ -386,7 +386,7 @@ write_outputs:
     }
     printf("wrote      %s\n", path);
     if (o.reference)
-        printf("error      MAPE %.4f, relMSE %.4f (against %s)\n", image_mape(&reference, &img),
+        printf("error      MAPE %.6f, relMSE %.6f (against %s)\n", image_mape(&reference, &img),
                image_relmse(&reference, &img), o.reference);
     if (o.save_model) {
         nf_status st = nf_model_save(model, o.save_model);
