@@ -9,6 +9,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "ranks.h"
+
 /* The batch being trained on: the contexts the library passes to the callbacks and their
  * points (guide.h). Written before the training calls, only read during them. */
 static const nf_context *batch_ctx;
@@ -195,4 +197,28 @@ int guide_load(const char *path, nf_model **out, tr_error *err)
         return tr_fail(err, "%s: nf_model_load: %s: %s", path, nf_status_string(st),
                        nf_last_error_message());
     return 1;
+}
+
+int guide_models_agree(const nf_model *m, int iteration, tr_error *err)
+{
+    size_t n = nf_param_count(m);
+    uint64_t steps = nf_model_step_count(m), hash = RANKS_HASH_START;
+    float *params = malloc(n * sizeof *params);
+    int ok = params && nf_get_params(m, params) == NF_OK;
+    if (ok)
+        hash = ranks_hash(ranks_hash(hash, params, n * sizeof *params), &steps, sizeof steps);
+    else
+        tr_fail(err, "out of memory for the model check");
+    free(params);
+    if (!ranks_agree(ok, err))
+        return 0;
+    char what[160];
+    if (iteration == 0)
+        snprintf(what, sizeof what, "the models differ before training (a --load-model file "
+                 "that differs between machines?)");
+    else
+        snprintf(what, sizeof what, "the models differ after iteration %d (libnisflow builds "
+                 "or instruction sets that differ between machines? docs/distributed.md)",
+                 iteration);
+    return ranks_all_equal(hash, what, err);
 }

@@ -82,6 +82,11 @@ void guide_end(void);
 
 const char *guide_prior_name(guide_prior p);
 
+/* Collective (ranks.h): whether every rank's model has rank 0's parameters and step count,
+ * bit for bit. Returns 1 if so; else 0 with a message naming the ranks that differ, as seen
+ * after training iteration `iteration` (0: before training). */
+int guide_models_agree(const nf_model *m, int iteration, tr_error *err);
+
 /* How many times the BSDF prior's callbacks found no published shading point and fell back
  * to a cosine lobe (process-wide). Always 0 in this program; tests check it. */
 unsigned long long guide_lookup_failures(void);

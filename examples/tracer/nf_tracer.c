@@ -20,6 +20,7 @@
 #include "metrics.h"
 #include "options.h"
 #include "progress.h"
+#include "ranks.h"
 #include "render.h"
 #include "scene.h"
 #include "training.h"
@@ -117,6 +118,70 @@ static void output_prefix(const options *o, char *out, size_t size)
         out[len - 4] = '\0'; /* "--out x.exr" means the prefix "x" */
 }
 
+/* ---- Outputs ----------------------------------------------------------------------------- */
+
+/* Writes the EXR, the PNG and the model, and reports the error against the reference and what
+ * the statistics say is wrong with the scene. */
+static int write_results(const options *o, const char *prefix, const image *img,
+                         const image *reference, const nf_model *model, const path_stats *stats,
+                         tr_error *err)
+{
+    char path[4200];
+    if (stats->camera_backfaces > stats->paths / 100)
+        fprintf(stderr, "nf_tracer: note: %.0f%% of the camera rays hit the back of a one-sided "
+                "material, which is black (Mitsuba's convention). If that is not intended (scenes "
+                "from pbrt or Tungsten shade both sides), wrap the material in <bsdf "
+                "type=\"twosided\">.\n",
+                100.0 * (double)stats->camera_backfaces / (double)stats->paths);
+    if (stats->invalid_rays)
+        fprintf(stderr, "nf_tracer: warning: %llu rays were outside what Embree accepts and "
+                "ended their paths (the scene loader should have refused this scene: please "
+                "report it).\n", (unsigned long long)stats->invalid_rays);
+
+    snprintf(path, sizeof path, "%s.exr", prefix);
+    if (!image_write_exr(img, path, err))
+        return 0;
+    printf("wrote      %s\n", path);
+    snprintf(path, sizeof path, "%s.png", prefix);
+    if (!image_write_png(img, path, o->exposure, err))
+        return 0;
+    printf("wrote      %s\n", path);
+    if (o->reference)
+        printf("error      MAPE %.6f, relMSE %.6f (against %s)\n", image_mape(reference, img),
+               image_relmse(reference, img), o->reference);
+    if (o->save_model) {
+        nf_status st = nf_model_save(model, o->save_model);
+        if (st != NF_OK)
+            return tr_fail(err, "nf_model_save: %s: %s", nf_status_string(st),
+                           nf_last_error_message());
+        printf("wrote      %s\n", o->save_model);
+    }
+    if (guide_lookup_failures())
+        fprintf(stderr, "nf_tracer: warning: the BSDF prior fell back to a cosine lobe %llu times "
+                "(a shading point was not published; please report this)\n",
+                guide_lookup_failures());
+    return 1;
+}
+
+/* The reference, at the render's size (box-downsampled if it is a multiple of it). */
+static int read_reference(const options *o, const scene *s, image *reference, tr_error *err)
+{
+    if (!o->reference)
+        return 1;
+    image full;
+    if (!image_read_exr(o->reference, &full, err))
+        return 0;
+    if (full.width == s->width && full.height == s->height) {
+        *reference = full;
+        return 1;
+    }
+    int ok = image_downsample(&full, s->width, s->height, reference, err);
+    image_free(&full);
+    if (ok)
+        printf("reference  %s, box-downsampled to %d x %d\n", o->reference, s->width, s->height);
+    return ok;
+}
+
 /* ---- The time-budgeted job ------------------------------------------------------------------ */
 
 /* --time-budget: the whole job in render_with_budget (budget.h), and its report. */
@@ -162,43 +227,78 @@ static int render_in_budget(const options *o, tracer *t, nf_model *model, double
 
 /* ---- Main ------------------------------------------------------------------------------------- */
 
+/* Reports a failure. Failures are agreed between the ranks first (ranks_agree), so every
+ * rank holds the same message and rank 0 alone prints it. */
 static int fail(const char *what, const tr_error *e)
 {
-    fprintf(stderr, "nf_tracer: %s%s%s\n", what ? what : "", what ? ": " : "", e->msg);
+    if (ranks_rank() == 0)
+        fprintf(stderr, "nf_tracer: %s%s%s\n", what ? what : "", what ? ": " : "", e->msg);
     return 1;
 }
 
-int main(int argc, char **argv)
+/* Whether the ranks loaded the same scene at the same settings: a hash of what decides the
+ * image (the scene file's path may differ between machines, its content may not). */
+static uint64_t scene_hash(const scene *s, uint64_t triangles)
+{
+    int32_t ints[4] = {s->width, s->height, s->max_depth, s->nshapes};
+    uint64_t h = ranks_hash(RANKS_HASH_START, ints, sizeof ints);
+    h = ranks_hash(h, &triangles, sizeof triangles);
+    h = ranks_hash(h, &s->bounds_min, sizeof s->bounds_min);
+    return ranks_hash(h, &s->bounds_max, sizeof s->bounds_max);
+}
+
+/* Checks the outputs before any work (rank 0 writes them all), so that a path that cannot
+ * be written is found at once, not after the render. */
+static int outputs_writable(const options *o, char *prefix, size_t size, tr_error *err)
+{
+    output_prefix(o, prefix, size);
+    if (ranks_rank() != 0)
+        return 1;
+    if (!make_parent_dirs(prefix) || !can_create(prefix))
+        return tr_fail(err, "--out: cannot write into the directory of '%s': %s", prefix,
+                       strerror(errno));
+    if (o->save_model && !can_create(o->save_model))
+        return tr_fail(err, "--save-model: cannot create '%s': %s", o->save_model,
+                       strerror(errno));
+    return 1;
+}
+
+static int run(int argc, char **argv)
 {
     options o;
     tr_error err;
-    if (!options_parse(argc, argv, &o, &err)) {
-        fprintf(stderr, "nf_tracer: %s (try --help)\n", err.msg);
+    if (!ranks_agree(options_parse(argc, argv, &o, &err), &err)) {
+        if (ranks_rank() == 0)
+            fprintf(stderr, "nf_tracer: %s (try --help)\n", err.msg);
         return 2;
     }
     if (o.help) {
         options_print_help(argv[0]);
         return 0;
     }
+    /* The ranks of one job must have been asked for the same job. */
+    if (!ranks_all_equal(options_job_hash(argc, argv), "the ranks were started with different "
+                         "options (all but --threads, --scene, --out, --reference, "
+                         "--save-model, --load-model and --exposure must be the same)", &err))
+        return fail(NULL, &err);
+    if (ranks_size() > 1 && o.time_budget > 0.0f) {
+        tr_fail(&err, "--time-budget runs in one process; under mpirun, train with "
+                "--iterations and render with --spp (docs/distributed.md)");
+        return fail(NULL, &err);
+    }
 
-    /* Outputs first: a path that cannot be written is found before any work. */
     char prefix[4096], path[4200];
-    output_prefix(&o, prefix, sizeof prefix);
-    if (!make_parent_dirs(prefix) || !can_create(prefix)) {
-        fprintf(stderr, "nf_tracer: --out: cannot write into the directory of '%s': %s\n",
-                prefix, strerror(errno));
-        return 1;
-    }
-    if (o.save_model && !can_create(o.save_model)) {
-        fprintf(stderr, "nf_tracer: --save-model: cannot create '%s': %s\n", o.save_model,
-                strerror(errno));
-        return 1;
-    }
+    if (!ranks_agree(outputs_writable(&o, prefix, sizeof prefix, &err), &err))
+        return fail(NULL, &err);
 
     double t_start = now_seconds();
     scene s;
-    if (!scene_load(o.scene, &s, &err))
+    int loaded = scene_load(o.scene, &s, &err);
+    if (!ranks_agree(loaded, &err)) {
+        if (loaded)
+            scene_free(&s);
         return fail(NULL, &err);
+    }
     if (o.width || o.height)
         scene_set_resolution(&s, o.width ? o.width : s.width, o.height ? o.height : s.height);
     if (o.max_depth != -2)
@@ -210,7 +310,14 @@ int main(int argc, char **argv)
            o.scene, s.nshapes, (unsigned long long)triangles, s.nlights, now_seconds() - t_start);
     printf("image      %d x %d, max depth %d, %d threads, seed %llu\n", s.width, s.height,
            s.max_depth, o.threads, (unsigned long long)o.seed);
-    if (!s.has_lights)
+    if (ranks_size() > 1)
+        printf("ranks      %d processes (MPI), %d threads each\n", ranks_size(), o.threads);
+    if (!ranks_all_equal(scene_hash(&s, triangles), "the ranks loaded different scenes (or "
+                         "resolutions)", &err)) {
+        scene_free(&s);
+        return fail(NULL, &err);
+    }
+    if (!s.has_lights && ranks_rank() == 0)
         fprintf(stderr, "nf_tracer: warning: the scene has no emitters (no area light, no "
                 "environment): the image will be black\n");
     const double t_job = now_seconds(); /* a time budget counts from here */
@@ -220,24 +327,11 @@ int main(int argc, char **argv)
     nf_model *model = NULL;
     FILE *csv = NULL;
 
-    /* The reference, at the render's size (box-downsampled if it is a multiple of it). */
-    if (o.reference) {
-        image full;
-        if (!image_read_exr(o.reference, &full, &err)) {
-            fail("reference", &err);
-            goto done;
-        }
-        if (full.width == s.width && full.height == s.height) {
-            reference = full;
-        } else {
-            int ok = image_downsample(&full, s.width, s.height, &reference, &err);
-            image_free(&full);
-            if (!ok) {
-                fail("reference", &err);
-                goto done;
-            }
-            printf("reference  %s, box-downsampled to %d x %d\n", o.reference, s.width, s.height);
-        }
+    /* The reference, at the render's size (box-downsampled if it is a multiple of it). Rank 0
+     * measures the errors: only it reads the reference. */
+    if (!ranks_agree(ranks_rank() != 0 || read_reference(&o, &s, &reference, &err), &err)) {
+        fail("reference", &err);
+        goto done;
     }
 
 
@@ -248,6 +342,8 @@ int main(int argc, char **argv)
     t.guide_min_roughness = o.guide_min_roughness;
     t.mis_training = o.mis_training;
     t.plain_mixture = o.plain_mixture;
+    t.rank = ranks_rank();
+    t.ranks = ranks_size();
     t.model = NULL;
     t.guide_prob = o.guiding ? o.guide_prob : 0.0f;
     t.bsdf_prior = 0;
@@ -259,27 +355,27 @@ int main(int argc, char **argv)
         gs.seed = o.seed;
         int ok = o.load_model ? guide_load(o.load_model, &model, &err)
                               : guide_create(&s, &gs, &model, &err);
-        if (!ok) {
+        if (ok && o.load_model && o.learning_rate_given &&
+            nf_set_learning_rate(model, o.learning_rate) != NF_OK)
+            ok = tr_fail(&err, "--lr: %s", nf_last_error_message());
+        /* Every rank starts from the same model, or the steps would differ. */
+        if (!ranks_agree(ok, &err) || !guide_models_agree(model, 0, &err)) {
             fail(NULL, &err);
-            goto done;
-        }
-        if (o.load_model && o.learning_rate_given &&
-            nf_set_learning_rate(model, o.learning_rate) != NF_OK) {
-            fprintf(stderr, "nf_tracer: --lr: %s\n", nf_last_error_message());
             goto done;
         }
         nf_config cfg;
         nf_model_config(model, &cfg);
         t.bsdf_prior = cfg.prior == NF_PRIOR_CUSTOM;
         char mismatch[512];
-        if (o.load_model && !guide_bounds_match(&s, model, mismatch, sizeof mismatch))
+        if (o.load_model && ranks_rank() == 0 &&
+            !guide_bounds_match(&s, model, mismatch, sizeof mismatch))
             fprintf(stderr, "nf_tracer: warning: --load-model %s: %s\n", o.load_model, mismatch);
         if (o.load_model) {
             static const char *const kinds[] = {"uniform-direction", "uniform-angle", "cosine",
                                                 "bsdf"};
             printf("model      %s (prior %s, %llu steps taken)\n", o.load_model,
                    kinds[cfg.prior], (unsigned long long)nf_model_step_count(model));
-            if (o.prior_given && (int)cfg.prior != (int)o.prior)
+            if (o.prior_given && (int)cfg.prior != (int)o.prior && ranks_rank() == 0)
                 fprintf(stderr, "nf_tracer: note: the loaded model's prior (%s) replaces --prior "
                         "%s\n", kinds[cfg.prior], guide_prior_name(o.prior));
         }
@@ -307,9 +403,10 @@ int main(int argc, char **argv)
     memset(&rep, 0, sizeof rep);
     if (o.guiding && o.iterations > 0) {
         snprintf(path, sizeof path, "%s.csv", prefix);
-        csv = fopen(path, "w");
-        if (!csv) {
-            fprintf(stderr, "nf_tracer: cannot write '%s': %s\n", path, strerror(errno));
+        int ok = ranks_rank() != 0 || (csv = fopen(path, "w")) != NULL ||
+                 tr_fail(&err, "cannot write '%s': %s", path, strerror(errno));
+        if (!ranks_agree(ok, &err)) {
+            fail(NULL, &err);
             goto done;
         }
         training_settings ts;
@@ -319,21 +416,29 @@ int main(int argc, char **argv)
         ts.eval_spp = o.eval_spp;
         ts.threads = o.threads;
         ts.seed = o.seed;
-        ts.reference = o.reference ? &reference : NULL;
+        ts.reference = reference.data ? &reference : NULL; /* rank 0's */
         ts.csv = csv;
         printf("training   %d iterations of %d paths\n", o.iterations, o.batch);
         if (!train_guide(&t, model, &ts, &rep, &err)) {
             fail("training", &err);
             goto done;
         }
+        /* The times are rank 0's (the job's), the CPU seconds all ranks'. */
+        double cpu[2] = {rep.trace_cpu_seconds, rep.step_cpu_seconds};
+        if (!ranks_sum_f64(cpu, 2, &err)) {
+            fail("training", &err);
+            goto done;
+        }
+        rep.trace_cpu_seconds = cpu[0];
+        rep.step_cpu_seconds = cpu[1];
         double it_s = (rep.trace_seconds + rep.step_seconds) / o.iterations;
         printf("trained    %llu samples (%.0f per iteration) in %.2f s: %.1f ms per iteration "
-               "(tracing %.1f ms, nf_train_step %.1f ms)%s\n",
+               "(tracing %.1f ms, optimizer steps %.1f ms)%s\n",
                (unsigned long long)rep.samples, (double)rep.samples / o.iterations,
                rep.trace_seconds + rep.step_seconds, 1e3 * it_s,
                1e3 * rep.trace_seconds / o.iterations, 1e3 * rep.step_seconds / o.iterations,
                rep.refused ? " (some batches were refused)" : "");
-        printf("throughput nf_train_step %.0f samples/s (%.0f per CPU second), tracing %.0f "
+        printf("throughput steps %.0f samples/s (%.0f per CPU second), tracing %.0f "
                "training paths/s (%.0f per CPU second), last loss %.4f\n",
                rep.step_seconds > 0.0 ? (double)rep.samples / rep.step_seconds : 0.0,
                rep.step_cpu_seconds > 0.0 ? (double)rep.samples / rep.step_cpu_seconds : 0.0,
@@ -343,17 +448,21 @@ int main(int argc, char **argv)
         printf("csv        %s\n", path);
     }
 
-    /* The final image. */
-    if (!image_alloc(&img, s.width, s.height, &err)) {
-        fail(NULL, &err);
-        goto done;
-    }
+    /* The final image: every rank renders its tiles, rank 0 receives them all. */
     double t0 = now_seconds(), c0 = cpu_seconds();
-    if (!render_image(&t, o.spp, o.seed, 0u, o.threads, &img, &stats, "render", &err)) {
+    int rendered = image_alloc(&img, s.width, s.height, &err) &&
+                   render_image(&t, o.spp, o.seed, 0u, o.threads, &img, &stats, "render", &err);
+    if (!ranks_agree(rendered, &err) ||
+        !ranks_sum_floats_to_root(img.data, 3 * (size_t)s.width * (size_t)s.height, &err) ||
+        !ranks_sum_u64((uint64_t *)&stats, sizeof stats / sizeof(uint64_t), &err)) {
         fail("render", &err);
         goto done;
     }
     double render_s = now_seconds() - t0, render_cpu = cpu_seconds() - c0;
+    if (!ranks_sum_f64(&render_cpu, 1, &err)) {
+        fail("render", &err);
+        goto done;
+    }
     printf("rendered   %d spp in %.2f s (%.2f CPU s): %.2f M rays/s (%.2f M per CPU second), "
            "%.3f M paths/s, %.2f rays per path%s\n",
            o.spp, render_s, render_cpu, 1e-6 * (double)stats.rays / render_s,
@@ -362,45 +471,13 @@ int main(int argc, char **argv)
            stats.nf_errors ? " (libnisflow reported errors: paths were cut short)" : "");
 
 write_outputs:
-    if (stats.camera_backfaces > stats.paths / 100)
-        fprintf(stderr, "nf_tracer: note: %.0f%% of the camera rays hit the back of a one-sided "
-                "material, which is black (Mitsuba's convention). If that is not intended (scenes "
-                "from pbrt or Tungsten shade both sides), wrap the material in <bsdf "
-                "type=\"twosided\">.\n", 100.0 * (double)stats.camera_backfaces / (double)stats.paths);
-
-    if (stats.invalid_rays)
-        fprintf(stderr, "nf_tracer: warning: %llu rays were outside what Embree accepts and "
-                "ended their paths (the scene loader should have refused this scene: please "
-                "report it).\n", (unsigned long long)stats.invalid_rays);
-
-    snprintf(path, sizeof path, "%s.exr", prefix);
-    if (!image_write_exr(&img, path, &err)) {
+    /* Rank 0 writes the outputs; the others wait for its word, so all end alike. */
+    if (!ranks_agree(ranks_rank() != 0 ||
+                         write_results(&o, prefix, &img, &reference, model, &stats, &err),
+                     &err)) {
         fail(NULL, &err);
         goto done;
     }
-    printf("wrote      %s\n", path);
-    snprintf(path, sizeof path, "%s.png", prefix);
-    if (!image_write_png(&img, path, o.exposure, &err)) {
-        fail(NULL, &err);
-        goto done;
-    }
-    printf("wrote      %s\n", path);
-    if (o.reference)
-        printf("error      MAPE %.6f, relMSE %.6f (against %s)\n", image_mape(&reference, &img),
-               image_relmse(&reference, &img), o.reference);
-    if (o.save_model) {
-        nf_status st = nf_model_save(model, o.save_model);
-        if (st != NF_OK) {
-            fprintf(stderr, "nf_tracer: nf_model_save: %s: %s\n", nf_status_string(st),
-                    nf_last_error_message());
-            goto done;
-        }
-        printf("wrote      %s\n", o.save_model);
-    }
-    if (guide_lookup_failures())
-        fprintf(stderr, "nf_tracer: warning: the BSDF prior fell back to a cosine lobe %llu times "
-                "(a shading point was not published; please report this)\n",
-                guide_lookup_failures());
     printf("total      %.2f s\n", now_seconds() - t_start);
     status = 0;
 
@@ -411,5 +488,21 @@ done:
     image_free(&img);
     image_free(&reference);
     scene_free(&s);
+    return status;
+}
+
+int main(int argc, char **argv)
+{
+    tr_error err;
+    if (!ranks_init(&argc, &argv, &err)) {
+        fprintf(stderr, "nf_tracer: %s\n", err.msg);
+        ranks_finalize();
+        return 1;
+    }
+    /* Rank 0 speaks for the job: the others' reports would repeat it N times. */
+    if (ranks_rank() != 0 && !freopen("/dev/null", "w", stdout))
+        fprintf(stderr, "nf_tracer: rank %d: cannot silence its standard output\n", ranks_rank());
+    int status = run(argc, argv);
+    ranks_finalize();
     return status;
 }

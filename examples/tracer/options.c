@@ -11,6 +11,7 @@
 #include <string.h>
 
 #include "parallel.h"
+#include "ranks.h"
 
 void options_print_help(const char *program)
 {
@@ -89,10 +90,15 @@ void options_print_help(const char *program)
         "  --guide-depth N       guide vertices up to N segments deep, 0 all (default 0)\n"
         "\n"
         "Execution:\n"
-        "  --threads N           worker threads (default: the number of processors)\n"
+        "  --threads N           worker threads (default: the number of processors); under\n"
+        "                        mpirun, per rank\n"
         "  --seed N              random seed (default 1); results are identical for the same\n"
-        "                        seed, whatever the number of threads\n"
-        "  --help                this text\n");
+        "                        seed, whatever the number of threads and of MPI ranks\n"
+        "  --help                this text\n"
+        "\n"
+        "Several processes or machines (docs/distributed.md): mpirun -n N %s ... splits each\n"
+        "training batch and the film's tiles between N ranks, which train one model; rank 0\n"
+        "writes the outputs. Not with --time-budget.\n", program);
 }
 
 static int parse_int(const char *name, const char *text, long lo, long hi, int *out,
@@ -280,4 +286,24 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     if (!o->guiding && (o->load_model || o->save_model))
         return tr_fail(err, "--save-model and --load-model need guiding (drop --no-guiding)");
     return 1;
+}
+
+uint64_t options_job_hash(int argc, char **argv)
+{
+    /* These name files or machine resources, which may differ between machines; the scene and
+     * the model are compared by content instead (nf_tracer.c). */
+    static const char *const local[] = {"--threads", "--scene", "--out", "--reference",
+                                        "--save-model", "--load-model", "--exposure"};
+    uint64_t h = RANKS_HASH_START;
+    for (int i = 1; i < argc; ++i) {
+        int skip = 0;
+        for (size_t k = 0; k < sizeof local / sizeof *local; ++k)
+            skip |= !strcmp(argv[i], local[k]);
+        if (skip) {
+            ++i; /* and its value */
+            continue;
+        }
+        h = ranks_hash(h, argv[i], strlen(argv[i]) + 1);
+    }
+    return h;
 }

@@ -52,4 +52,9 @@ typedef struct options {
 int options_parse(int argc, char **argv, options *o, tr_error *err);
 void options_print_help(const char *program);
 
+/* A hash of the command line less the options that may differ between the machines of one
+ * distributed job (--threads, --scene, --out, --reference, --save-model, --load-model,
+ * --exposure): ranks whose hashes differ were asked for different jobs (docs/distributed.md). */
+uint64_t options_job_hash(int argc, char **argv);
+
 #endif /* TRACER_OPTIONS_H */

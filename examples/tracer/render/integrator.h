@@ -32,6 +32,8 @@ typedef struct tracer {
                             * by the BSDF's: the flow is evaluated only where it samples   */
     int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
                             * (what the scattering estimator needs) instead of all of it   */
+    int rank, ranks;       /* render_image renders this rank's share of the film's tiles;
+                            * ranks 0 or 1: all of them (ranks.h)                          */
 } tracer;
 
 /* A training sample (docs/theory.md section 6): at a guided vertex, the context, the sampled

@@ -20,10 +20,26 @@ typedef struct image_job {
     path_stats *stats; /* one per thread */
 } image_job;
 
-static void render_tile(void *user, size_t item, int thread)
+/* The k-th of this rank's tiles: tiles are dealt to the ranks in turn, so that every rank gets
+ * tiles from every part of the film (costs differ across it). */
+static size_t rank_tile(const tracer *t, size_t k)
+{
+    return t->ranks > 1 ? (size_t)t->rank + k * (size_t)t->ranks : k;
+}
+
+static size_t rank_tile_count(const tracer *t, size_t tiles)
+{
+    if (t->ranks <= 1)
+        return tiles;
+    size_t r = (size_t)t->rank, n = (size_t)t->ranks;
+    return tiles > r ? (tiles - r + n - 1) / n : 0;
+}
+
+static void render_tile(void *user, size_t k, int thread)
 {
     image_job *job = user;
     const scene *s = job->t->s;
+    size_t item = rank_tile(job->t, k);
     int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
     for (int y = y0; y < y0 + TILE && y < s->height; ++y)
         for (int x = x0; x < x0 + TILE && x < s->width; ++x) {
@@ -60,8 +76,10 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
     job.stats = calloc((size_t)(threads > 0 ? threads : 1), sizeof *job.stats);
     if (!job.stats)
         return tr_fail(err, "out of memory");
-    int ok = parallel_for((size_t)job.tiles_x * (size_t)tiles_y, threads, render_tile, &job,
-                          progress_label, err);
+    if (t->ranks > 1) /* the other ranks' tiles are summed in: they must be black here */
+        memset(img->data, 0, 3 * (size_t)img->width * (size_t)img->height * sizeof *img->data);
+    size_t tiles = rank_tile_count(t, (size_t)job.tiles_x * (size_t)tiles_y);
+    int ok = parallel_for(tiles, threads, render_tile, &job, progress_label, err);
     for (int i = 0; stats && i < (threads > 0 ? threads : 1); ++i)
         path_stats_add(stats, &job.stats[i]);
     free(job.stats);
@@ -137,10 +155,11 @@ int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, imag
 
 typedef struct train_job {
     const tracer *t;
-    size_t paths;
+    size_t first, paths;
     uint64_t seed;
     uint32_t iteration;
     record_buffer *chunks;
+    size_t *path_end; /* NULL, or per path: its chunk's record count after it */
     path_stats *stats;
 } train_job;
 
@@ -151,19 +170,24 @@ static void train_chunk(void *user, size_t item, int thread)
     record_buffer *out = &job->chunks[item];
     out->count = 0;
     for (size_t j = item * TRAIN_CHUNK; j < (item + 1) * TRAIN_CHUNK && j < job->paths; ++j) {
-        rng r = rng_seed(job->seed, RNG_TRAIN, job->iteration, j);
+        rng r = rng_seed(job->seed, RNG_TRAIN, job->iteration, job->first + j);
         float px = rng_next(&r) * (float)s->width, py = rng_next(&r) * (float)s->height;
         trace_path(job->t, &r, px, py, out, &job->stats[thread]);
+        if (job->path_end)
+            job->path_end[j] = out->count;
     }
 }
 
-int trace_training_batch(const tracer *t, size_t paths, uint64_t seed, uint32_t iteration,
-                         int threads, record_buffer *out, path_stats *stats, tr_error *err)
+int trace_training_batch(const tracer *t, size_t first, size_t paths, uint64_t seed,
+                         uint32_t iteration, int threads, record_buffer *out, size_t *path_end,
+                         path_stats *stats, tr_error *err)
 {
     train_job job;
     size_t nchunks = (paths + TRAIN_CHUNK - 1) / TRAIN_CHUNK;
     job.t = t;
+    job.first = first;
     job.paths = paths;
+    job.path_end = path_end;
     job.seed = seed;
     job.iteration = iteration;
     job.chunks = calloc(nchunks ? nchunks : 1, sizeof *job.chunks);
@@ -176,8 +200,11 @@ int trace_training_batch(const tracer *t, size_t paths, uint64_t seed, uint32_t 
     int ok = parallel_for(nchunks, threads, train_chunk, &job, NULL, err);
     out->count = 0;
     for (size_t c = 0; c < nchunks; ++c) {
+        size_t before = out->count;
         if (job.chunks[c].out_of_memory || !record_buffer_append(out, &job.chunks[c]))
             ok = ok && tr_fail(err, "out of memory for training records");
+        for (size_t j = c * TRAIN_CHUNK; path_end && j < (c + 1) * TRAIN_CHUNK && j < paths; ++j)
+            path_end[j] += before; /* from the chunk's count to the batch's */
         record_buffer_free(&job.chunks[c]);
     }
     for (int i = 0; stats && i < (threads > 0 ? threads : 1); ++i)

@@ -16,7 +16,9 @@
 
 /* Renders spp paths per pixel (uniformly jittered in the pixel: a box filter) into img,
  * which must be allocated at the scene's resolution, and stores the mean. `pass` selects
- * independent random streams (evaluation renders and the final render use different ones). */
+ * independent random streams (evaluation renders and the final render use different ones).
+ * With t->ranks > 1 it renders only this rank's tiles (every ranks-th, from t->rank) and
+ * leaves the others black, for ranks_sum_floats_to_root to assemble. */
 int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int threads,
                  image *img, path_stats *stats, const char *progress_label, tr_error *err);
 
@@ -27,9 +29,13 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
                 record_buffer *records, path_stats *stats, tr_error *err);
 
-/* Traces `paths` training paths for iteration `iteration`, each through a uniformly random
- * film position, and replaces the contents of `out` with their records in path order. */
-int trace_training_batch(const tracer *t, size_t paths, uint64_t seed, uint32_t iteration,
-                         int threads, record_buffer *out, path_stats *stats, tr_error *err);
+/* Traces the training paths first .. first + paths - 1 of iteration `iteration`, each through
+ * a uniformly random film position (path j's random stream depends on j alone, so a rank that
+ * traces part of a batch gets the records one process would get for those paths), and
+ * replaces the contents of `out` with their records in path order. With path_end != NULL
+ * (`paths` entries), path_end[i] receives the number of records of paths first .. first + i. */
+int trace_training_batch(const tracer *t, size_t first, size_t paths, uint64_t seed,
+                         uint32_t iteration, int threads, record_buffer *out, size_t *path_end,
+                         path_stats *stats, tr_error *err);
 
 #endif /* TRACER_RENDER_H */

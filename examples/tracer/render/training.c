@@ -1,9 +1,12 @@
 /*
  * training.c - the loop of training.h.
  *
- * The batch is handed to nf_train_step from this one thread, in path order, so training is
- * as deterministic as the tracing. The CSV's "seconds" column counts the time spent in
- * training iterations (tracing and stepping), not the evaluation renders that measure them.
+ * Each iteration's batch of paths is cut into groups of GROUP_PATHS paths, fixed by the batch
+ * alone. The ranks (ranks.h) split the groups, each traces its groups' paths, and
+ * gradient_sum_step computes every group's gradient on the threads and sums them exactly over
+ * all ranks: the model is the same to the bit for any number of ranks and threads
+ * (docs/distributed.md). The CSV's "seconds" column counts the time spent in training
+ * iterations (tracing and stepping), not the evaluation renders that measure them.
  */
 #include "training.h"
 
@@ -11,10 +14,16 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "gradient_sum.h"
 #include "guide.h"
 #include "metrics.h"
 #include "progress.h"
+#include "ranks.h"
 #include "render.h"
+
+/* Paths per gradient group: a multiple of render.c's chunks of 64; 16 groups in a batch of
+ * 4,096, enough to keep 2 threads (or 2 ranks x 8 threads) busy. */
+#define GROUP_PATHS 256
 
 /* Structure-of-arrays copies of a batch, as nf_train_step takes them. */
 typedef struct batch_arrays {
@@ -57,16 +66,19 @@ static void batch_free(batch_arrays *b)
     free(b->points);
 }
 
-/* Renders an evaluation image and writes a CSV row. */
+/* Renders an evaluation image (every rank its tiles, assembled on rank 0) and writes a CSV
+ * row. `samples` is this rank's count; the row has all ranks'. Collective. */
 static int evaluate(const tracer *t, const training_settings *ts, int iteration,
                     uint64_t samples, double seconds, tr_error *err)
 {
-    image img;
-    if (!image_alloc(&img, t->s->width, t->s->height, err))
-        return 0;
+    image img = {0};
     /* Each evaluation gets its own random streams (pass 1000 + iteration). */
-    if (!render_image(t, ts->eval_spp, ts->seed, 1000u + (uint32_t)iteration, ts->threads, &img,
-                      NULL, "evaluate", err)) {
+    int ok = image_alloc(&img, t->s->width, t->s->height, err) &&
+             render_image(t, ts->eval_spp, ts->seed, 1000u + (uint32_t)iteration, ts->threads,
+                          &img, NULL, "evaluate", err);
+    if (!ranks_agree(ok, err) ||
+        !ranks_sum_floats_to_root(img.data, 3 * (size_t)img.width * (size_t)img.height, err) ||
+        !ranks_sum_u64(&samples, 1, err)) {
         image_free(&img);
         return 0;
     }
@@ -85,30 +97,46 @@ static int evaluate(const tracer *t, const training_settings *ts, int iteration,
     return 1;
 }
 
+/* This rank's share of an iteration's groups: groups [g0, g1) of `total`. */
+static void rank_groups(size_t total, size_t *g0, size_t *g1)
+{
+    size_t r = (size_t)ranks_rank(), n = (size_t)ranks_size();
+    *g0 = total * r / n;
+    *g1 = total * (r + 1) / n;
+}
+
 int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
                 training_report *rep, tr_error *err)
 {
     record_buffer records = {0};
     batch_arrays batch = {0};
+    gradient_sum sum = {0};
     progress bar;
-    int ok = 1;
+    const size_t paths = (size_t)ts->batch, groups = (paths + GROUP_PATHS - 1) / GROUP_PATHS;
+    size_t g0, g1;
+    rank_groups(groups, &g0, &g1);
+    const size_t first = g0 * GROUP_PATHS, mine = (g1 * GROUP_PATHS < paths ? g1 * GROUP_PATHS
+                                                                             : paths) - first;
+    size_t *path_end = malloc((mine ? mine : 1) * sizeof *path_end);
+    size_t *group_end = malloc((g1 > g0 ? g1 - g0 : 1) * sizeof *group_end);
+    int ok = ranks_agree(path_end && group_end ? 1 : tr_fail(err, "out of memory"), err);
     memset(rep, 0, sizeof *rep);
     if (ts->csv)
         fprintf(ts->csv, "iteration,training_samples,seconds,mape\n");
-    if (ts->eval_every > 0 && !evaluate(t, ts, 0, 0, 0.0, err))
-        return 0;
+    if (ok && ts->eval_every > 0)
+        ok = evaluate(t, ts, 0, 0, 0.0, err);
 
     progress_start(&bar, "training", (size_t)ts->iterations);
     for (int it = 1; it <= ts->iterations && ok; ++it) {
         double t0 = now_seconds(), c0 = cpu_seconds();
-        ok = trace_training_batch(t, (size_t)ts->batch, ts->seed, (uint32_t)it, ts->threads,
-                                  &records, &rep->stats, err);
+        ok = trace_training_batch(t, first, mine, ts->seed, (uint32_t)it, ts->threads, &records,
+                                  path_end, &rep->stats, err);
         double t1 = now_seconds(), c1 = cpu_seconds();
-        if (!ok)
-            break;
         size_t n = records.count;
-        if (!batch_reserve(&batch, n)) {
+        if (ok && !batch_reserve(&batch, n))
             ok = tr_fail(err, "out of memory for a training batch of %zu samples", n);
+        if (!ranks_agree(ok, err)) { /* a rank that failed stops them all */
+            ok = 0;
             break;
         }
         for (size_t i = 0; i < n; ++i) {
@@ -119,29 +147,38 @@ int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
             memcpy(batch.points[i].position, r->ctx.position, sizeof r->ctx.position);
             batch.points[i].bp = r->bp;
         }
+        for (size_t g = g0; g < g1; ++g) {
+            size_t last = (g + 1) * GROUP_PATHS < paths ? (g + 1) * GROUP_PATHS : paths;
+            group_end[g - g0] = path_end[last - 1 - first];
+        }
         if (t->bsdf_prior) /* the BSDF prior's callbacks look the materials up here */
             guide_begin_batch(batch.ctx, batch.points, n);
         float loss = 0.0f;
-        double s0 = thread_cpu_seconds();
-        nf_status st = nf_train_step(model, n, batch.ctx, batch.dir, batch.weight, &loss);
+        gradient_step step;
+        nf_status refusal;
+        ok = gradient_sum_step(&sum, model, batch.ctx, batch.dir, batch.weight, group_end,
+                               g1 - g0, groups, ts->threads, &loss, &step, &refusal, err);
         guide_end();
         double t2 = now_seconds();
-        rep->step_cpu_seconds += thread_cpu_seconds() - s0;
-        if (st != NF_OK) {
-            /* A refused batch leaves the model unchanged: report it and go on. */
+        rep->step_cpu_seconds += cpu_seconds() - c1;
+        if (!ok)
+            break;
+        if (step == GRADIENT_STEP_REFUSED) {
+            /* A refused batch leaves the model unchanged (on every rank): report it, go on. */
             if (rep->refused++ < 5)
-                fprintf(stderr, "\nnf_tracer: iteration %d: batch refused: %s: %s\n", it,
-                        nf_status_string(st), nf_last_error_message());
-        } else {
+                fprintf(stderr, "\nnf_tracer: iteration %d: batch refused: %s\n", it,
+                        nf_status_string(refusal));
+        } else if (step == GRADIENT_STEP_TAKEN) {
             rep->last_loss = loss;
         }
+        if (ranks_size() > 1 && !(ok = guide_models_agree(model, it, err)))
+            break;
         rep->samples += n;
-        rep->paths += (uint64_t)ts->batch;
+        rep->paths += (uint64_t)paths;
         rep->trace_seconds += t1 - t0;
         rep->trace_cpu_seconds += c1 - c0;
         rep->step_seconds += t2 - t1;
 
-        if (getenv("NF_TRACER_LOSS")) fprintf(stderr, "it %d loss %.5f n %zu\n", it, (double)loss, n);
         char extra[96];
         snprintf(extra, sizeof extra, "loss %.4f, %zu samples/it", (double)loss, n);
         progress_update(&bar, (size_t)it, extra);
@@ -151,7 +188,13 @@ int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
         }
     }
     progress_finish(&bar);
+    /* The report counts every rank's samples (its times are this rank's). */
+    if (ok)
+        ok = ranks_sum_u64(&rep->samples, 1, err);
     record_buffer_free(&records);
     batch_free(&batch);
+    gradient_sum_free(&sum);
+    free(path_end);
+    free(group_end);
     return ok;
 }

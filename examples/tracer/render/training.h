@@ -1,8 +1,9 @@
 /*
  * training.h - the online training loop (the paper's protocol): each iteration traces a
  * batch of paths with the current model, collects the training samples of their guided
- * vertices and takes one nf_train_step; every eval_every iterations a whole image is
- * rendered at eval_spp and its MAPE appended to a CSV file.
+ * vertices and takes one optimizer step (its gradient summed over threads and ranks:
+ * gradient_sum.h); every eval_every iterations a whole image is rendered at eval_spp and its
+ * MAPE appended to a CSV file.
  */
 #ifndef TRACER_TRAINING_H
 #define TRACER_TRAINING_H
@@ -32,13 +33,15 @@ typedef struct training_report {
     double trace_seconds;     /* tracing the training paths                         */
     double step_seconds;      /* inside nf_train_step                               */
     double trace_cpu_seconds; /* CPU time of all threads while tracing               */
-    double step_cpu_seconds;  /* CPU time of nf_train_step (it runs on this thread)  */
+    double step_cpu_seconds;  /* CPU time of the optimizer steps (all threads)        */
     int refused;              /* batches nf_train_step refused                      */
     float last_loss;
     path_stats stats;
 } training_report;
 
-/* Trains `model` (which `t` must use) in place. */
+/* Trains `model` (which `t` must use) in place. Collective (ranks.h): every rank traces its
+ * share of each batch and all take the same steps; rank 0 alone passes a reference and a
+ * CSV. The report's samples are all ranks'; its times are this rank's. */
 int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
                 training_report *report, tr_error *err);
 
