@@ -21,6 +21,10 @@ NF_DEB_PACKAGES=(
     libopenexr-dev  # OpenEXR 3: the OpenEXRCore C API for HDR images
     libstb-dev      # stb_image, stb_image_write: JPEG textures, PNG previews
     libexpat1-dev   # expat: the scene XML
+    # Optional for the tracer: MPI, to train one model over several processes or machines
+    # (docs/distributed.md); without it nf_tracer is one process.
+    libopenmpi-dev
+    openmpi-bin     # mpirun
 )
 
 case "${1:-}" in
