@@ -281,11 +281,6 @@ static int run(int argc, char **argv)
                          "options (all but --threads, --scene, --out, --reference, "
                          "--save-model, --load-model and --exposure must be the same)", &err))
         return fail(NULL, &err);
-    if (ranks_size() > 1 && o.time_budget > 0.0f) {
-        tr_fail(&err, "--time-budget runs in one process; under mpirun, train with "
-                "--iterations and render with --spp (docs/distributed.md)");
-        return fail(NULL, &err);
-    }
 
     char prefix[4096], path[4200];
     if (!ranks_agree(outputs_writable(&o, prefix, sizeof prefix, &err), &err))

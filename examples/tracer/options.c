@@ -98,7 +98,7 @@ void options_print_help(const char *program)
         "\n"
         "Several processes or machines (docs/distributed.md): mpirun -n N %s ... splits each\n"
         "training batch and the film's tiles between N ranks, which train one model; rank 0\n"
-        "writes the outputs. Not with --time-budget.\n", program);
+        "writes the outputs.\n", program);
 }
 
 static int parse_int(const char *name, const char *text, long lo, long hi, int *out,

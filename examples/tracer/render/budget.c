@@ -9,10 +9,12 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "gradient_sum.h"
 #include "guide.h"
 #include "metrics.h"
 #include "parallel.h"
 #include "progress.h"
+#include "ranks.h"
 #include "render.h"
 #include "selection.h"
 
@@ -179,9 +181,11 @@ static double combine(const pass_groups *g, const double *render_sum, const doub
 
 typedef struct trainer {
     nf_model *model;
-    size_t params;
-    int shards;
-    float *grads, *grad;
+    int shards;          /* this rank's groups per step: one per thread                   */
+    size_t total_shards; /* all ranks' groups per step                                    */
+    size_t step;         /* this rank's samples per step: its share of step_samples       */
+    gradient_sum sum;
+    size_t group_end[MAX_SHARDS];
     nf_context *ctx;
     float *dir, *weight;
     guide_point *points;
@@ -191,64 +195,17 @@ typedef struct trainer {
     size_t stored, store_next;
 } trainer;
 
-typedef struct shard_job {
-    const nf_model *m;
-    size_t n, params;
-    int shards;
-    const nf_context *ctx;
-    const float *dir, *weight;
-    float *grads;
-    double F[MAX_SHARDS], L[MAX_SHARDS];
-    nf_status st[MAX_SHARDS];
-} shard_job;
-
-static void shard_gradient(void *user, size_t k, int thread)
+/* One AdamW step on the n samples of the step arrays (the rank's share of the step), their
+ * gradient computed in groups on the threads and summed over the ranks
+ * (gradient_sum.h; docs/integration.md, "Sharded gradients"). */
+static int sharded_step(trainer *tr, size_t n, float *loss, gradient_step *step,
+                        nf_status *refusal, tr_error *err)
 {
-    (void)thread;
-    shard_job *j = user;
-    size_t b = j->n * k / (size_t)j->shards, e = j->n * (k + 1) / (size_t)j->shards;
-    double F = 0.0;
-    for (size_t i = b; i < e; ++i)
-        F += j->weight[i];
-    float loss = 0.0f;
-    j->F[k] = F;
-    j->st[k] = nf_loss_gradient(j->m, e - b, j->ctx + b, j->dir + 3 * b, j->weight + b, &loss,
-                                j->grads + k * j->params);
-    j->L[k] = loss;
-}
-
-/* One AdamW step on n samples, their gradient computed in shards on the threads
- * (docs/integration.md, "Sharded gradients"). */
-static nf_status sharded_step(trainer *tr, size_t n, float *loss, tr_error *err)
-{
-    shard_job j;
-    j.m = tr->model;
-    j.n = n;
-    j.params = tr->params;
-    j.shards = tr->shards;
-    j.ctx = tr->ctx;
-    j.dir = tr->dir;
-    j.weight = tr->weight;
-    j.grads = tr->grads;
-    if (!parallel_for((size_t)tr->shards, tr->shards, shard_gradient, &j, NULL, err))
-        return NF_ERROR_OUT_OF_MEMORY;
-    double total = 0.0, lsum = 0.0;
-    for (int k = 0; k < tr->shards; ++k) {
-        if (j.st[k] != NF_OK)
-            return j.st[k];
-        total += j.F[k];
-        lsum += j.F[k] * j.L[k];
-    }
-    if (!(total > 0.0))
-        return NF_OK; /* nothing to learn; nf_apply_gradient would still decay the moments */
-    *loss = (float)(lsum / total);
-    for (size_t p = 0; p < tr->params; ++p) {
-        double acc = 0.0;
-        for (int k = 0; k < tr->shards; ++k)
-            acc += j.F[k] * tr->grads[(size_t)k * tr->params + p];
-        tr->grad[p] = (float)(acc / total);
-    }
-    return nf_apply_gradient(tr->model, tr->grad);
+    for (int k = 0; k < tr->shards; ++k)
+        tr->group_end[k] = n * (size_t)(k + 1) / (size_t)tr->shards;
+    return gradient_sum_step(&tr->sum, tr->model, tr->ctx, tr->dir, tr->weight, tr->group_end,
+                             (size_t)tr->shards, tr->total_shards, tr->shards, loss, step,
+                             refusal, err);
 }
 
 static int trainer_reserve(trainer *tr, size_t n)
@@ -270,8 +227,7 @@ static int trainer_reserve(trainer *tr, size_t n)
 static void trainer_free(trainer *tr)
 {
     free(tr->store);
-    free(tr->grads);
-    free(tr->grad);
+    gradient_sum_free(&tr->sum);
     free(tr->ctx);
     free(tr->dir);
     free(tr->weight);
@@ -284,20 +240,24 @@ static int compare_float(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* The q-quantile of the records' weights, folded into a running value (geometric mean with
- * the previous passes', so that one pass's outliers do not move it far). */
-static void update_clamp(trainer *tr, const record_buffer *rec, float q)
+/* The q-quantile of the records' weights (the largest of the ranks' quantiles), folded into
+ * a running value (geometric mean with the previous passes', so that one pass's outliers do
+ * not move it far). Collective. */
+static int update_clamp(trainer *tr, const record_buffer *rec, float q, tr_error *err)
 {
     size_t n = rec->count;
-    if (n == 0 || !trainer_reserve(tr, n))
-        return;
-    for (size_t i = 0; i < n; ++i)
-        tr->weight[i] = rec->data[i].weight;
-    qsort(tr->weight, n, sizeof *tr->weight, compare_float);
-    float v = tr->weight[(size_t)(q * (float)(n - 1))];
-    if (!(v > 0.0f))
-        return;
-    tr->clamp = tr->clamp > 0.0f ? sqrtf(tr->clamp * v) : v;
+    double v = 0.0;
+    if (n > 0 && trainer_reserve(tr, n)) {
+        for (size_t i = 0; i < n; ++i)
+            tr->weight[i] = rec->data[i].weight;
+        qsort(tr->weight, n, sizeof *tr->weight, compare_float);
+        v = tr->weight[(size_t)(q * (float)(n - 1))];
+    }
+    if (!ranks_max_f64(&v, 1, err))
+        return 0;
+    if (v > 0.0)
+        tr->clamp = tr->clamp > 0.0f ? sqrtf(tr->clamp * (float)v) : (float)v;
+    return 1;
 }
 
 /* Copies samples into the step arrays, with the running clamp applied. */
@@ -310,23 +270,30 @@ static void load_sample(trainer *tr, size_t i, const train_record *x)
     tr->points[i].bp = x->bp;
 }
 
-/* One step on the first n samples of the step arrays; returns its loss (NAN if refused). */
-static double step_on_loaded(trainer *tr, const tracer *t, size_t n, uint32_t pass,
-                             budget_report *rep, tr_error *err)
+/* One step on the first n samples of the step arrays (every rank's, together); its loss goes
+ * to *loss (NAN if refused or empty). Collective. */
+static int step_on_loaded(trainer *tr, const tracer *t, size_t n, uint32_t pass,
+                          budget_report *rep, double *loss, tr_error *err)
 {
     if (t->bsdf_prior) /* the BSDF prior's callbacks find each sample's material here */
         guide_begin_batch(tr->ctx, tr->points, n);
-    float loss = NAN;
-    nf_status st = sharded_step(tr, n, &loss, err);
+    float l = NAN;
+    gradient_step step;
+    nf_status refusal;
+    int ok = sharded_step(tr, n, &l, &step, &refusal, err);
     guide_end();
-    if (st != NF_OK) {
-        if (rep->refused++ < 5)
-            fprintf(stderr, "\nnf_tracer: training pass %u: step refused: %s: %s\n", pass,
-                    nf_status_string(st), nf_last_error_message());
-        return NAN;
+    *loss = NAN;
+    if (!ok)
+        return 0;
+    if (step == GRADIENT_STEP_REFUSED) {
+        if (rep->refused++ < 5 && ranks_rank() == 0)
+            fprintf(stderr, "\nnf_tracer: training pass %u: step refused: %s\n", pass,
+                    nf_status_string(refusal));
+    } else if (step == GRADIENT_STEP_TAKEN) {
+        rep->steps++;
+        *loss = l;
     }
-    rep->steps++;
-    return loss;
+    return 1;
 }
 
 /* Trains after one pass. The pass's samples join a replay store of the latest samples (older
@@ -338,20 +305,19 @@ static int train_on_pass(trainer *tr, const tracer *t, record_buffer *rec,
                          const budget_settings *bs, uint32_t pass, budget_report *rep,
                          double *pass_loss, tr_error *err)
 {
-    size_t n = rec->count, step = (size_t)bs->step_samples;
+    size_t n = rec->count, step = tr->step;
     *pass_loss = NAN;
-    if (n == 0)
-        return 1;
-    if (bs->clamp_quantile > 0.0f)
-        update_clamp(tr, rec, bs->clamp_quantile);
-    if (!trainer_reserve(tr, step))
-        return tr_fail(err, "out of memory for %zu training samples", step);
-    if (!tr->store) {
-        tr->store = malloc(REPLAY_CAPACITY * sizeof *tr->store);
-        if (!tr->store)
-            return tr_fail(err, "out of memory for the replay store");
-    }
-    rng r = rng_seed(bs->seed, RNG_TRAIN, pass, 0);
+    /* Collective from here: every rank takes part in every step, with samples or without. */
+    if (bs->clamp_quantile > 0.0f && !update_clamp(tr, rec, bs->clamp_quantile, err))
+        return 0;
+    int ok = trainer_reserve(tr, step) ||
+             tr_fail(err, "out of memory for %zu training samples", step);
+    if (ok && !tr->store && !(tr->store = malloc(REPLAY_CAPACITY * sizeof *tr->store)))
+        ok = tr_fail(err, "out of memory for the replay store");
+    if (!ranks_agree(ok, err))
+        return 0;
+    /* Each rank draws its own samples: a stream of its own. */
+    rng r = rng_seed(bs->seed, RNG_TRAIN, pass, (uint64_t)ranks_rank());
     for (size_t i = 0; i < n; ++i) { /* into the ring, the oldest out */
         tr->store[tr->store_next] = rec->data[i];
         tr->store_next = (tr->store_next + 1) % REPLAY_CAPACITY;
@@ -367,11 +333,15 @@ static int train_on_pass(trainer *tr, const tracer *t, record_buffer *rec,
         rec->data[j] = tmp;
         load_sample(tr, i, &rec->data[i]);
     }
-    *pass_loss = step_on_loaded(tr, t, m, pass, rep, err);
+    if (!step_on_loaded(tr, t, m, pass, rep, pass_loss, err))
+        return 0;
     for (int s = 1; s < bs->steps_per_pass; ++s) {
-        for (size_t i = 0; i < step; ++i)
+        size_t k = tr->stored ? step : 0;
+        for (size_t i = 0; i < k; ++i)
             load_sample(tr, i, &tr->store[rng_next_u32(&r) % (uint32_t)tr->stored]);
-        step_on_loaded(tr, t, step, pass, rep, err);
+        double loss;
+        if (!step_on_loaded(tr, t, k, pass, rep, &loss, err))
+            return 0;
     }
     rep->samples += n;
     return 1;
@@ -384,36 +354,47 @@ static int train_on_pass(trainer *tr, const tracer *t, record_buffer *rec,
 static int learn_selection(selection_grid *g, const record_buffer *rec, tr_error *err)
 {
     size_t n = rec->count;
-    if (n == 0)
-        return 1;
-    selection_sample *smp = malloc(n * sizeof *smp);
+    selection_sample *mine = malloc((n ? n : 1) * sizeof *mine), *smp = NULL;
     double *work = malloc(2 * g->cells * sizeof *work);
-    if (!smp || !work) {
-        free(smp);
-        free(work);
-        return tr_fail(err, "out of memory for the guiding probabilities");
-    }
-    for (size_t i = 0; i < n; ++i) {
+    int ok = (mine && work) || tr_fail(err, "out of memory for the guiding probabilities");
+    for (size_t i = 0; ok && i < n; ++i) {
         const train_record *x = &rec->data[i];
-        smp[i].cell = x->cell;
-        smp[i].weight = x->weight;
-        smp[i].p_flow = x->p_flow;
-        smp[i].p_bsdf = x->p_bsdf;
-        smp[i].alpha = x->alpha;
+        mine[i].cell = x->cell;
+        mine[i].weight = x->weight;
+        mine[i].p_flow = x->p_flow;
+        mine[i].p_bsdf = x->p_bsdf;
+        mine[i].alpha = x->alpha;
     }
-    /* Every cell of the pass in every step: the whole pass's gradient, SELECTION_STEPS
-     * times, would be a larger learning rate; instead each step sees all samples once. */
-    for (int k = 0; k < SELECTION_STEPS; ++k) {
-        size_t b = n * (size_t)k / SELECTION_STEPS, e = n * (size_t)(k + 1) / SELECTION_STEPS;
-        selection_step(g, smp + b, e - b, work);
+    /* Every rank learns from every rank's samples, in the same order: the grids stay equal. */
+    void *all = NULL;
+    size_t bytes = 0;
+    if (ranks_agree(ok, err) &&
+        ranks_gather_bytes(mine, n * sizeof *mine, &all, &bytes, err)) {
+        smp = all;
+        n = bytes / sizeof *smp;
+        /* Every cell of the pass in every step: the whole pass's gradient, SELECTION_STEPS
+         * times, would be a larger learning rate; instead each step sees all samples once. */
+        for (int k = 0; k < SELECTION_STEPS && n > 0; ++k) {
+            size_t b = n * (size_t)k / SELECTION_STEPS, e = n * (size_t)(k + 1) / SELECTION_STEPS;
+            selection_step(g, smp + b, e - b, work);
+        }
+        if (n > 0)
+            selection_observe(g, smp, n);
+    } else {
+        ok = 0;
     }
-    selection_observe(g, smp, n);
-    free(smp);
+    free(all);
+    free(mine);
     free(work);
-    return 1;
+    return ok;
 }
 
 /* ---- The job ------------------------------------------------------------------------------- */
+
+/* What rank 0's clock decides before a pass, the same for every rank. */
+typedef struct pass_plan {
+    int32_t stop_training, stopped_early, stop;
+} pass_plan;
 
 int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, image *img,
                        budget_report *rep, tr_error *err)
@@ -433,34 +414,34 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
     memset(&selection, 0, sizeof selection);
     groups.n = 3 * pixels;
     groups.per_group = 1;
-    if (!image_alloc(img, s->width, s->height, err) || !image_alloc(&pass, s->width, s->height, err))
-        goto done;
-    render_sum = calloc(3 * pixels, sizeof *render_sum);
-    render_sq = calloc(pixels, sizeof *render_sq);
-    if (!render_sum || !render_sq) {
-        tr_fail(err, "out of memory for the image sums");
-        goto done;
+    /* Every step of the setup may fail on one rank only: the ranks agree before going on. */
+    int ready = image_alloc(img, s->width, s->height, err) &&
+                image_alloc(&pass, s->width, s->height, err);
+    if (ready) {
+        render_sum = calloc(3 * pixels, sizeof *render_sum);
+        render_sq = calloc(pixels, sizeof *render_sq);
+        ready = (render_sum && render_sq) || tr_fail(err, "out of memory for the image sums");
     }
-    if (model && bs->learn_selection) {
-        if (!selection_init(&selection, t->s->bounds_min, t->s->bounds_max, t->guide_prob)) {
-            tr_fail(err, "out of memory for the guiding probabilities");
-            goto done;
-        }
+    if (ready && model && bs->learn_selection) {
+        ready = selection_init(&selection, t->s->bounds_min, t->s->bounds_max, t->guide_prob) ||
+                tr_fail(err, "out of memory for the guiding probabilities");
         if (bs->selection_cost >= 0.0f)
             selection.cost = bs->selection_cost;
-        t->selection = &selection;
+        if (ready)
+            t->selection = &selection;
     }
+    uint64_t shards = 0;
     if (model) {
         tr.model = model;
-        tr.params = nf_param_count(model);
         tr.shards = bs->threads < 1 ? 1 : bs->threads > MAX_SHARDS ? MAX_SHARDS : bs->threads;
-        tr.grads = malloc((size_t)tr.shards * tr.params * sizeof *tr.grads);
-        tr.grad = malloc(tr.params * sizeof *tr.grad);
-        if (!tr.grads || !tr.grad) {
-            tr_fail(err, "out of memory for gradients");
-            goto done;
-        }
+        /* The ranks share each step's samples. */
+        size_t n = (size_t)ranks_size();
+        tr.step = ((size_t)bs->step_samples + n - 1) / n;
+        shards = (uint64_t)tr.shards;
     }
+    if (!ranks_agree(ready, err) || !ranks_sum_u64(&shards, 1, err))
+        goto done;
+    tr.total_shards = (size_t)shards;
 
     const double end = bs->start + bs->seconds;
     const double train_end = bs->start + bs->train_fraction * bs->seconds;
@@ -469,29 +450,41 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
     uint32_t k = 0;
     for (;; ++k) {
         double t0 = now_seconds(), c0 = cpu_seconds();
+        /* Rank 0's clock decides; the held-out loss (since_best) is the same on every rank. */
+        pass_plan plan = {0, 0, 0};
         if (training && (t0 >= train_end || (bs->patience > 0 && since_best >= bs->patience))) {
-            rep->stopped_early = t0 < train_end;
+            plan.stop_training = 1;
+            plan.stopped_early = t0 < train_end;
+        }
+        /* Stop before a pass that would overrun (its time: the last pass's). A budget too
+         * short for a single pass still renders one. */
+        plan.stop = k > 0 && t0 + last_pass > end;
+        if (!ranks_broadcast(&plan, sizeof plan, err))
+            goto done;
+        if (plan.stop_training) {
+            rep->stopped_early = plan.stopped_early;
             training = 0;
             if (t->selection)
                 selection_freeze(&selection);
         }
-        /* Stop before a pass that would overrun (its time: the last pass's). A budget too
-         * short for a single pass still renders one. */
-        if (k > 0 && t0 + last_pass > end)
+        if (plan.stop)
             break;
-        if (!render_pass(t, bs->seed, PASS_STREAM_BASE + k, bs->threads, &pass,
-                         training ? &records : NULL, &rep->stats, err))
+        if (!ranks_agree(render_pass(t, bs->seed, PASS_STREAM_BASE + k, bs->threads, &pass,
+                                     training ? &records : NULL, &rep->stats, err),
+                         err))
             goto done;
         double t1 = now_seconds();
         if (training) {
             double loss;
-            if (!groups_add(&groups, &pass)) {
-                tr_fail(err, "out of memory for a training pass");
+            if (!ranks_agree(groups_add(&groups, &pass) ||
+                                 tr_fail(err, "out of memory for a training pass"),
+                             err))
                 goto done;
-            }
             if (t->selection && !learn_selection(&selection, &records, err))
                 goto done;
             if (!train_on_pass(&tr, t, &records, bs, k, rep, &loss, err))
+                goto done;
+            if (ranks_size() > 1 && !guide_models_agree(model, (int)k + 1, err))
                 goto done;
             double t2 = now_seconds();
             rep->train_passes++;
@@ -525,6 +518,16 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
             rep->render_cpu_seconds += cpu_seconds() - c0;
         }
     }
+    /* Rank 0 receives the ranks' pixels (each rendered by one rank: exact sums) and combines. */
+    for (int g = 0; g < groups.ngroups; ++g)
+        if (!ranks_sum_doubles_to_root(groups.sum[g], groups.n, err))
+            goto done;
+    if (!ranks_sum_doubles_to_root(render_sum, 3 * pixels, err) ||
+        !ranks_sum_doubles_to_root(render_sq, pixels, err) ||
+        !ranks_sum_u64((uint64_t *)&rep->stats, sizeof rep->stats / sizeof(uint64_t), err) ||
+        !ranks_sum_u64(&rep->samples, 1, err) ||
+        !ranks_sum_f64(&rep->render_cpu_seconds, 1, err))
+        goto done;
     rep->train_weight = combine(&groups, render_sum, render_sq, rep->render_passes,
                                 bs->combine, img, &rep->pass_variance);
     if (!bs->combine && rep->render_passes == 0)

@@ -98,11 +98,12 @@ typedef struct pass_job {
     path_stats *stats;
 } pass_job;
 
-static void pass_tile(void *user, size_t item, int thread)
+static void pass_tile(void *user, size_t k, int thread)
 {
     pass_job *job = user;
     const scene *s = job->t->s;
-    record_buffer *out = job->tiles ? &job->tiles[item] : NULL;
+    record_buffer *out = job->tiles ? &job->tiles[k] : NULL;
+    size_t item = rank_tile(job->t, k);
     int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
     for (int y = y0; y < y0 + TILE && y < s->height; ++y)
         for (int x = x0; x < x0 + TILE && x < s->width; ++x) {
@@ -128,7 +129,8 @@ int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, imag
     job.seed = seed;
     job.pass = pass;
     job.tiles_x = (t->s->width + TILE - 1) / TILE;
-    size_t ntiles = (size_t)job.tiles_x * (size_t)((t->s->height + TILE - 1) / TILE);
+    size_t ntiles = rank_tile_count(t, (size_t)job.tiles_x *
+                                           (size_t)((t->s->height + TILE - 1) / TILE));
     int nthreads = threads > 0 ? threads : 1;
     job.tiles = records ? calloc(ntiles, sizeof *job.tiles) : NULL;
     job.stats = calloc((size_t)nthreads, sizeof *job.stats);
