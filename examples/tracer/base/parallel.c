@@ -51,6 +51,13 @@ int parallel_for(size_t n, int threads, parallel_fn fn, void *user, const char *
         threads = 1;
     if ((size_t)threads > n)
         threads = n > 0 ? (int)n : 1;
+    if (threads == 1 && !progress_label) { /* one worker: this thread, without starting one */
+        worker w;
+        w.q = &q;
+        w.index = 0;
+        worker_main(&w);
+        return 1;
+    }
     pthread_t *ids = calloc((size_t)threads, sizeof *ids);
     worker *ws = calloc((size_t)threads, sizeof *ws);
     if (!ids || !ws) {

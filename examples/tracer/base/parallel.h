@@ -3,7 +3,9 @@
  * threads. Items are handed out in increasing order through an atomic counter, so the work
  * balances itself; results must not depend on which thread ran an item (the tracer's RNG
  * streams are per pixel and per path for exactly that reason). The calling thread draws the
- * progress bar while the workers run.
+ * progress bar while the workers run; with one thread and no bar it does the work itself,
+ * without starting a thread (steps of a few microseconds are common: an empty gradient step,
+ * a pass of a tiny film).
  */
 #ifndef TRACER_PARALLEL_H
 #define TRACER_PARALLEL_H

@@ -333,9 +333,14 @@ static int train_on_pass(trainer *tr, const tracer *t, record_buffer *rec,
         rec->data[j] = tmp;
         load_sample(tr, i, &rec->data[i]);
     }
-    if (!step_on_loaded(tr, t, m, pass, rep, pass_loss, err))
+    /* Nothing to learn anywhere (a scene that no light reaches yet): no steps, which would
+     * each cost a start of the threads for nothing. */
+    uint64_t counts[2] = {n, tr->stored};
+    if (!ranks_sum_u64(counts, 2, err))
         return 0;
-    for (int s = 1; s < bs->steps_per_pass; ++s) {
+    if (counts[0] > 0 && !step_on_loaded(tr, t, m, pass, rep, pass_loss, err))
+        return 0;
+    for (int s = 1; counts[1] > 0 && s < bs->steps_per_pass; ++s) {
         size_t k = tr->stored ? step : 0;
         for (size_t i = 0; i < k; ++i)
             load_sample(tr, i, &tr->store[rng_next_u32(&r) % (uint32_t)tr->stored]);

@@ -97,8 +97,11 @@ int gradient_sum_step(gradient_sum *g, nf_model *m, const nf_context *ctx, const
     *step = GRADIENT_STEP_REFUSED;
     *refusal = NF_OK;
     group_job job = {g, m, ctx, dir, weight, group_end};
+    /* Groups without samples (a rank whose share is empty) need no threads started. */
+    int busy = groups > 0 && group_end[groups - 1] > 0;
     int ok = reserve(g, P, groups, err) &&
-             (groups == 0 || parallel_for(groups, threads, group_gradient, &job, NULL, err));
+             (groups == 0 ||
+              parallel_for(groups, busy ? threads : 1, group_gradient, &job, NULL, err));
     /* A rank out of memory must not leave the others waiting in the reductions below. */
     if (!ranks_agree(ok, err))
         return 0;
