@@ -6,7 +6,8 @@
  * lengths, with u at the ends of [0, 1). Invariants, checked by abort():
  *   - nf_sample succeeds with unit directions and finite, positive densities;
  *   - nf_pdf and nf_prior_pdf give finite, positive densities;
- *   - nf_loss_gradient gives a finite loss and gradient, or NF_ERROR_NUMERIC;
+ *   - nf_loss_gradient gives a finite loss and gradient, or NF_ERROR_NUMERIC, and
+ *     nf_loss_gradient_with_work the same status and bits;
  *   - nf_train_step succeeds with finite parameters, or is refused with NF_ERROR_NUMERIC and
  *     leaves the model bit-identical;
  *   - nf_model_clone and a save / load round trip give identical bytes;
@@ -163,6 +164,22 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
         for (size_t i = 0; i < count; ++i)
             NF_FUZZ_CHECK(isfinite(grad[i]), "grad[%zu] = %g", i, (double)grad[i]);
     }
+    /* The same call with its work area in caller memory (misaligned on purpose): the same
+     * status, and the same bits. */
+    const size_t work_bytes = nf_training_work_bytes();
+    unsigned char *work = (unsigned char *)malloc(work_bytes + 1);
+    float *grad2 = (float *)malloc(count * sizeof *grad2);
+    NF_FUZZ_CHECK(work != NULL && grad2 != NULL, "malloc");
+    float loss2 = NAN;
+    nf_status st2 =
+        nf_loss_gradient_with_work(m, N, ctx, dir, w, &loss2, grad2, work + 1, work_bytes);
+    NF_FUZZ_CHECK(st2 == st, "nf_loss_gradient_with_work status %d, nf_loss_gradient %d",
+                  (int)st2, (int)st);
+    NF_FUZZ_CHECK(st != NF_OK || (memcmp(&loss, &loss2, sizeof loss) == 0 &&
+                                  memcmp(grad, grad2, count * sizeof *grad) == 0),
+                  "nf_loss_gradient_with_work differs from nf_loss_gradient");
+    free(work);
+    free(grad2);
 
     size_t before_size = 0, after_size = 0;
     unsigned char *before = nf_fuzz_serialize(m, &before_size);

@@ -3,6 +3,7 @@
  * and parameter access.
  */
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #include "internal.h"
@@ -51,10 +52,11 @@ static nf_status nf_check_result(const char *fn, double loss, const float *grad,
     return NF_OK;
 }
 
-nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
-                           const float *weight, float *loss, float *grad)
+/* nf_loss_gradient and nf_loss_gradient_with_work; work NULL: the kernels' stack. */
+static nf_status nf_loss_gradient_in(const char *fn, const nf_model *m, size_t n,
+                                     const nf_context *ctx, const float *dir, const float *weight,
+                                     float *loss, float *grad, void *work)
 {
-    static const char fn[] = "nf_loss_gradient";
     double total = 0.0, value = 0.0;
     nf_status st = nf_validate_training(fn, m, n, ctx, dir, weight, &total);
     if (st != NF_OK)
@@ -63,13 +65,47 @@ nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx, c
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: grad is NULL", fn);
     memset(grad, 0, m->param_count * sizeof(float));
     if (total > 0.0 &&
-        (st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, grad)) != NF_OK)
+        (st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, grad, work)) != NF_OK)
         return st;
     if (total > 0.0 && (st = nf_check_result(fn, value, grad, m->param_count)) != NF_OK)
         return st;
     if (loss)
         *loss = (float)value;
     return NF_OK;
+}
+
+nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
+                           const float *weight, float *loss, float *grad)
+{
+    return nf_loss_gradient_in("nf_loss_gradient", m, n, ctx, dir, weight, loss, grad, NULL);
+}
+
+size_t nf_training_work_bytes(void)
+{
+    size_t bytes = nf_kernels_generic.gradient_work_bytes;
+#if defined(NF_HAVE_X86_KERNELS)
+    if (nf_kernels_avx2.gradient_work_bytes > bytes)
+        bytes = nf_kernels_avx2.gradient_work_bytes;
+    if (nf_kernels_avx512.gradient_work_bytes > bytes)
+        bytes = nf_kernels_avx512.gradient_work_bytes;
+#endif
+    return bytes + NF_WORK_ALIGN - 1u; /* room to align any pointer */
+}
+
+nf_status nf_loss_gradient_with_work(const nf_model *m, size_t n, const nf_context *ctx,
+                                     const float *dir, const float *weight, float *loss,
+                                     float *grad, void *work, size_t work_bytes)
+{
+    static const char fn[] = "nf_loss_gradient_with_work";
+    size_t need = nf_training_work_bytes();
+    if (!work)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: work is NULL", fn);
+    if (work_bytes < need)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: work holds %zu bytes, the call needs %zu (nf_training_work_bytes)", fn,
+                       work_bytes, need);
+    uintptr_t at = ((uintptr_t)work + (NF_WORK_ALIGN - 1u)) & ~(uintptr_t)(NF_WORK_ALIGN - 1u);
+    return nf_loss_gradient_in(fn, m, n, ctx, dir, weight, loss, grad, (void *)at);
 }
 
 /* One AdamW step with a gradient known to be finite; `fn` names the caller in errors. */
@@ -124,7 +160,8 @@ nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const floa
         return st;
     if (total > 0.0) {
         memset(m->grad, 0, m->param_count * sizeof(float));
-        if ((st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, m->grad)) != NF_OK ||
+        if ((st = m->kernels->gradient(m, n, ctx, dir, weight, total, &value, m->grad, NULL)) !=
+                NF_OK ||
             (st = nf_check_result(fn, value, m->grad, m->param_count)) != NF_OK ||
             (st = nf_adamw_commit(m, m->grad, fn)) != NF_OK)
             return st;

@@ -77,6 +77,31 @@ NF_API nf_status nf_set_params(nf_model *m, const float *params);
 NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
                                   const float *dir, const float *weight, float *loss, float *grad);
 
+/* The bytes of caller memory that nf_loss_gradient_with_work takes: the work area of a tile of
+ * 16 samples, sized for the largest networks the configuration limits allow and for every
+ * instruction set this build has, plus 63 bytes so that any pointer can be aligned; about
+ * 160 KiB, the same for every model. Thread-safe. */
+NF_API size_t nf_training_work_bytes(void);
+
+/* nf_loss_gradient with the work area in caller memory instead of on the stack, for threads
+ * whose stacks are small (fibers, musl's 128 KiB default): it then uses at most
+ * NF_TRAINING_WORK_STACK_BYTES (32 KiB) of the caller's stack. `work` holds work_bytes >=
+ * nf_training_work_bytes() bytes, of any alignment; its content on entry does not matter and
+ * is unspecified on return; two calls that run at the same time need two work areas (one per
+ * thread, allocated once). The results are nf_loss_gradient's, to the bit. A NULL or too small
+ * work area is refused with NF_ERROR_INVALID_ARGUMENT; otherwise as nf_loss_gradient
+ * (validation, NF_ERROR_NUMERIC, thread-safe on a const model, never allocates). */
+NF_API nf_status nf_loss_gradient_with_work(const nf_model *m, size_t n, const nf_context *ctx,
+                                            const float *dir, const float *weight, float *loss,
+                                            float *grad, void *work, size_t work_bytes);
+
+/* The stack, in bytes, to allow for one nf_loss_gradient_with_work call: 32 KiB. Measured like
+ * NF_TRAINING_STACK_BYTES (tests/robustness/test_training_stack.c fails above it): at most
+ * 18,736 bytes with GCC 12 -O3 and 23,840 bytes with clang 14 (the first hidden layer of a
+ * tile keeps up to 8 KiB of activations on the stack); the allowance adds 8.7 KiB (37%) for
+ * other compilers and versions. A custom prior's callbacks run on top of it. */
+#define NF_TRAINING_WORK_STACK_BYTES 32768u
+
 /* One AdamW step (decoupled weight decay, bias-corrected moments) with the given gradient
  * (nf_param_count floats). Refuses a non-finite gradient with NF_ERROR_INVALID_ARGUMENT, and a
  * step whose parameters or moments would be non-finite with NF_ERROR_NUMERIC; both leave the

@@ -214,13 +214,10 @@ static nf_status nf_gradient_per_sample(const nf_model *m, size_t n, const nf_co
 
 /* Samples with weight zero contribute nothing and are left out, so tiles are filled with the
  * others, in order: the loss is summed in the same order as by the per-sample code. */
-static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_context *ctx,
-                                    const float *dir, const float *weight, double total,
-                                    double *loss, float *grad)
+static nf_status nf_gradient_tiles(const nf_model *m, size_t n, const nf_context *ctx,
+                                   const float *dir, const float *weight, double total,
+                                   double *loss, float *grad, nf_tile_gradient_work *w)
 {
-    if (n < NF_GRADIENT_TILED_FROM)
-        return nf_gradient_per_sample(m, n, ctx, dir, weight, total, loss, grad);
-    nf_tile_gradient_work w;
     const nf_context *tile_ctx[NF_TILE];
     const float *tile_dir[NF_TILE];
     double share[NF_TILE], acc = 0.0;
@@ -233,18 +230,40 @@ static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_contex
         share[count] = (double)weight[i] / total;
         if (++count < NF_TILE)
             continue;
-        nf_status st = nf_tile_gradient(m, tile_ctx, tile_dir, share, count, grad, &acc, &w);
+        nf_status st = nf_tile_gradient(m, tile_ctx, tile_dir, share, count, grad, &acc, w);
         if (st != NF_OK)
             return st;
         count = 0;
     }
     if (count > 0) {
-        nf_status st = nf_tile_gradient(m, tile_ctx, tile_dir, share, count, grad, &acc, &w);
+        nf_status st = nf_tile_gradient(m, tile_ctx, tile_dir, share, count, grad, &acc, w);
         if (st != NF_OK)
             return st;
     }
     *loss = acc;
     return NF_OK;
+}
+
+/* The work area on the stack, in a frame of its own: inlined into nf_kernel_gradient, its
+ * 160 KiB would be reserved for calls that bring their own work area too. */
+__attribute__((noinline)) static nf_status nf_gradient_tiles_on_stack(
+    const nf_model *m, size_t n, const nf_context *ctx, const float *dir, const float *weight,
+    double total, double *loss, float *grad)
+{
+    nf_tile_gradient_work w;
+    return nf_gradient_tiles(m, n, ctx, dir, weight, total, loss, grad, &w);
+}
+
+static nf_status nf_kernel_gradient(const nf_model *m, size_t n, const nf_context *ctx,
+                                    const float *dir, const float *weight, double total,
+                                    double *loss, float *grad, void *work)
+{
+    if (n < NF_GRADIENT_TILED_FROM)
+        return nf_gradient_per_sample(m, n, ctx, dir, weight, total, loss, grad);
+    if (work)
+        return nf_gradient_tiles(m, n, ctx, dir, weight, total, loss, grad,
+                                 (nf_tile_gradient_work *)work);
+    return nf_gradient_tiles_on_stack(m, n, ctx, dir, weight, total, loss, grad);
 }
 
 /* AdamW here rather than in train.c so that it runs in the widest vectors the CPU has: sqrt
@@ -282,5 +301,8 @@ static int nf_kernel_adamw(const nf_adamw_step *step, size_t count, const float 
 }
 
 const nf_kernels NF_KERNEL_CAT(nf_kernels_, NF_KERNEL_ISA) = {
-    NF_KERNEL_STR(NF_KERNEL_ISA), nf_kernel_sample,       nf_kernel_pdf,       nf_kernel_gradient,
-    nf_point_prepare_at,          nf_kernel_point_sample, nf_kernel_point_pdf, nf_kernel_adamw};
+    NF_KERNEL_STR(NF_KERNEL_ISA), nf_kernel_sample,    nf_kernel_pdf,
+    nf_kernel_gradient,           nf_point_prepare_at, nf_kernel_point_sample,
+    nf_kernel_point_pdf,          nf_kernel_adamw,     sizeof(nf_tile_gradient_work)};
+_Static_assert(_Alignof(nf_tile_gradient_work) <= NF_WORK_ALIGN,
+               "a caller's work area is aligned to NF_WORK_ALIGN");

@@ -16,9 +16,10 @@ struct nf_kernels {
     nf_status (*pdf)(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                      float *pdf);
     /* Adds the gradient of the loss (weights normalized by `total` > 0) into grad and returns
-     * the loss in *loss. */
+     * the loss in *loss. `work`: NULL, or gradient_work_bytes of caller memory aligned to
+     * NF_WORK_ALIGN, which then holds the tiles' work area instead of the stack. */
     nf_status (*gradient)(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
-                          const float *weight, double total, double *loss, float *grad);
+                          const float *weight, double total, double *loss, float *grad, void *work);
     /* The shading-point API (nisflow/point.h) on kernels/point.h, inputs validated by
      * point.c. point_sample and point_pdf take points[i * stride] for direction i: stride 0
      * for n directions at one point, 1 for one direction at each of n points. */
@@ -32,7 +33,11 @@ struct nf_kernels {
      * v_new (count floats each, no overlap); returns 0 if any new value is not finite. */
     int (*adamw)(const nf_adamw_step *step, size_t count, const float *g, const float *p,
                  const float *m, const float *v, float *p_new, float *m_new, float *v_new);
+    size_t gradient_work_bytes; /* the gradient's work area, for any configuration */
 };
+
+/* The alignment of a caller's work area (the kernels' widest vectors). */
+#define NF_WORK_ALIGN 64u
 
 extern const nf_kernels nf_kernels_generic;
 #if defined(NF_HAVE_X86_KERNELS)

@@ -493,6 +493,68 @@ static void test_sharding(void **state)
     nf_model_destroy(m);
 }
 
+/* nf_loss_gradient_with_work (train.h): the same loss and gradient to the bit as
+ * nf_loss_gradient, for batches on the per-sample path (1, 3) and on tiles (4, 16, 37 with a
+ * partial tile and zero weights), both presets, every prior, every instruction set the CPU has,
+ * through a work area at every offset modulo 64 (the library aligns it). */
+static void test_gradient_with_work(void **state)
+{
+    (void)state;
+    enum { MAX_N = 37 };
+    static const nf_isa isas[3] = {NF_ISA_GENERIC, NF_ISA_AVX2, NF_ISA_AVX512};
+    static const size_t sizes[5] = {1, 3, 4, 16, MAX_N};
+    static nf_context ctx[MAX_N];
+    static float dir[3 * MAX_N], weight[MAX_N];
+    nft_rng r;
+    nft_rng_seed(&r, 77u, 3u);
+    for (int i = 0; i < MAX_N; ++i) {
+        nft_random_context(&r, &ctx[i]);
+        nft_random_unit_vector(&r, dir + 3 * i);
+        weight[i] = i % 7 == 3 ? 0.0f : 0.1f + nft_rng_float(&r);
+    }
+    const size_t bytes = nf_training_work_bytes();
+    /* At least the tile work area: NF_TRAINING_STACK_BYTES says it is most of 160 KiB. */
+    assert_true(bytes > 64 * 1024);
+    unsigned char *area = malloc(bytes + 64);
+    assert_non_null(area);
+    int compared = 0;
+    for (int k = 0; k < 3; ++k)
+        for (int preset = 0; preset < 2; ++preset)
+            for (int p = 0; p < 4; ++p) {
+                if (p == 3)
+                    continue; /* the custom prior: test_prior_context covers its callbacks */
+                nf_model *m = random_model(preset ? NF_PRESET_LARGE : NF_PRESET_SMALL,
+                                           builtin_priors[p % 3], 900u + (uint64_t)(k * 8 + p));
+                if (nf_model_set_isa(m, isas[k]) != NF_OK) { /* a CPU without the set */
+                    nf_model_destroy(m);
+                    continue;
+                }
+                size_t count = nf_param_count(m);
+                float *g1 = malloc(count * sizeof *g1), *g2 = malloc(count * sizeof *g2);
+                assert_true(g1 && g2);
+                for (int b = 0; b < 5; ++b) {
+                    size_t n = sizes[b], offset = (size_t)(b * 13 + p * 5 + k) % 64;
+                    float l1 = -1.0f, l2 = -2.0f;
+                    memset(area, 0xA5, bytes + 64); /* the area's content must not matter */
+                    assert_int_equal(nf_loss_gradient(m, n, ctx, dir, weight, &l1, g1), NF_OK);
+                    assert_int_equal(nf_loss_gradient_with_work(m, n, ctx, dir, weight, &l2, g2,
+                                                                area + offset, bytes),
+                                     NF_OK);
+                    if (memcmp(&l1, &l2, sizeof l1) != 0 ||
+                        memcmp(g1, g2, count * sizeof *g1) != 0)
+                        fail_msg("%s, preset %d, prior %d, n = %zu, offset %zu: the gradient "
+                                 "with a work area differs from nf_loss_gradient's",
+                                 nf_model_isa_name(m), preset, p, n, offset);
+                    compared++;
+                }
+                free(g1);
+                free(g2);
+                nf_model_destroy(m);
+            }
+    assert_true(compared >= 2 * 3 * 5); /* the generic kernels run everywhere */
+    free(area);
+}
+
 /* ---- AdamW ---------------------------------------------------------------------------------- */
 
 /* The spacing of floats at |x| (an ulp). */
@@ -643,6 +705,7 @@ int main(void)
         cmocka_unit_test(test_tiles_match_single_samples),
         cmocka_unit_test(test_weight_normalization),
         cmocka_unit_test(test_sharding),
+        cmocka_unit_test(test_gradient_with_work),
         cmocka_unit_test(test_train_step_adamw),
         cmocka_unit_test(test_apply_gradient_adamw),
     };

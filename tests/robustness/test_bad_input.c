@@ -605,6 +605,35 @@ static void test_loss_gradient_bad_input(void **state)
     assert_int_equal(nf_loss_gradient(m, N, b.ctx, b.dir, b.weight, NULL, grad), NF_OK);
     assert_int_equal(nf_loss_gradient(m, 0, NULL, NULL, NULL, &loss, grad), NF_OK);
     EXPECT_UNCHANGED(m, &snap);
+
+    /* nf_loss_gradient_with_work: its own two arguments, then the same validation. A refused
+     * call writes neither the gradient nor the loss. */
+    const size_t wb = nf_training_work_bytes();
+    void *work = malloc(wb);
+    assert_non_null(work);
+    nft_fill_sentinel(grad, pc);
+    loss = NFT_SENTINEL;
+    EXPECT_INVALID(nf_loss_gradient_with_work(m, N, b.ctx, b.dir, b.weight, &loss, grad, NULL, wb));
+    EXPECT_INVALID(nf_loss_gradient_with_work(m, N, b.ctx, b.dir, b.weight, &loss, grad, work, 0));
+    EXPECT_INVALID(
+        nf_loss_gradient_with_work(m, N, b.ctx, b.dir, b.weight, &loss, grad, work, wb - 1));
+    EXPECT_INVALID(nf_loss_gradient_with_work(NULL, N, b.ctx, b.dir, b.weight, &loss, grad, work, wb));
+    EXPECT_INVALID(nf_loss_gradient_with_work(m, N, b.ctx, b.dir, b.weight, &loss, NULL, work, wb));
+    for (int which = 0; bad_batch(which, &b, &bad, what, sizeof what); ++which) {
+        prime(0);
+        nf_status st =
+            nf_loss_gradient_with_work(m, N, bad.ctx, bad.dir, bad.weight, &loss, grad, work, wb);
+        if (st != NF_ERROR_INVALID_ARGUMENT || message_is_primer(0))
+            fail_msg("nf_loss_gradient_with_work with %s: %s", what, nf_status_string(st));
+    }
+    assert_true(nft_untouched(grad, pc) && loss == NFT_SENTINEL);
+    prime(0);
+    assert_int_equal(nf_loss_gradient_with_work(m, N, b.ctx, b.dir, b.weight, &loss, grad, work,
+                                                wb - 1),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "nf_training_work_bytes"));
+    EXPECT_UNCHANGED(m, &snap);
+    free(work);
     free(grad);
     nft_snapshot_free(&snap);
     nf_model_destroy(m);

@@ -1,6 +1,7 @@
 /*
  * test_training_stack.c - the stack nf_loss_gradient and nf_train_step use, against the figure
- * train.h documents (NF_TRAINING_STACK_BYTES, 176 KiB). A renderer that trains on its own
+ * train.h documents (NF_TRAINING_STACK_BYTES, 192 KiB), and nf_loss_gradient_with_work's
+ * against NF_TRAINING_WORK_STACK_BYTES (32 KiB). A renderer that trains on its own
  * threads sizes their stacks from it (musl's default 128 KiB is too small), so the figure must
  * stay true: this test fails when the training kernels grow past it.
  *
@@ -40,8 +41,10 @@ typedef struct stack_job {
     const nf_context *ctx;
     const float *dir, *weight;
     float *grad;
-    int call; /* 0: nothing, 1: nf_loss_gradient, 2: nf_train_step */
+    int call; /* 0: nothing, 1: nf_loss_gradient, 2: nf_train_step,
+               * 3: nf_loss_gradient_with_work */
     nf_status status;
+    void *work; /* nf_training_work_bytes(), for call 3 */
 } stack_job;
 
 static void *stack_thread(void *arg)
@@ -53,6 +56,10 @@ static void *stack_thread(void *arg)
         j->status = nf_loss_gradient(j->m, j->n, j->ctx, j->dir, j->weight, &loss, j->grad);
         break;
     case 2: j->status = nf_train_step(j->m, j->n, j->ctx, j->dir, j->weight, &loss); break;
+    case 3:
+        j->status = nf_loss_gradient_with_work(j->m, j->n, j->ctx, j->dir, j->weight, &loss,
+                                               j->grad, j->work, nf_training_work_bytes());
+        break;
     default: j->status = NF_OK; break;
     }
     volatile float sink = loss; /* the same frame for every case */
@@ -86,8 +93,10 @@ static void test_training_stack_bound(void **state)
         nft_random_unit_vector(&r, dir + 3 * i);
         weight[i] = 0.25f + nft_rng_float(&r);
     }
-    size_t worst[3] = {0, 0, 0};
-    char where[3][96] = {"", "", ""};
+    size_t worst[4] = {0, 0, 0, 0};
+    char where[4][96] = {"", "", "", ""};
+    void *work = malloc(nf_training_work_bytes());
+    assert_non_null(work);
     for (int k = 0; k < 3; ++k) {
         for (int s = 0; s < 3; ++s) {
             nf_config cfg;
@@ -106,9 +115,9 @@ static void test_training_stack_bound(void **state)
                 continue; /* a CPU without the set */
             float *grad = malloc(nf_param_count(m) * sizeof(float));
             assert_non_null(grad);
-            stack_job j = {m, 0, ctx, dir, weight, grad, 0, NF_OK};
+            stack_job j = {m, 0, ctx, dir, weight, grad, 0, NF_OK, work};
             size_t base = stack_used(&j);
-            for (int call = 1; call <= 2; ++call) {
+            for (int call = 1; call <= 3; ++call) {
                 for (size_t b = 0; b < 4; ++b) {
                     j.call = call;
                     j.n = sizes[b];
@@ -128,6 +137,9 @@ static void test_training_stack_bound(void **state)
     }
     print_message("nf_loss_gradient at most %zu bytes of stack (%s)\n", worst[1], where[1]);
     print_message("nf_train_step    at most %zu bytes of stack (%s)\n", worst[2], where[2]);
+    print_message("nf_loss_gradient_with_work at most %zu bytes of stack (%s)\n", worst[3],
+                  where[3]);
+    free(work);
     /* Not vacuous: the tiled gradient keeps its whole work area on the stack. */
     assert_true(worst[1] > 64 * 1024);
     for (int call = 1; call <= 2; ++call)
@@ -136,6 +148,12 @@ static void test_training_stack_bound(void **state)
                      "= %u (%s)",
                      call == 1 ? "nf_loss_gradient" : "nf_train_step", worst[call],
                      (unsigned)NF_TRAINING_STACK_BYTES, where[call]);
+    /* The work area moved off the stack: what is left is far below the stack calls'. */
+    assert_true(worst[3] < worst[1] / 4);
+    if (worst[3] > NF_TRAINING_WORK_STACK_BYTES)
+        fail_msg("nf_loss_gradient_with_work used %zu bytes of stack, more than train.h's "
+                 "NF_TRAINING_WORK_STACK_BYTES = %u (%s)",
+                 worst[3], (unsigned)NF_TRAINING_WORK_STACK_BYTES, where[3]);
 #endif
 }
 
