@@ -58,7 +58,8 @@ void record_buffer_free(record_buffer *b);
 /* Appends src to dst (in order). Returns 0 when out of memory. */
 int record_buffer_append(record_buffer *dst, const record_buffer *src);
 
-/* Counters for throughput figures; each thread keeps its own and they are summed. */
+/* Counters for throughput figures; each thread keeps its own and they are summed. Every field
+ * is a uint64_t counter: the MPI ranks sum them as an array (nf_tracer.c, budget.c). */
 typedef struct path_stats {
     uint64_t paths, rays, guided_vertices, nf_errors;
     uint64_t camera_backfaces; /* camera rays that hit the black back of a one-sided material */
@@ -66,6 +67,7 @@ typedef struct path_stats {
                                 * path or its light sample without reaching Embree. Always 0
                                 * for a scene the loader accepted; tests check it. */
 } path_stats;
+_Static_assert(sizeof(path_stats) == 6 * sizeof(uint64_t), "path_stats: uint64_t counters only");
 
 void path_stats_add(path_stats *a, const path_stats *b);
 

@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# The seam study (docs/results.md, "The seam"): what the flow's seam at phi = 0 costs.
+#
+#   1. nf_seam_study: the small model trained online on a vMF lobe times the cosine, centred on
+#      the seam against the same configuration turned to phi = pi; KL by quadrature after
+#      100, 500 and 2000 steps, uniform-direction and cosine priors, kappa 20 and 200, SEEDS
+#      seeds.
+#   2. The Cornell box and a copy turned by -90 degrees about the z axis, camera included (the
+#      image is the same): the light, straight up (+y) from most shading points, then lies at
+#      phi = 0 (+x), across the seam. Guided renders (cosine prior, 200 iterations, then
+#      32 spp) at 128 x 128 with seeds 1 .. SEEDS, their error against the scene's reference.
+#
+# It writes out/seam/unit.md and out/seam/render.md and prints both. About 5 minutes on 2
+# cores with the defaults.
+#
+#   scripts/seam-study.sh [SEEDS]        (default 8 for the unit study, 3 renders per scene)
+#   scripts/seam-study.sh --smoke        one seed, short runs (CI: seconds)
+set -euo pipefail
+
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+ROOT=$(pwd)
+OUT=out/seam
+SMOKE=0
+SEEDS=8
+RENDER_SEEDS=3
+UNIT=()
+RENDER=(--width 128 --height 128 --iterations 200 --spp 32 --eval-every 0)
+if [ "${1:-}" = --smoke ]; then
+    SMOKE=1
+    SEEDS=1
+    RENDER_SEEDS=1
+    UNIT=(--steps 10,20 --kappas 20)
+    RENDER=(--width 16 --height 16 --iterations 4 --batch 256 --spp 2 --eval-every 0)
+elif [ -n "${1:-}" ]; then
+    SEEDS=$1
+fi
+for p in build/examples/nf_seam_study build/examples/nf_tracer build/examples/nf_compare; do
+    test -x "$p" || { echo "build first: cmake -S . -B build && cmake --build build -j2" >&2; exit 1; }
+done
+mkdir -p "$OUT"
+
+# ---- 1. The unit study ---------------------------------------------------------------------
+build/examples/nf_seam_study --seeds "$SEEDS" "${UNIT[@]}" > "$OUT/unit.md"
+cat "$OUT/unit.md"
+echo
+
+# ---- 2. The turned Cornell box ---------------------------------------------------------------
+SRC=examples/scenes/cornell-box
+TURNED=$OUT/cornell-box-turned
+mkdir -p "$TURNED"
+# Every shape and the camera turned by R_z(-90 deg): (x, y, z) -> (y, -x, z). Model paths are
+# made absolute, so that the copy needs no files of its own.
+sed -e "s#value=\"models/#value=\"$ROOT/$SRC/models/#" \
+    -e 's#<shape type="ply">#<shape type="ply"><transform name="to_world"><rotate z="1" angle="-90"/></transform>#' \
+    -e 's#<lookat origin="0, 1, 6.8" target="0, 1, 5.8" up="0, 1, 0"/>#<lookat origin="1, 0, 6.8" target="1, 0, 5.8" up="1, 0, 0"/>#' \
+    "$SRC/scene.xml" > "$TURNED/scene.xml"
+grep -q 'origin="1, 0, 6.8"' "$TURNED/scene.xml" || { echo "the camera was not turned" >&2; exit 1; }
+
+{
+    echo "| scene | seed | MAPE | relMSE |"
+    echo "|---|---|---|---|"
+    for scene in "$SRC" "$TURNED"; do
+        name=$(basename "$scene")
+        for ((s = 1; s <= RENDER_SEEDS; ++s)); do
+            build/examples/nf_tracer --scene "$scene/scene.xml" --prior cosine "${RENDER[@]}" \
+                --seed "$s" --threads 2 --out "$OUT/$name-$s" > "$OUT/$name-$s.log"
+            read -r mape relmse < <(build/examples/nf_compare "$SRC/reference-tungsten.exr" \
+                "$OUT/$name-$s.exr" | awk '/^MAPE/ { print $2, $4 }')
+            echo "| $name | $s | $mape | $relmse |"
+        done
+    done
+    echo
+    echo "Guided renders (\`nf_tracer --prior cosine ${RENDER[*]} --seed S\`) against" \
+        "\`$SRC/reference-tungsten.exr\` (box-downsampled by nf_compare); libnisflow at commit" \
+        "$(git rev-parse --short HEAD 2>/dev/null || echo '?')."
+} > "$OUT/render.md"
+cat "$OUT/render.md"
+[ "$SMOKE" = 1 ] && echo "smoke run: $OUT/unit.md and $OUT/render.md written"
+exit 0
