@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Long fuzzing of libnisflow's targets (docs/robustness.md, "Long fuzzing"): what CI's 60 s
 # per target cannot reach. Builds the targets as .ci/robustness does (clang, libFuzzer, ASan +
-# UBSan, `cmake -S fuzz -B build-fuzz`), runs each on ONE core for SECONDS with -fork=1
-# -ignore_crashes=1 -ignore_timeouts=1 -ignore_ooms=1 (so that one run gathers every distinct
-# crash instead of stopping at the first), merges the inputs that add coverage into the
+# UBSan, `cmake -S fuzz -B build-fuzz`), runs each on one core (NF_FUZZ_FORK cores) for
+# SECONDS with -fork=1 -ignore_crashes=1 -ignore_timeouts=1 -ignore_ooms=1 (so that one run
+# gathers every distinct crash instead of stopping at the first), merges the inputs that add coverage into the
 # committed corpus (fuzz/corpus/..., minimized with -merge=1), and prints executions, coverage
 # and crashes per target. Crashing inputs are left in build-fuzz/long/artifacts/.
 #
@@ -12,6 +12,7 @@
 #   NF_FUZZ_TARGETS="a b=S ..."  a subset of the targets, each with an optional time of its own
 #                         (e.g. "fuzz_deserialize=1100 fuzz_model_api=300")
 #   NF_FUZZ_MERGE=0       do not merge new coverage into fuzz/corpus/
+#   NF_FUZZ_FORK=2        run each target as 2 child processes, on 2 cores (default 1)
 #   NF_JOBS=2             parallel build jobs
 #
 # How long: the build takes 1 to 4 minutes; then SECONDS per target, one after the other, on
@@ -30,6 +31,7 @@ ROOT=$(pwd)
 SECS=${1:-600}
 JOBS=-j${NF_JOBS:-2}
 MERGE=${NF_FUZZ_MERGE:-1}
+FORK=${NF_FUZZ_FORK:-1}
 OUT=build-fuzz/long
 
 command -v clang >/dev/null || { echo "clang is missing: run scripts/install-deps.sh" >&2; exit 1; }
@@ -76,10 +78,10 @@ for spec in "${ALL_TARGETS[@]}"; do
     mkdir -p "$work"
     cp "$corpus"/* "$work"/
     log="$OUT/$name.log"
-    echo "--- $name: ${secs}s on one core, corpus $corpus ($(find "$corpus" -type f | wc -l) files)"
+    echo "--- $name: ${secs}s on $FORK core(s), corpus $corpus ($(find "$corpus" -type f | wc -l) files)"
     start=$SECONDS
     # shellcheck disable=SC2086 # flags is a list of flags
-    env "${env_vars[@]}" "build-fuzz/$name" -fork=1 -ignore_crashes=1 -ignore_timeouts=1 \
+    env "${env_vars[@]}" "build-fuzz/$name" -fork="$FORK" -ignore_crashes=1 -ignore_timeouts=1 \
         -ignore_ooms=1 -max_total_time="$secs" -max_len=16384 -timeout=10 -rss_limit_mb=2048 \
         -artifact_prefix="$OUT/artifacts/$name-" $flags "$work" > "$log" 2>&1 || true
     took=$((SECONDS - start))
