@@ -27,43 +27,14 @@
 
 #include <nisflow/nisflow.h>
 
+#include "pcg32.h"
+
 #define BATCH_SIZE 512      /* training samples per iteration                       */
 #define HELD_OUT_SIZE 16384 /* directions of the fixed evaluation set                */
 #define REPORT_EVERY 50     /* iterations between two reports                        */
 #define LEARNING_RATE 5e-3f /* a little above the default: the demo trains briefly   */
 
 static const float PI = 3.14159265358979f;
-
-/* ---- A small deterministic random-number generator (PCG32, O'Neill 2014) ----------------- */
-
-typedef struct pcg32 {
-    uint64_t state;
-    uint64_t inc;
-} pcg32;
-
-static uint32_t pcg32_next(pcg32 *rng)
-{
-    uint64_t old = rng->state;
-    rng->state = old * 6364136223846793005ULL + rng->inc;
-    uint32_t xorshifted = (uint32_t)(((old >> 18u) ^ old) >> 27u);
-    uint32_t rot = (uint32_t)(old >> 59u);
-    return (xorshifted >> rot) | (xorshifted << ((32u - rot) & 31u));
-}
-
-static pcg32 pcg32_seed(uint64_t seed, uint64_t stream)
-{
-    pcg32 rng = {0u, (stream << 1u) | 1u};
-    pcg32_next(&rng);
-    rng.state += seed;
-    pcg32_next(&rng);
-    return rng;
-}
-
-/* A uniform float in [0, 1). */
-static float pcg32_float(pcg32 *rng)
-{
-    return (float)(pcg32_next(rng) >> 8) * (1.0f / 16777216.0f);
-}
 
 /* ---- Small vector helpers ------------------------------------------------------------------ */
 

@@ -29,6 +29,8 @@
 
 #include <nisflow/nisflow.h>
 
+#include "pcg32.h"
+
 #define BATCH 512          /* training samples per step, as nf_demo                      */
 #define LEARNING_RATE 5e-3f
 #define GRID_Z 512         /* quadrature cells in cos theta                             */
@@ -36,34 +38,6 @@
 #define MAX_LIST 8
 
 static const double PI = 3.14159265358979323846;
-
-/* ---- random numbers (PCG32) ---------------------------------------------------------------- */
-
-typedef struct pcg32 {
-    uint64_t state, inc;
-} pcg32;
-
-static uint32_t pcg32_next(pcg32 *r)
-{
-    uint64_t old = r->state;
-    r->state = old * 6364136223846793005ull + r->inc;
-    uint32_t shifted = (uint32_t)(((old >> 18u) ^ old) >> 27u), rot = (uint32_t)(old >> 59u);
-    return (shifted >> rot) | (shifted << ((32u - rot) & 31u));
-}
-
-static pcg32 pcg32_seed(uint64_t seed, uint64_t stream)
-{
-    pcg32 r = {0u, (stream << 1u) | 1u};
-    pcg32_next(&r);
-    r.state += seed;
-    pcg32_next(&r);
-    return r;
-}
-
-static float pcg32_float(pcg32 *r)
-{
-    return (float)(pcg32_next(r) >> 8) * (1.0f / 16777216.0f); /* [0, 1) */
-}
 
 /* ---- the integrand --------------------------------------------------------------------------- */
 
