@@ -287,8 +287,8 @@ static int step_on_loaded(trainer *tr, const tracer *t, size_t n, uint32_t pass,
         return 0;
     if (step == GRADIENT_STEP_REFUSED) {
         if (rep->refused++ < 5 && ranks_rank() == 0)
-            fprintf(stderr, "\nnf_tracer: training pass %u: step refused: %s\n", pass,
-                    nf_status_string(refusal));
+            fprintf(stderr, "\nnf_tracer: training pass %u: step refused: %s%s%s\n", pass,
+                    nf_status_string(refusal), tr->sum.message[0] ? ": " : "", tr->sum.message);
     } else if (step == GRADIENT_STEP_TAKEN) {
         rep->steps++;
         *loss = l;

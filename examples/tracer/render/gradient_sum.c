@@ -6,6 +6,7 @@
 #include "gradient_sum.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -22,6 +23,7 @@ void gradient_sum_free(gradient_sum *g)
     free(g->F);
     free(g->FL);
     free(g->status);
+    free(g->messages);
     free(g->fixed);
     free(g->mean);
     memset(g, 0, sizeof *g);
@@ -37,9 +39,10 @@ static int reserve(gradient_sum *g, size_t params, size_t groups, tr_error *err)
     g->F = malloc(cap * sizeof *g->F);
     g->FL = malloc(cap * sizeof *g->FL);
     g->status = malloc(cap * sizeof *g->status);
+    g->messages = malloc(cap * sizeof *g->messages);
     g->fixed = malloc((params + 2) * sizeof *g->fixed);
     g->mean = malloc(params * sizeof *g->mean);
-    if (!g->grads || !g->F || !g->FL || !g->status || !g->fixed || !g->mean) {
+    if (!g->grads || !g->F || !g->FL || !g->status || !g->messages || !g->fixed || !g->mean) {
         gradient_sum_free(g);
         return tr_fail(err, "out of memory for the gradients of %zu groups", cap);
     }
@@ -67,6 +70,8 @@ static void group_gradient(void *user, size_t k, int thread)
     float loss = 0.0f;
     j->g->status[k] = nf_loss_gradient(j->m, e - b, j->ctx + b, j->dir + 3 * b, j->weight + b,
                                        &loss, j->g->grads + k * j->g->params);
+    if (j->g->status[k] != NF_OK) /* the message is this thread's: keep it with the group */
+        snprintf(j->g->messages[k], sizeof j->g->messages[k], "%s", nf_last_error_message());
     j->g->F[k] = F;
     j->g->FL[k] = F * (double)loss;
 }
@@ -96,6 +101,7 @@ int gradient_sum_step(gradient_sum *g, nf_model *m, const nf_context *ctx, const
     *loss = NAN;
     *step = GRADIENT_STEP_REFUSED;
     *refusal = NF_OK;
+    g->message[0] = '\0';
     group_job job = {g, m, ctx, dir, weight, group_end};
     /* Groups without samples (a rank whose share is empty) need no threads started. */
     int busy = groups > 0 && group_end[groups - 1] > 0;
@@ -110,6 +116,8 @@ int gradient_sum_step(gradient_sum *g, nf_model *m, const nf_context *ctx, const
     double top[4] = {0.0, 0.0, 0.0, 0.0}; /* |F grad|, F, |F loss|, refusal status */
     for (size_t k = 0; k < groups; ++k) {
         if (g->status[k] != NF_OK) {
+            if (top[3] == 0.0)
+                snprintf(g->message, sizeof g->message, "%s", g->messages[k]);
             top[3] = fmax(top[3], (double)g->status[k]);
             continue;
         }
@@ -148,6 +156,7 @@ int gradient_sum_step(gradient_sum *g, nf_model *m, const nf_context *ctx, const
     nf_status st = nf_apply_gradient(m, g->mean);
     if (st != NF_OK) { /* the same on every rank: the same model and gradient */
         *refusal = st;
+        snprintf(g->message, sizeof g->message, "%s", nf_last_error_message());
         return 1;
     }
     *loss = (float)(ldexp((double)g->fixed[P + 1], -s_FL) / F);

@@ -30,8 +30,12 @@ typedef struct gradient_sum {
     float *grads;            /* capacity x params: each local group's gradient         */
     double *F, *FL;          /* per local group: weight sum, and weight sum x loss       */
     nf_status *status;       /* per local group                                          */
+    char (*messages)[256];   /* per local group: the library's message when refused, read
+                              * on the thread that was refused                          */
     int64_t *fixed;          /* params + 2: the fixed-point sums                         */
     float *mean;             /* params: the batch's gradient                             */
+    char message[256];       /* after a refusal on this rank: the library's message; else
+                              * empty                                                    */
 } gradient_sum;
 
 void gradient_sum_free(gradient_sum *g);

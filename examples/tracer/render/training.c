@@ -165,9 +165,9 @@ int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
             break;
         if (step == GRADIENT_STEP_REFUSED) {
             /* A refused batch leaves the model unchanged (on every rank): report it, go on. */
-            if (rep->refused++ < 5)
-                fprintf(stderr, "\nnf_tracer: iteration %d: batch refused: %s\n", it,
-                        nf_status_string(refusal));
+            if (rep->refused++ < 5 && ranks_rank() == 0)
+                fprintf(stderr, "\nnf_tracer: iteration %d: batch refused: %s%s%s\n", it,
+                        nf_status_string(refusal), sum.message[0] ? ": " : "", sum.message);
         } else if (step == GRADIENT_STEP_TAKEN) {
             rep->last_loss = loss;
         }
