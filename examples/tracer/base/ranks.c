@@ -80,7 +80,6 @@ static int gather_alone(const void *mine, size_t bytes, void **all, size_t *all_
 
 int ranks_rank(void) { return g_rank; }
 int ranks_size(void) { return g_size; }
-int ranks_active(void) { return g_active; }
 
 #ifdef NF_TRACER_HAVE_MPI
 

@@ -5,8 +5,8 @@
  * process not started by an MPI launcher) there is one rank and each of them is a no-op or a
  * copy, so the rest of the tracer reads the same either way.
  *
- * Every function but ranks_rank / ranks_size / ranks_active is collective: all ranks call it,
- * in the same order, or the job hangs. Only the thread that called ranks_init may call them
+ * Every function but ranks_rank / ranks_size is collective: all ranks call it, in the same
+ * order, or the job hangs. Only the thread that called ranks_init may call them
  * (MPI_THREAD_FUNNELED): the worker threads never do.
  *
  * Failures: a rank that fails must not leave the others waiting in a collective. The tracer
@@ -34,7 +34,6 @@ void ranks_finalize(void);
 
 int ranks_rank(void);   /* this process's rank, 0 .. ranks_size() - 1 */
 int ranks_size(void);   /* the number of ranks, >= 1                   */
-int ranks_active(void); /* 1 when MPI was started (even with one rank) */
 
 /* Whether every rank succeeded. Each rank passes ok (1: success) and, when !ok, the message in
  * *err. Returns 1 when all succeeded. Otherwise returns 0 on every rank with err holding the

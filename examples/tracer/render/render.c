@@ -35,6 +35,14 @@ static size_t rank_tile_count(const tracer *t, size_t tiles)
     return tiles > r ? (tiles - r + n - 1) / n : 0;
 }
 
+/* With several ranks an image holds only this rank's tiles, and the ranks' images are summed:
+ * the other tiles must be black, whatever an earlier pass left in them. */
+static void clear_for_ranks(const tracer *t, image *img)
+{
+    if (t->ranks > 1)
+        memset(img->data, 0, 3 * (size_t)img->width * (size_t)img->height * sizeof *img->data);
+}
+
 static void render_tile(void *user, size_t k, int thread)
 {
     image_job *job = user;
@@ -76,8 +84,7 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
     job.stats = calloc((size_t)(threads > 0 ? threads : 1), sizeof *job.stats);
     if (!job.stats)
         return tr_fail(err, "out of memory");
-    if (t->ranks > 1) /* the other ranks' tiles are summed in: they must be black here */
-        memset(img->data, 0, 3 * (size_t)img->width * (size_t)img->height * sizeof *img->data);
+    clear_for_ranks(t, img);
     size_t tiles = rank_tile_count(t, (size_t)job.tiles_x * (size_t)tiles_y);
     int ok = parallel_for(tiles, threads, render_tile, &job, progress_label, err);
     for (int i = 0; stats && i < (threads > 0 ? threads : 1); ++i)
@@ -139,6 +146,7 @@ int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, imag
         free(job.stats);
         return tr_fail(err, "out of memory");
     }
+    clear_for_ranks(t, img);
     int ok = parallel_for(ntiles, threads, pass_tile, &job, NULL, err);
     if (records) {
         records->count = 0;

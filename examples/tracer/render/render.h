@@ -23,7 +23,8 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
                  image *img, path_stats *stats, const char *progress_label, tr_error *err);
 
 /* Renders one path per pixel into img (overwriting it; the scene's resolution; with
- * t->ranks > 1 only this rank's tiles, as render_image) with the random streams of `pass`. With records != NULL, replaces its contents with the training records of
+ * t->ranks > 1 only this rank's tiles, the others black, as render_image) with the random
+ * streams of `pass`. With records != NULL, replaces its contents with the training records of
  * those paths, in tile order (the same whatever the number of threads). The passes of a
  * time-budgeted render (budget.h) are these. */
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
