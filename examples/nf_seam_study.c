@@ -142,6 +142,7 @@ typedef struct options {
     int nsteps, seeds;
     double kappas[MAX_LIST];
     int nkappas;
+    nf_phi_map phi_map;
 } options;
 
 /* Trains a fresh model with `prior` on f at one context; kl[c] after options' step c. */
@@ -151,6 +152,7 @@ static int run(nf_prior_kind prior, const integrand *f, uint64_t seed, const opt
     nf_config cfg;
     nf_config_init(&cfg, NF_PRESET_SMALL);
     cfg.prior = prior;
+    cfg.phi_map = o->phi_map;
     cfg.learning_rate = LEARNING_RATE;
     cfg.seed = seed;
     nf_model *m = NULL;
@@ -205,11 +207,13 @@ static int parse_list(const char *text, double *out, int *count)
 
 static void usage(FILE *out)
 {
-    fprintf(out, "Usage: nf_seam_study [--steps A,B,C] [--seeds N] [--kappas K1,K2]\n"
+    fprintf(out, "Usage: nf_seam_study [--steps A,B,C] [--seeds N] [--kappas K1,K2] "
+                 "[--phi-map MAP]\n"
                  "  --steps    checkpoints, in training steps of %d samples (default "
                  "100,500,2000)\n"
                  "  --seeds    seeds per configuration (default 3)\n"
-                 "  --kappas   vMF concentrations (default 20,200)\n",
+                 "  --kappas   vMF concentrations (default 20,200)\n"
+                 "  --phi-map  circular (the library's default) or interval\n",
             BATCH);
 }
 
@@ -226,7 +230,9 @@ static void mean_sd(const double *v, int n, double *mean, double *sd)
 
 int main(int argc, char **argv)
 {
-    options o = {{100, 500, 2000}, 3, 3, {20.0, 200.0}, 2};
+    nf_config defaults;
+    nf_config_init(&defaults, NF_PRESET_SMALL);
+    options o = {{100, 500, 2000}, 3, 3, {20.0, 200.0}, 2, defaults.phi_map};
     for (int i = 1; i < argc; ++i) {
         double list[MAX_LIST];
         int n = 0;
@@ -247,6 +253,9 @@ int main(int argc, char **argv)
             o.seeds = (int)list[0];
         } else if (!strcmp(argv[i], "--kappas") && i + 1 < argc &&
                    parse_list(argv[++i], o.kappas, &o.nkappas)) {
+        } else if (!strcmp(argv[i], "--phi-map") && i + 1 < argc &&
+                   (!strcmp(argv[i + 1], "circular") || !strcmp(argv[i + 1], "interval"))) {
+            o.phi_map = !strcmp(argv[++i], "circular") ? NF_PHI_CIRCULAR : NF_PHI_INTERVAL;
         } else {
             fprintf(stderr, "nf_seam_study: bad option '%s'\n", argv[i]);
             usage(stderr);
@@ -283,7 +292,8 @@ int main(int argc, char **argv)
         }
     printf("\nKL(f || model) in nats by quadrature on %d x %d cells of (cos theta, phi); mean ± "
            "standard deviation over %d seeds; training online, %d samples per step, learning "
-           "rate %g, the small model. libnisflow %s.\n",
-           GRID_Z, GRID_PHI, o.seeds, BATCH, (double)LEARNING_RATE, nf_version_string());
+           "rate %g, the small model, phi map %s. libnisflow %s.\n",
+           GRID_Z, GRID_PHI, o.seeds, BATCH, (double)LEARNING_RATE,
+           o.phi_map == NF_PHI_CIRCULAR ? "circular" : "interval", nf_version_string());
     return 0;
 }

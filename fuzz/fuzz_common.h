@@ -27,7 +27,8 @@
     } while (0)
 
 /* The format's header and trailer sizes (docs/format.md). */
-#define NF_FUZZ_HEADER 112u
+#define NF_FUZZ_HEADER_V1 112u /* format version 1's header; version 2 adds phi_map */
+#define NF_FUZZ_HEADER 116u
 #define NF_FUZZ_TRAILER 4u
 
 /* CRC-32/IEEE (zlib, PNG), bit by bit. */

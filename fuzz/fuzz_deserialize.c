@@ -26,8 +26,9 @@ static float get_f32(const unsigned char *p)
     return v;
 }
 
-/* The configuration of a header (docs/format.md); 0 if its prior kind is unknown. */
-static int header_config(const unsigned char *p, nf_config *cfg)
+/* The configuration of a header of `size` bytes (docs/format.md, version 1 or 2); 0 if its
+ * prior kind or phi map is unknown or a version-2 header is cut short. */
+static int header_config(const unsigned char *p, size_t size, nf_config *cfg)
 {
     nf_config_init(cfg, NF_PRESET_SMALL);
     uint32_t u[7];
@@ -54,6 +55,18 @@ static int header_config(const unsigned char *p, nf_config *cfg)
     cfg->beta2 = get_f32(p + 76);
     cfg->adam_epsilon = get_f32(p + 80);
     cfg->weight_decay = get_f32(p + 84);
+    cfg->phi_map = NF_PHI_INTERVAL;
+    uint32_t version = (uint32_t)p[8] | (uint32_t)p[9] << 8 | (uint32_t)p[10] << 16 |
+                       (uint32_t)p[11] << 24;
+    if (version == 2u) {
+        if (size < NF_FUZZ_HEADER + NF_FUZZ_TRAILER)
+            return 0;
+        uint32_t map = (uint32_t)p[112] | (uint32_t)p[113] << 8 | (uint32_t)p[114] << 16 |
+                       (uint32_t)p[115] << 24;
+        if (map > (uint32_t)NF_PHI_CIRCULAR)
+            return 0;
+        cfg->phi_map = (nf_phi_map)map;
+    }
     return 1;
 }
 
@@ -62,7 +75,7 @@ static int header_config(const unsigned char *p, nf_config *cfg)
 static void check_create_agrees(const unsigned char *data, size_t size, nf_status st, nf_model *m)
 {
     nf_config cfg;
-    if (size < NF_FUZZ_HEADER + NF_FUZZ_TRAILER || !header_config(data, &cfg))
+    if (size < NF_FUZZ_HEADER_V1 + NF_FUZZ_TRAILER || !header_config(data, size, &cfg))
         return;
     nf_model *made = NULL;
     if (st == NF_OK) {
@@ -110,8 +123,24 @@ static void try_buffer(const unsigned char *data, size_t size, int crc_valid)
     size_t out_size = 0;
     unsigned char *out = nf_fuzz_serialize(m, &out_size);
     NF_FUZZ_CHECK(out != NULL, "serialize failed");
-    NF_FUZZ_CHECK(out_size == size && memcmp(out, data, size) == 0,
-                  "the round trip changed the bytes (%zu -> %zu bytes)", size, out_size);
+    if (data[8] == 1u) {
+        /* A version-1 file comes back as version 2: the same header with the version 2 and
+         * phi_map NF_PHI_INTERVAL (0) inserted before the parameters, the same arrays, and a
+         * checksum of its own. */
+        static const unsigned char two[4] = {2, 0, 0, 0}, interval[4] = {0, 0, 0, 0};
+        NF_FUZZ_CHECK(out_size == size + 4u && memcmp(out, data, 8) == 0 &&
+                          memcmp(out + 8, two, 4) == 0 &&
+                          memcmp(out + 12, data + 12, NF_FUZZ_HEADER_V1 - 12u) == 0 &&
+                          memcmp(out + NF_FUZZ_HEADER_V1, interval, 4) == 0 &&
+                          memcmp(out + NF_FUZZ_HEADER, data + NF_FUZZ_HEADER_V1,
+                                 size - NF_FUZZ_HEADER_V1 - NF_FUZZ_TRAILER) == 0,
+                      "a version-1 file did not come back as its version-2 form (%zu -> %zu "
+                      "bytes)",
+                      size, out_size);
+    } else {
+        NF_FUZZ_CHECK(out_size == size && memcmp(out, data, size) == 0,
+                      "the round trip changed the bytes (%zu -> %zu bytes)", size, out_size);
+    }
     free(out);
     nf_config cfg;
     NF_FUZZ_CHECK(nf_model_config(m, &cfg) == NF_OK, "config");

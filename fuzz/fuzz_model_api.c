@@ -223,7 +223,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    if (size < NF_FUZZ_HEADER + NF_FUZZ_TRAILER)
+    if (size < NF_FUZZ_HEADER_V1 + NF_FUZZ_TRAILER)
         return 0;
     unsigned char *copy = (unsigned char *)malloc(size);
     if (!copy)

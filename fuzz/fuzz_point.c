@@ -510,6 +510,7 @@ static nf_model *make_model(reader *r, nf_prior_kind *prior_out)
     cfg.prior = (nf_prior_kind)((a >> 3) & 3u);
     cfg.custom_prior = nf_fuzz_callbacks();
     cfg.isa = (nf_isa)((a >> 5) & 3u);
+    cfg.phi_map = (a >> 7) & 1u ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR;
     nf_model *m = NULL;
     if (nf_model_create(&cfg, &m) != NF_OK) {
         /* Kernels this CPU lacks: the best ones instead. */

@@ -63,6 +63,9 @@ static nf_model *make(const seed_spec *s)
     cfg.sh_bands = s->sh;
     cfg.prior = s->prior;
     cfg.custom_prior = nf_fuzz_callbacks();
+    /* Both phi maps: the trained seeds (odd step counts) with the one that is not the
+     * default. */
+    cfg.phi_map = s->steps & 1 ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR;
     cfg.bounds_min[0] = -2.0f;
     cfg.bounds_max[2] = 3.0f;
     nf_model *m = NULL;
@@ -300,9 +303,13 @@ int main(int argc, char **argv)
             write_seed("broken-truncated-half.nfm", bytes, size / 2);
             write_seed("broken-missing-crc.nfm", bytes, size - NF_FUZZ_TRAILER);
             memcpy(b, bytes, size);
-            b[8] = 2; /* format version 2, valid checksum */
+            b[8] = 3; /* format version 3, valid checksum */
             nf_fuzz_fix_crc(b, size);
-            write_seed("broken-version-2.nfm", b, size);
+            write_seed("broken-version-3.nfm", b, size);
+            memcpy(b, bytes, size);
+            b[NF_FUZZ_HEADER_V1] = 2; /* phi map 2, valid checksum */
+            nf_fuzz_fix_crc(b, size);
+            write_seed("broken-phi-map.nfm", b, size);
             memcpy(b, bytes, size);
             b[NF_FUZZ_HEADER + 40] ^= 0x10; /* one bit of a parameter, stale checksum */
             write_seed("broken-bit-flip.nfm", b, size);

@@ -1,19 +1,21 @@
 #!/usr/bin/env bash
-# The seam study (docs/results.md, "The seam"): what the flow's seam at phi = 0 costs.
+# The seam study (docs/results.md, "The seam"): what the seam at phi = 0 costs with each phi
+# map, NF_PHI_INTERVAL (splines of [0, 1] onto itself) and NF_PHI_CIRCULAR (the default).
 #
 #   1. nf_seam_study: the small model trained online on a vMF lobe times the cosine, centred on
 #      the seam against the same configuration turned to phi = pi; KL by quadrature after
 #      100, 500 and 2000 steps, uniform-direction and cosine priors, kappa 20 and 200, SEEDS
-#      seeds.
+#      seeds; once per phi map.
 #   2. The Cornell box and a copy turned by -90 degrees about the z axis, camera included (the
 #      image is the same): the light, straight up (+y) from most shading points, then lies at
 #      phi = 0 (+x), across the seam. Guided renders (cosine prior, 200 iterations, then
-#      32 spp) at 128 x 128 with seeds 1 .. SEEDS, their error against the scene's reference.
+#      32 spp) at 128 x 128 with seeds 1 .. RENDER_SEEDS per phi map, their error against the
+#      scene's reference.
 #
-# It writes out/seam/unit.md and out/seam/render.md and prints both. About 5 minutes on 2
-# cores with the defaults.
+# It writes out/seam/unit-MAP.md and out/seam/render.md and prints them. About 9 minutes on
+# 2 cores with the defaults (16 seeds for the unit study, 3 renders per scene and map).
 #
-#   scripts/seam-study.sh [SEEDS]        (default 8 for the unit study, 3 renders per scene)
+#   scripts/seam-study.sh [SEEDS]        (default 16 for the unit study, 3 renders per scene)
 #   scripts/seam-study.sh --smoke        one seed, short runs (CI: seconds)
 set -euo pipefail
 
@@ -21,7 +23,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 ROOT=$(pwd)
 OUT=out/seam
 SMOKE=0
-SEEDS=8
+SEEDS=16
 RENDER_SEEDS=3
 UNIT=()
 RENDER=(--width 128 --height 128 --iterations 200 --spp 32 --eval-every 0)
@@ -40,9 +42,11 @@ done
 mkdir -p "$OUT"
 
 # ---- 1. The unit study ---------------------------------------------------------------------
-build/examples/nf_seam_study --seeds "$SEEDS" "${UNIT[@]}" > "$OUT/unit.md"
-cat "$OUT/unit.md"
-echo
+for map in interval circular; do
+    build/examples/nf_seam_study --seeds "$SEEDS" --phi-map "$map" "${UNIT[@]}" > "$OUT/unit-$map.md"
+    cat "$OUT/unit-$map.md"
+    echo
+done
 
 # ---- 2. The turned Cornell box ---------------------------------------------------------------
 SRC=examples/scenes/cornell-box
@@ -57,23 +61,26 @@ sed -e "s#value=\"models/#value=\"$ROOT/$SRC/models/#" \
 grep -q 'origin="1, 0, 6.8"' "$TURNED/scene.xml" || { echo "the camera was not turned" >&2; exit 1; }
 
 {
-    echo "| scene | seed | MAPE | relMSE |"
-    echo "|---|---|---|---|"
-    for scene in "$SRC" "$TURNED"; do
-        name=$(basename "$scene")
-        for ((s = 1; s <= RENDER_SEEDS; ++s)); do
-            build/examples/nf_tracer --scene "$scene/scene.xml" --prior cosine "${RENDER[@]}" \
-                --seed "$s" --threads 2 --out "$OUT/$name-$s" > "$OUT/$name-$s.log"
-            read -r mape relmse < <(build/examples/nf_compare "$SRC/reference-tungsten.exr" \
-                "$OUT/$name-$s.exr" | awk '/^MAPE/ { print $2, $4 }')
-            echo "| $name | $s | $mape | $relmse |"
+    echo "| phi map | scene | seed | MAPE | relMSE |"
+    echo "|---|---|---|---|---|"
+    for map in interval circular; do
+        for scene in "$SRC" "$TURNED"; do
+            name=$(basename "$scene")
+            for ((s = 1; s <= RENDER_SEEDS; ++s)); do
+                build/examples/nf_tracer --scene "$scene/scene.xml" --prior cosine \
+                    --phi-map "$map" "${RENDER[@]}" --seed "$s" --threads 2 \
+                    --out "$OUT/$map-$name-$s" > "$OUT/$map-$name-$s.log"
+                read -r mape relmse < <(build/examples/nf_compare "$SRC/reference-tungsten.exr" \
+                    "$OUT/$map-$name-$s.exr" | awk '/^MAPE/ { print $2, $4 }')
+                echo "| $map | $name | $s | $mape | $relmse |"
+            done
         done
     done
     echo
-    echo "Guided renders (\`nf_tracer --prior cosine ${RENDER[*]} --seed S\`) against" \
+    echo "Guided renders (\`nf_tracer --prior cosine --phi-map MAP ${RENDER[*]} --seed S\`) against" \
         "\`$SRC/reference-tungsten.exr\` (box-downsampled by nf_compare); libnisflow at commit" \
         "$(git rev-parse --short HEAD 2>/dev/null || echo '?')."
 } > "$OUT/render.md"
 cat "$OUT/render.md"
-[ "$SMOKE" = 1 ] && echo "smoke run: $OUT/unit.md and $OUT/render.md written"
+[ "$SMOKE" = 1 ] && echo "smoke run: $OUT/unit-*.md and $OUT/render.md written"
 exit 0

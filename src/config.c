@@ -26,6 +26,7 @@ void nf_config_init(nf_config *cfg, nf_preset preset)
     cfg->sh_bands = 4;
     cfg->prior = NF_PRIOR_COSINE;
     cfg->prior_epsilon = 0.01f;
+    cfg->phi_map = NF_PHI_CIRCULAR;
     for (int a = 0; a < 3; ++a) {
         cfg->bounds_min[a] = 0.0f;
         cfg->bounds_max[a] = 1.0f;
@@ -78,6 +79,10 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn)
     if (prior > (unsigned)NF_PRIOR_CUSTOM)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.prior = %u is not a prior kind", fn,
                        prior);
+    unsigned phi_map = (unsigned)cfg->phi_map;
+    if (phi_map > (unsigned)NF_PHI_CIRCULAR)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config.phi_map = %u is not a phi map", fn,
+                       phi_map);
     if ((st = nf_check_float(fn, "prior_epsilon", cfg->prior_epsilon, NF_PRIOR_EPSILON_MIN, 1.0f)))
         return st;
     if (cfg->prior == NF_PRIOR_CUSTOM && (!cfg->custom_prior.sample || !cfg->custom_prior.pdf))

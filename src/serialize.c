@@ -10,8 +10,11 @@
 
 #include "internal.h"
 
-#define NF_FORMAT_VERSION 1u
-#define NF_HEADER_BYTES 112u
+/* Version 2 adds phi_map after version 1's header; version-1 files are read as
+ * NF_PHI_INTERVAL, the only parameterization they could hold. */
+#define NF_FORMAT_VERSION 2u
+#define NF_HEADER_BYTES_V1 112u
+#define NF_HEADER_BYTES 116u
 #define NF_TRAILER_BYTES 4u
 /* No valid configuration needs more; a larger file is refused before it is read. */
 #define NF_MAX_FILE_BYTES ((size_t)1 << 28)
@@ -77,16 +80,16 @@ static float nf_get_f32(const unsigned char *p)
     return v;
 }
 
-static size_t nf_serialized_size(size_t param_count)
+static size_t nf_serialized_size(size_t header_bytes, size_t param_count)
 {
-    return NF_HEADER_BYTES + 3u * param_count * sizeof(float) + NF_TRAILER_BYTES;
+    return header_bytes + 3u * param_count * sizeof(float) + NF_TRAILER_BYTES;
 }
 
 nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity, size_t *size)
 {
     if (!m || !size)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_serialize: NULL model or size");
-    size_t need = nf_serialized_size(m->param_count);
+    size_t need = nf_serialized_size(NF_HEADER_BYTES, m->param_count);
     *size = need;
     if (!buf)
         return NF_OK;
@@ -118,6 +121,7 @@ nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity, size
     p = nf_put_u64(p, c->seed);
     p = nf_put_u64(p, m->step);
     p = nf_put_u64(p, (uint64_t)m->param_count);
+    p = nf_put_u32(p, (uint32_t)c->phi_map);
     const float *arrays[3] = {m->params, m->adam_m, m->adam_v};
     for (int k = 0; k < 3; ++k)
         for (size_t i = 0; i < m->param_count; ++i)
@@ -132,14 +136,18 @@ static nf_status nf_decode(const char *fn, const void *buf, size_t size,
                            const nf_prior_callbacks *custom, nf_model **out)
 {
     const unsigned char *p = (const unsigned char *)buf;
-    if (size < NF_HEADER_BYTES + NF_TRAILER_BYTES)
+    if (size < NF_HEADER_BYTES_V1 + NF_TRAILER_BYTES)
         return nf_fail(NF_ERROR_FORMAT, "%s: %zu bytes is too short for a model", fn, size);
     if (memcmp(p, nf_magic, 8) != 0)
         return nf_fail(NF_ERROR_FORMAT, "%s: not a libnisflow model (bad magic)", fn);
     uint32_t version = nf_get_u32(p + 8);
-    if (version != NF_FORMAT_VERSION)
-        return nf_fail(NF_ERROR_FORMAT, "%s: format version %u is not supported (expected %u)", fn,
-                       version, NF_FORMAT_VERSION);
+    if (version != 1u && version != NF_FORMAT_VERSION)
+        return nf_fail(NF_ERROR_FORMAT,
+                       "%s: format version %u is not supported (expected 1 to %u)", fn, version,
+                       NF_FORMAT_VERSION);
+    const size_t header = version == 1u ? NF_HEADER_BYTES_V1 : NF_HEADER_BYTES;
+    if (size < header + NF_TRAILER_BYTES)
+        return nf_fail(NF_ERROR_FORMAT, "%s: %zu bytes is too short for a model", fn, size);
     if (nf_crc32(p, size - NF_TRAILER_BYTES) != nf_get_u32(p + size - NF_TRAILER_BYTES))
         return nf_fail(NF_ERROR_FORMAT, "%s: checksum mismatch (corrupt or truncated)", fn);
 
@@ -185,6 +193,14 @@ static nf_status nf_decode(const char *fn, const void *buf, size_t size,
     q += 8;
     uint64_t count = nf_get_u64(q);
     q += 8;
+    cfg.phi_map = NF_PHI_INTERVAL;
+    if (version >= 2u) {
+        uint32_t phi_map = nf_get_u32(q);
+        q += 4;
+        if (phi_map > (uint32_t)NF_PHI_CIRCULAR)
+            return nf_fail(NF_ERROR_FORMAT, "%s: phi map %u is unknown", fn, phi_map);
+        cfg.phi_map = (nf_phi_map)phi_map;
+    }
 
     if (cfg.prior == NF_PRIOR_CUSTOM) {
         if (!custom || !custom->sample || !custom->pdf)
@@ -198,10 +214,10 @@ static nf_status nf_decode(const char *fn, const void *buf, size_t size,
         return nf_fail(NF_ERROR_FORMAT, "%s (invalid configuration in file)", reason);
     }
     size_t expected = (size_t)cfg.coupling_layers * nf_layer_param_count(&cfg);
-    if (count != (uint64_t)expected || size != nf_serialized_size(expected))
+    if (count != (uint64_t)expected || size != nf_serialized_size(header, expected))
         return nf_fail(NF_ERROR_FORMAT,
                        "%s: parameter count or size does not match the configuration", fn);
-    const unsigned char *data = p + NF_HEADER_BYTES;
+    const unsigned char *data = p + header;
     for (size_t i = 0; i < 3 * expected; ++i) {
         float v = nf_get_f32(data + 4 * i);
         if (!isfinite(v) || (i >= 2 * expected && v < 0.0f))

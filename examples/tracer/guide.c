@@ -121,6 +121,7 @@ guide_settings guide_default_settings(guide_prior prior)
     guide_settings g;
     g.prior = prior;
     g.large = 0;
+    g.phi_interval = 0;
     g.learning_rate = 5e-3f;
     g.prior_epsilon = -1.0f;
     g.seed = 1;
@@ -175,6 +176,8 @@ int guide_create(const scene *s, const guide_settings *settings, nf_model **out,
     static const nf_prior_kind kinds[] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR_UNIFORM_ANGLE,
                                           NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};
     cfg.prior = kinds[settings->prior];
+    if (settings->phi_interval)
+        cfg.phi_map = NF_PHI_INTERVAL;
     if (settings->prior == GUIDE_PRIOR_BSDF)
         cfg.custom_prior = guide_bsdf_callbacks();
     if (settings->prior_epsilon >= 0.0f)

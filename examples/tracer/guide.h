@@ -54,6 +54,7 @@ nf_prior_callbacks guide_point_callbacks(const guide_point *p);
 typedef struct guide_settings {
     guide_prior prior;
     int large;              /* NF_PRESET_LARGE instead of NF_PRESET_SMALL                     */
+    int phi_interval;       /* NF_PHI_INTERVAL instead of the library's NF_PHI_CIRCULAR       */
     float learning_rate;
     float prior_epsilon;    /* the cosine/bsdf priors' uniform mixture weight; < 0: default   */
     uint64_t seed;

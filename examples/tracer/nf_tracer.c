@@ -345,6 +345,7 @@ static int run(int argc, char **argv)
     if (o.guiding) {
         guide_settings gs = guide_default_settings(o.prior);
         gs.large = o.large_model;
+        gs.phi_interval = o.phi_interval;
         gs.learning_rate = o.learning_rate;
         gs.prior_epsilon = o.prior_epsilon;
         gs.seed = o.seed;

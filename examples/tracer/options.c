@@ -35,6 +35,8 @@ void options_print_help(const char *program)
         "Guiding and training:\n"
         "  --prior NAME          uniform-direction, uniform-angle, cosine (default) or bsdf\n"
         "  --model NAME          small (default, the paper's) or large\n"
+        "  --phi-map NAME        circular (default: the seam phi = 0 is no boundary) or\n"
+        "                        interval (phi's splines fix phi = 0, as libnisflow 0.1)\n"
         "  --lr X                AdamW learning rate (default 5e-3)\n"
         "  --iterations N        training iterations (default 200)\n"
         "  --batch N             training paths per iteration, each through a random film\n"
@@ -209,6 +211,10 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
                                "uniform-angle, cosine, bsdf", v);
             o->prior = (guide_prior)found;
             o->prior_given = 1;
+        } else if (!strcmp(a, "--phi-map")) {
+            if (strcmp(v, "circular") && strcmp(v, "interval"))
+                return tr_fail(err, "--phi-map: '%s' is not circular or interval", v);
+            o->phi_interval = !strcmp(v, "interval");
         } else if (!strcmp(a, "--model")) {
             if (strcmp(v, "small") && strcmp(v, "large"))
                 return tr_fail(err, "--model: '%s' is not small or large", v);

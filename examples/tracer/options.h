@@ -17,6 +17,7 @@ typedef struct options {
     guide_prior prior;
     int prior_given;
     int large_model;
+    int phi_interval;         /* --phi-map interval: NF_PHI_INTERVAL instead of the default  */
     float learning_rate;
     int learning_rate_given;
     int iterations;

@@ -75,6 +75,22 @@ typedef enum nf_prior_kind {
  * The prior is per model: a scene with opaque and transmissive materials can keep a model
  * per kind. docs/integration.md, section 5. */
 
+/* How the flow treats the seam phi = 0 of its square (theta / pi, phi / 2 pi), docs/theory.md
+ * section 4. Values are explicit and never renumbered. */
+typedef enum nf_phi_map {
+    /* The splines of phi / 2 pi are maps of [0, 1] onto itself, so phi = 0 is a fixed point of
+     * every layer and the density there is the prior's times the end slopes: a lobe across the
+     * seam is built from two pieces at opposite edges of the square. The only choice of model
+     * format version 1. */
+    NF_PHI_INTERVAL = 0,
+    /* phi is a coordinate on the circle: each spline of phi / 2 pi has equal slopes at 0 and
+     * 1 and is followed by a learned rotation (the last of its 3K + 1 conditioner outputs,
+     * which NF_PHI_INTERVAL spends on the slope at 1), and the conditioners see phi through a
+     * one-blob that wraps around. Mass moves across phi = 0 like anywhere else, and the
+     * density is continuous there. Same parameter count and cost. (default) */
+    NF_PHI_CIRCULAR = 1
+} nf_phi_map;
+
 /* A user prior in solid-angle terms (docs/theory.md section 2). The library mixes it with the
  * uniform direction density: q = (1 - eps) q_custom + eps / (4 pi), eps = nf_config.prior_epsilon.
  *
@@ -150,6 +166,7 @@ typedef struct nf_config {
     float prior_epsilon;      /* defensive mixture weight for cosine/custom,
                                  [NF_PRIOR_EPSILON_MIN = 1e-6, 1] (default 0.01)             */
     nf_prior_callbacks custom_prior; /* required when prior == NF_PRIOR_CUSTOM                 */
+    nf_phi_map phi_map;     /* the seam phi = 0: NF_PHI_INTERVAL or NF_PHI_CIRCULAR (default) */
     float bounds_min[3];    /* scene bounds for the position encoding, world units: finite,  */
     float bounds_max[3];    /* max - min in [FLT_MIN, FLT_MAX] on every axis (default the unit
                                cube)                                                          */
@@ -194,7 +211,7 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * for it: away from the poles (sin theta > 1e-2) the relative difference is below 1e-4 for
  * well-conditioned flows. pdf[i] belongs to the exact latent point, nf_pdf's value to the
  * inverse of the float direction; on sharp flows the float round trip drifts. Randomized
- * flows with peaks of 100-2000 per sr: up to 3% of samples differ by more than 1e-4, none by
+ * flows with peaks of 100-2000 per sr: up to 4% of samples differ by more than 1e-4, none by
  * 1e-2 (tests/correctness/test_sampling.c). Trained flows with peaks of 450-5400 per sr: at
  * most 1 sample in 10,000 differs by more than 2e-3 and 1 in 25,000 by more than 1e-2, and
  * isolated samples by up to ~12% (the largest of 32 trained models measured by

@@ -14,6 +14,7 @@
 
 #include <math.h>
 
+#include "circle.h"
 #include "encoding.h"
 #include "internal.h"
 #include "lanes.h"
@@ -45,7 +46,7 @@ static inline void nf_context_features(const nf_model *m, const nf_context *ctx,
     for (uint32_t a = 0; a < 3; ++a) {
         float t =
             (ctx->position[a] - cfg->bounds_min[a]) / (cfg->bounds_max[a] - cfg->bounds_min[a]);
-        nf_oneblob_slots(t, bins, (a + 1) * bins, pt->rows + 3 * a, pt->values + 3 * a);
+        nf_oneblob_slots(t, bins, (a + 1) * bins, 0, pt->rows + 3 * a, pt->values + 3 * a);
     }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {
@@ -203,7 +204,7 @@ static inline void nf_conditioner_forward(const nf_model *m, uint32_t layer, con
     nf_input_layer_context(packed + lin[0].weight, packed + lin[0].bias, hp, pt->rows, pt->values,
                            packed + lin[0].weight + (size_t)4u * bins * hp, pt->sh, 1,
                            2u * m->cfg.sh_bands * m->cfg.sh_bands, act);
-    nf_oneblob_slots(v, bins, 0, rows, vals);
+    nf_oneblob_slots(v, bins, 0, nf_layer_wraps(m, layer), rows, vals);
     nf_input_layer_blob(act, packed + lin[0].weight, hp, rows, vals, act);
     nf_relu(act, hp);
     for (uint32_t l = 1; l < depth; ++l) {
@@ -262,7 +263,7 @@ static inline float nf_conditioner_backward(const nf_model *m, uint32_t layer, c
     float *gw = grad + pub[0].weight;
     const float *w = packed + pk[0].weight;
     nf_blob blob;
-    nf_oneblob_sparse(v, bins, &blob);
+    nf_oneblob_sparse(v, bins, nf_layer_wraps(m, layer), &blob);
     float g_v = 0.0f;
     for (uint32_t c = 0; c < blob.count; ++c) {
         nf_axpy(gw + (size_t)blob.bin[c] * width, g_pre, blob.value[c], width);

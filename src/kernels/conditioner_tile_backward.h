@@ -173,8 +173,9 @@ static inline void nf_tile_conditioner_backward(const nf_model *m, uint32_t laye
     nf_tile_outer_add(nf_tile_ones, 1, gt, width, grad + pub[0].bias, 0);
     nf_tile_blob vblob;
     float slope[3][NF_TILE];
-    nf_tile_oneblob(v, bins, 0, &vblob);
-    nf_tile_oneblob_slopes(v, bins, slope);
+    const int wrap = nf_layer_wraps(m, layer);
+    nf_tile_oneblob(v, bins, 0, wrap, &vblob);
+    nf_tile_oneblob_slopes(v, bins, wrap, slope);
     const float *w0 = packed + pk[0].weight;
     float row[NF_PAD(NF_MAX_HIDDEN_WIDTH)];
     for (uint32_t i = 0; i < tile->count; ++i) {

@@ -31,21 +31,33 @@ static inline float nf_quartic_kernel(float tb)
     return (15.0f / 16.0f) * w * w;
 }
 
+/* The bin a slot j of a one-blob with B bins lands in: j itself, or j +- B when the encoding
+ * wraps around (a coordinate on the circle, where the blob of v near 1 continues at bin 0);
+ * -1 for a slot outside an encoding that does not wrap. */
+static inline int nf_oneblob_bin(int j, uint32_t bins, int wrap)
+{
+    int b = (int)bins;
+    int wrapped = j < 0 ? j + b : (j >= b ? j - b : j);
+    return wrap ? wrapped : (j >= 0 && j < b ? j : -1);
+}
+
 /* The non-zero bins of the one-blob encoding of v (clamped to [0,1]). Bin j is non-zero only
  * when j - vB lies in (-2, 1): at most three bins around floor(vB). Evaluating exactly those
  * with the same Q as the dense encoding gives identical values; every other bin is exactly
- * zero because both of its Q terms clamp to the same end. */
-static inline void nf_oneblob_sparse(float v, uint32_t bins, nf_blob *out)
+ * zero because both of its Q terms clamp to the same end. With `wrap` the slots beyond either
+ * end land in the bins at the other (nf_oneblob_bin), so v = 0 and v = 1 encode alike. */
+static inline void nf_oneblob_sparse(float v, uint32_t bins, int wrap, nf_blob *out)
 {
     float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
     int first = (int)vb - 1; /* vb >= 0, so truncation is floor */
     out->count = 0;
     for (int j = first; j < first + 3; ++j) {
-        if (j < 0 || j >= (int)bins)
+        int bin = nf_oneblob_bin(j, bins, wrap);
+        if (bin < 0)
             continue;
         float hi = (float)(j + 1) - vb, lo = (float)j - vb;
         uint32_t c = out->count++;
-        out->bin[c] = (uint32_t)j;
+        out->bin[c] = (uint32_t)bin;
         out->value[c] = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
         out->dvalue[c] = (float)bins * (nf_quartic_kernel(lo) - nf_quartic_kernel(hi));
     }
@@ -54,9 +66,10 @@ static inline void nf_oneblob_sparse(float v, uint32_t bins, nf_blob *out)
 /* The one-blob of v as exactly three slots j = floor(vB) - 1 .. floor(vB) + 1 (the bins that
  * can be non-zero, see nf_oneblob_sparse). A slot outside the encoding has value 0 and row
  * row_offset, so every encoded scalar has three slots and no branch: the tile kernels and the
- * per-sample kernels use this same form, which keeps their sums in the same order. */
-static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset, uint32_t row[3],
-                                    float value[3])
+ * per-sample kernels use this same form, which keeps their sums in the same order. With
+ * `wrap` no slot is outside (nf_oneblob_bin). */
+static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset, int wrap,
+                                    uint32_t row[3], float value[3])
 {
     float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
     int first = (int)vb - 1; /* vb >= 0, so truncation is floor */
@@ -66,9 +79,9 @@ static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset,
     for (int k = 0; k < 4; ++k)
         q[k] = nf_quartic_cdf((float)(first + k) - vb);
     for (int c = 0; c < 3; ++c) {
-        int j = first + c;
-        int inside = (j >= 0) & (j < (int)bins);
-        row[c] = row_offset + (uint32_t)(inside ? j : 0);
+        int bin = nf_oneblob_bin(first + c, bins, wrap);
+        int inside = bin >= 0;
+        row[c] = row_offset + (uint32_t)(inside ? bin : 0);
         value[c] = inside ? q[c + 1] - q[c] : 0.0f;
     }
 }

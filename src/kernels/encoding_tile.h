@@ -16,8 +16,9 @@ typedef struct nf_tile_blob {
     float value[3][NF_TILE];
 } nf_tile_blob;
 
-/* The one-blob of v[lane] (clamped to [0,1]) with B bins; rows are offset by row_offset. */
-static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_offset,
+/* The one-blob of v[lane] (clamped to [0,1]) with B bins; rows are offset by row_offset;
+ * `wrap` as in nf_oneblob_slots. */
+static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_offset, int wrap,
                                    nf_tile_blob *out)
 {
     /* nf_oneblob_slots' arithmetic with the slot loop outermost, so that the lane loops
@@ -26,23 +27,25 @@ static inline void nf_tile_oneblob(const float *v, uint32_t bins, uint32_t row_o
         for (uint32_t i = 0; i < NF_TILE; ++i) {
             float vb = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
             int j = (int)vb - 1 + (int)c;
-            int inside = (j >= 0) & (j < (int)bins);
+            int bin = nf_oneblob_bin(j, bins, wrap);
+            int inside = bin >= 0;
             float hi = (float)(j + 1) - vb, lo = (float)j - vb;
             float q = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);
-            out->row[c][i] = row_offset + (uint32_t)(inside ? j : 0);
+            out->row[c][i] = row_offset + (uint32_t)(inside ? bin : 0);
             out->value[c][i] = inside ? q : 0.0f;
         }
 }
 
 /* d value / d v of the three slots of nf_tile_oneblob (0 for a slot outside the encoding), as
  * nf_oneblob_sparse's dvalue, for the reverse pass. */
-static inline void nf_tile_oneblob_slopes(const float *v, uint32_t bins, float (*slope)[NF_TILE])
+static inline void nf_tile_oneblob_slopes(const float *v, uint32_t bins, int wrap,
+                                          float (*slope)[NF_TILE])
 {
     for (uint32_t c = 0; c < 3; ++c)
         for (uint32_t i = 0; i < NF_TILE; ++i) {
             float vb = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
             int j = (int)vb - 1 + (int)c;
-            int inside = (j >= 0) & (j < (int)bins);
+            int inside = nf_oneblob_bin(j, bins, wrap) >= 0;
             float hi = (float)(j + 1) - vb, lo = (float)j - vb;
             float d = (float)bins * (nf_quartic_kernel(lo) - nf_quartic_kernel(hi));
             slope[c][i] = inside ? d : 0.0f;

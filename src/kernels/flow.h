@@ -9,13 +9,11 @@
 #include <float.h>
 #include <math.h>
 
+#include "circle.h"
 #include "conditioner.h"
 #include "internal.h"
 #include "prior.h"
 #include "spline.h"
-
-/* The coordinate that layer i transforms; the other one passes through. */
-static inline uint32_t nf_transformed(uint32_t layer) { return (layer & 1u) ? 0u : 1u; }
 
 /* Per-sample scratch, kept in one struct so the kernels declare it once. */
 typedef struct nf_scratch {
@@ -23,10 +21,12 @@ typedef struct nf_scratch {
     float raw[NF_MAX_RAW_PADDED];
     float g_raw[NF_MAX_RAW_PADDED];
     nf_spline spline;
+    float rotation_raw; /* a circular layer's rotation, raw (circle.h)            */
+    float solved;       /* the spline's solution in nf_layer_inverse (before rotation) */
 } nf_scratch;
 
 /* Forward map z -> s; returns |det J_F(z)| (a product of slopes, in double so that deep flows
- * cannot overflow it). */
+ * cannot overflow it). A turning layer is y = wrap(S(x) + rotation) (circle.h). */
 static inline double nf_flow_forward(const nf_model *m, const nf_point *pt, const float z[2],
                                      float s[2], nf_scratch *sc)
 {
@@ -35,11 +35,15 @@ static inline double nf_flow_forward(const nf_model *m, const nf_point *pt, cons
     for (uint32_t i = 0; i < m->cfg.coupling_layers; ++i) {
         uint32_t t = nf_transformed(i);
         nf_conditioner_forward(m, i, pt, x[1 - t], sc->act, sc->raw);
+        if (nf_layer_circular(m, i))
+            sc->rotation_raw = nf_circular_take_rotation(sc->raw, m->cfg.spline_bins);
         nf_spline_build(&sc->spline, m->cfg.spline_bins, sc->raw);
         nf_spline_bin bin;
         nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.x, m->cfg.spline_bins, x[t]), &bin);
         float slope;
         x[t] = nf_spline_bin_eval(&bin, x[t], &slope);
+        if (nf_layer_turns(m, i))
+            x[t] = nf_wrap_unit(x[t] + nf_rotation(sc->rotation_raw, m->cfg.spline_bins));
         det *= slope;
     }
     s[0] = x[0];
@@ -47,17 +51,24 @@ static inline double nf_flow_forward(const nf_model *m, const nf_point *pt, cons
     return det;
 }
 
-/* One inverse layer: x[t] <- S^-1(x[t]); returns dy/dx at the solution and leaves the bin in
- * *bin (and the spline and activations in sc) for reverse mode. */
+/* One inverse layer: x[t] <- S^-1(x[t]) (S^-1(wrap(x[t] - rotation)) for a turning layer);
+ * returns dy/dx at the solution and leaves the bin in *bin (and the spline, activations,
+ * rotation and the spline's solution in sc) for reverse mode. */
 static inline float nf_layer_inverse(const nf_model *m, const nf_point *pt, uint32_t i, float x[2],
                                      nf_scratch *sc, nf_spline_bin *bin)
 {
     uint32_t t = nf_transformed(i);
+    const int turns = nf_layer_turns(m, i);
     nf_conditioner_forward(m, i, pt, x[1 - t], sc->act, sc->raw);
+    if (nf_layer_circular(m, i))
+        sc->rotation_raw = nf_circular_take_rotation(sc->raw, m->cfg.spline_bins);
+    if (turns)
+        x[t] = nf_wrap_unit(x[t] - nf_rotation(sc->rotation_raw, m->cfg.spline_bins));
     nf_spline_build(&sc->spline, m->cfg.spline_bins, sc->raw);
     nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.y, m->cfg.spline_bins, x[t]), bin);
     float solved = nf_spline_bin_solve(bin, x[t]), slope;
     nf_spline_bin_eval(bin, solved, &slope);
+    sc->solved = solved;
     x[t] = solved;
     return slope;
 }
@@ -99,7 +110,7 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
         float xi[2] = {inputs[i][0], inputs[i][1]};
         float slope = nf_layer_inverse(m, pt, i, xi, sc, &bin);
         nf_spline_partials p;
-        nf_spline_partials_at(&bin, xi[t], &p);
+        nf_spline_partials_at(&bin, sc->solved, &p);
         /* x = S^-1(y): dx/dy = 1/S'; the layer's term is -log S'(x). */
         float g_y = (g[t] - coef * p.dl_dx) / slope;
         for (uint32_t r = 0; r < NF_MAX_RAW_PADDED; ++r)
@@ -110,6 +121,9 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
         for (uint32_t r = 0; r < m->raw_dim; ++r)
             if (sc->raw[r] <= -NF_RAW_LIMIT || sc->raw[r] >= NF_RAW_LIMIT)
                 sc->g_raw[r] = 0.0f;
+        if (nf_layer_circular(m, i))
+            nf_circular_backward(sc->g_raw, m->cfg.spline_bins, nf_layer_turns(m, i),
+                                 sc->rotation_raw, g_y);
         g[1 - t] += nf_conditioner_backward(m, i, pt, xi[1 - t], sc->act, sc->g_raw, grad);
         g[t] = g_y;
     }

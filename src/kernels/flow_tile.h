@@ -20,6 +20,7 @@ typedef struct nf_tile_work {
     float raw[NF_MAX_RAW_PADDED][NF_TILE]; /* nf_tile_dense_layer writes 8 rows at a time */
     nf_tile_spline spline;
     nf_tile_bin bin;
+    float rotation_raw[NF_TILE]; /* a circular layer's rotations, raw (circle.h) */
 } nf_tile_work;
 
 /* One coupling layer's conditioner and splines for the tile, given the current point x. */
@@ -27,8 +28,10 @@ static inline void nf_tile_layer_splines(const nf_model *m, uint32_t layer,
                                          const float (*x)[NF_TILE], nf_tile_work *w)
 {
     uint32_t t = nf_transformed(layer);
-    nf_tile_oneblob(x[1 - t], m->cfg.oneblob_bins, 0, &w->blob);
+    nf_tile_oneblob(x[1 - t], m->cfg.oneblob_bins, 0, nf_layer_wraps(m, layer), &w->blob);
     nf_tile_conditioner_forward(m, layer, &w->tile, &w->blob, w->act, 2, w->raw);
+    if (nf_layer_circular(m, layer))
+        nf_tile_circular_take_rotation(w->raw, m->cfg.spline_bins, w->rotation_raw);
     nf_tile_spline_build(&w->spline, m->cfg.spline_bins, (const float(*)[NF_TILE])w->raw);
 }
 
@@ -54,6 +57,9 @@ static inline nf_status nf_tile_sample(const nf_model *m, const nf_context *ctx,
         nf_tile_layer_splines(m, layer, (const float(*)[NF_TILE])x, w);
         nf_tile_spline_forward(&w->spline, bins, (const float(*)[NF_TILE])(w->raw + 2 * bins), x[t],
                                slope, &w->bin);
+        if (nf_layer_turns(m, layer))
+            for (uint32_t i = 0; i < NF_TILE; ++i)
+                x[t][i] = nf_wrap_unit(x[t][i] + nf_rotation(w->rotation_raw[i], bins));
         for (uint32_t i = 0; i < NF_TILE; ++i)
             det[i] *= slope[i];
     }
@@ -98,6 +104,9 @@ static inline nf_status nf_tile_pdf(const nf_model *m, const nf_context *ctx, co
     for (uint32_t layer = m->cfg.coupling_layers; layer-- > 0;) {
         uint32_t t = nf_transformed(layer);
         nf_tile_layer_splines(m, layer, (const float(*)[NF_TILE])x, w);
+        if (nf_layer_turns(m, layer))
+            for (uint32_t i = 0; i < NF_TILE; ++i)
+                x[t][i] = nf_wrap_unit(x[t][i] - nf_rotation(w->rotation_raw[i], bins));
         nf_tile_spline_inverse(&w->spline, bins, (const float(*)[NF_TILE])(w->raw + 2 * bins), x[t],
                                slope, &w->bin);
         for (uint32_t i = 0; i < NF_TILE; ++i)

@@ -35,6 +35,7 @@ typedef struct nf_tile_gradient_work {
     nf_tile_bin bin[NF_MAX_COUPLING_LAYERS];       /* each inverse layer's bins */
     float solved[NF_MAX_COUPLING_LAYERS][NF_TILE]; /* its solutions x[t]        */
     float slope[NF_MAX_COUPLING_LAYERS][NF_TILE];  /* dy/dx there               */
+    float rotation_raw[NF_MAX_COUPLING_LAYERS][NF_TILE]; /* circular layers' rotations, raw */
     nf_tile_partials partials;
     nf_tile_backward_work backward;
 } nf_tile_gradient_work;
@@ -70,9 +71,12 @@ static inline void nf_tile_gradient_layer(const nf_model *m, uint32_t layer,
 {
     uint32_t tr = nf_transformed(layer);
     float(*act)[NF_TILE] = nf_tape_act(w, t, layer);
-    nf_tile_oneblob(x[1 - tr], m->cfg.oneblob_bins, 0, &w->blob);
+    nf_tile_oneblob(x[1 - tr], m->cfg.oneblob_bins, 0, nf_layer_wraps(m, layer), &w->blob);
     nf_tile_conditioner_forward(m, layer, &w->tile, &w->blob, act, m->cfg.hidden_layers,
                                 act + t->act_rows);
+    if (nf_layer_circular(m, layer))
+        nf_tile_circular_take_rotation(act + t->act_rows, m->cfg.spline_bins,
+                                       w->rotation_raw[layer]);
     nf_tile_spline_build(&w->spline, m->cfg.spline_bins,
                          (const float(*)[NF_TILE])(act + t->act_rows));
 }
@@ -109,6 +113,9 @@ static inline nf_status nf_tile_gradient(const nf_model *m, const nf_context *co
         nf_tile_gradient_layer(m, layer, (const float(*)[NF_TILE])x, &tape, w);
         const float(*raw)[NF_TILE] =
             (const float(*)[NF_TILE])(nf_tape_act(w, &tape, layer) + tape.act_rows);
+        if (nf_layer_turns(m, layer))
+            for (uint32_t i = 0; i < NF_TILE; ++i)
+                x[t][i] = nf_wrap_unit(x[t][i] - nf_rotation(w->rotation_raw[layer][i], bins));
         nf_tile_spline_inverse(&w->spline, bins, raw + 2 * bins, x[t], w->slope[layer],
                                &w->bin[layer]);
         for (uint32_t i = 0; i < NF_TILE; ++i) {
@@ -168,6 +175,9 @@ static inline nf_status nf_tile_gradient(const nf_model *m, const nf_context *co
                 float v = raw[r][i];
                 w->g_raw[r][i] = v <= -NF_RAW_LIMIT || v >= NF_RAW_LIMIT ? 0.0f : w->g_raw[r][i];
             }
+        if (nf_layer_circular(m, layer))
+            nf_tile_circular_backward(w->g_raw, bins, nf_layer_turns(m, layer),
+                                      w->rotation_raw[layer], g_y);
         nf_tile_conditioner_backward(m, layer, &w->tile, inputs[layer][1 - t],
                                      (const float(*)[NF_TILE])act,
                                      (const float(*)[NF_TILE])w->g_raw, grad, g_v, &w->backward);

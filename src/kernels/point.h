@@ -78,13 +78,18 @@ static inline void nf_point_scratch_in(float *work, nf_point_shape sh, nf_point_
 
 /* The spline of the raw parameters in sc->raw: knots and every knot derivative
  * (nf_spline_build's and nf_spline_bin_at's values; the softmaxes, which only reverse mode
- * reads, overwrite the exps). */
-static inline void nf_point_spline(uint32_t bins, const nf_point_scratch *sc)
+ * reads, overwrite the exps). A circular spline's d_K is d_0 (circle.h); its rotation stays
+ * in sc->raw[3K]. */
+static inline void nf_point_spline(uint32_t bins, int circular, const nf_point_scratch *sc)
 {
     nf_spline_exps(bins, sc->raw, sc->e);
     nf_spline_knots_from_exps(bins, sc->e, sc->x, sc->e);
     nf_spline_knots_from_exps(bins, sc->e + bins, sc->y, sc->e + bins);
     nf_spline_derivatives(bins, sc->raw + 2 * bins, sc->d, sc->sd);
+    if (circular) {
+        sc->d[bins] = sc->d[0];
+        sc->sd[bins] = sc->sd[0];
+    }
 }
 
 static inline void nf_point_bin(const nf_point_scratch *sc, uint32_t k, nf_spline_bin *bin)
@@ -147,7 +152,7 @@ static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
     const float *ctx = nf_point_context_sums(m, p, layer, sc->act[0]);
     uint32_t rows[3];
     float vals[3];
-    nf_oneblob_slots(v, sh.blob_bins, 0, rows, vals);
+    nf_oneblob_slots(v, sh.blob_bins, 0, nf_layer_wraps(m, layer), rows, vals);
     nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc->act[0]);
     nf_relu(sc->act[0], hp);
     const float *h = sc->act[0];
@@ -258,21 +263,27 @@ static inline void nf_point_walk_spline(const nf_model *m, nf_point_shape sh, in
 {
     uint32_t i = nf_point_walk_layer(sh, inverse, j), t = nf_transformed(i);
     nf_point_conditioner(m, sh, w->p, i, w->x[1 - t], sc);
-    nf_point_spline(sh.bins, sc);
+    nf_point_spline(sh.bins, nf_layer_circular(m, i), sc);
 }
 
-/* The second half of step j: the spline applied (forward) or inverted (inverse). */
-static inline void nf_point_walk_map(nf_point_shape sh, int inverse, uint32_t j, nf_point_walk *w,
-                                     const nf_point_scratch *sc)
+/* The second half of step j: the spline applied (forward) or inverted (inverse), with a
+ * turning layer's rotation after it (forward) or before it (inverse), as flow.h. */
+static inline void nf_point_walk_map(const nf_model *m, nf_point_shape sh, int inverse,
+                                     uint32_t j, nf_point_walk *w, const nf_point_scratch *sc)
 {
-    uint32_t t = nf_transformed(nf_point_walk_layer(sh, inverse, j));
+    uint32_t i = nf_point_walk_layer(sh, inverse, j), t = nf_transformed(i);
+    const int turns = nf_layer_turns(m, i);
     nf_spline_bin bin;
     float slope;
     if (!inverse) {
         nf_point_bin(sc, nf_spline_find(sc->x, sh.bins, w->x[t]), &bin);
         w->x[t] = nf_spline_bin_eval(&bin, w->x[t], &slope);
+        if (turns)
+            w->x[t] = nf_wrap_unit(w->x[t] + nf_rotation(sc->raw[3u * sh.bins], sh.bins));
         w->det *= slope;
     } else {
+        if (turns)
+            w->x[t] = nf_wrap_unit(w->x[t] - nf_rotation(sc->raw[3u * sh.bins], sh.bins));
         nf_point_bin(sc, nf_spline_find(sc->y, sh.bins, w->x[t]), &bin);
         float solved = nf_spline_bin_solve(&bin, w->x[t]);
         nf_spline_bin_eval(&bin, solved, &slope);
@@ -316,7 +327,7 @@ static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh
         return st;
     for (uint32_t j = 0; j < sh.layers; ++j) {
         nf_point_walk_spline(m, sh, 0, j, &w, sc);
-        nf_point_walk_map(sh, 0, j, &w, sc);
+        nf_point_walk_map(m, sh, 0, j, &w, sc);
     }
     nf_point_walk_sampled(&w, dir, pdf);
     return NF_OK;
@@ -331,7 +342,7 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
     nf_point_walk_pdf(p, user, dir, &w);
     for (uint32_t j = 0; j < sh.layers; ++j) {
         nf_point_walk_spline(m, sh, 1, j, &w, sc);
-        nf_point_walk_map(sh, 1, j, &w, sc);
+        nf_point_walk_map(m, sh, 1, j, &w, sc);
     }
     return nf_point_walk_density(m, &w, pdf);
 }

@@ -24,6 +24,7 @@ static nf_model *make_model(nf_preset preset, nf_prior_kind prior, nf_isa isa)
 {
     nf_config cfg;
     nf_config_init(&cfg, preset);
+    nft_apply_phi_map(&cfg);
     cfg.prior = prior;
     cfg.isa = isa;
     nf_model *m = NULL;

@@ -23,7 +23,8 @@
 
 #include "nf_test_support.h"
 
-/* The layout of format version 1 (docs/format.md). */
+/* The layout of format version 2 (docs/format.md); version 1 ends its header at
+ * OFF_PHI_MAP. */
 #define OFF_VERSION 8u
 #define OFF_COUPLING_LAYERS 12u
 #define OFF_SPLINE_BINS 16u
@@ -37,7 +38,9 @@
 #define OFF_WEIGHT_DECAY 84u
 #define OFF_STEP 96u
 #define OFF_PARAM_COUNT 104u
-#define HEADER 112u
+#define OFF_PHI_MAP 112u
+#define HEADER_V1 112u
+#define HEADER 116u
 #define TRAILER 4u
 
 /* ---- helpers ---------------------------------------------------------------------------------- */
@@ -190,7 +193,8 @@ static void check_round_trip(nf_preset preset, nf_prior_kind prior)
     /* The documented size: header, three float arrays, checksum. */
     assert_true(size == HEADER + 12u * nf_param_count(m) + TRAILER);
     assert_memory_equal(buf, "NISFLOW\0", 8);
-    assert_true(get_u32(buf + OFF_VERSION) == 1u);
+    assert_true(get_u32(buf + OFF_VERSION) == 2u);
+    assert_true(get_u32(buf + OFF_PHI_MAP) == (uint32_t)nft_phi_map());
     assert_true(get_u64(buf + OFF_PARAM_COUNT) == nf_param_count(m));
     assert_true(get_u64(buf + OFF_STEP) == 3u);
     /* Our own CRC agrees with the stored one (little-endian, all preceding bytes). */
@@ -252,6 +256,7 @@ static void test_round_trip_config(void **state)
     cfg.adam_epsilon = 1e-5f;
     cfg.weight_decay = 0.0f;
     cfg.seed = 0x123456789abcdefull;
+    cfg.phi_map = NF_PHI_INTERVAL; /* not the default */
     nf_model *m = NULL;
     assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
     assert_int_equal(nf_set_learning_rate(m, 0.02f), NF_OK);
@@ -266,7 +271,8 @@ static void test_round_trip_config(void **state)
     assert_true(c.prior_epsilon == 0.25f && c.bounds_min[0] == -10.0f &&
                 c.bounds_max[2] == 3.5f && c.beta1 == 0.5f && c.adam_epsilon == 1e-5f &&
                 c.weight_decay == 0.0f && c.learning_rate == 0.02f &&
-                c.seed == 0x123456789abcdefull);
+                c.seed == 0x123456789abcdefull && c.phi_map == NF_PHI_INTERVAL);
+    assert_int_equal(get_u32(buf + OFF_PHI_MAP), NF_PHI_INTERVAL);
     assert_models_identical(m, back);
     free(buf);
     nf_model_destroy(back);
@@ -496,13 +502,125 @@ static void test_other_version(void **state)
     assert_non_null(m);
     size_t size;
     unsigned char *buf = serialize(m, &size);
-    static const uint32_t versions[] = {0u, 2u, 7u, 0x01000000u, 0xFFFFFFFFu};
+    static const uint32_t versions[] = {0u, 3u, 7u, 0x01000000u, 0xFFFFFFFFu};
     for (size_t i = 0; i < sizeof versions / sizeof versions[0]; ++i) {
         put_u32(buf + OFF_VERSION, versions[i]);
         fix_crc(buf, size);
         expect_refused(buf, size, NULL, NF_ERROR_FORMAT, "other version");
         if (!strstr(nf_last_error_message(), "version"))
             fail_msg("version %u refused with \"%s\"", versions[i], nf_last_error_message());
+    }
+    free(buf);
+    nf_model_destroy(m);
+}
+
+/* A version-2 file written as version 1: the header without phi_map, the rest the same. */
+static unsigned char *as_version_1(const unsigned char *buf, size_t size, size_t *size_v1)
+{
+    *size_v1 = size - 4u;
+    unsigned char *v1 = malloc(*size_v1);
+    assert_non_null(v1);
+    memcpy(v1, buf, HEADER_V1);
+    memcpy(v1 + HEADER_V1, buf + HEADER, size - HEADER);
+    put_u32(v1 + OFF_VERSION, 1u);
+    fix_crc(v1, *size_v1);
+    return v1;
+}
+
+/* Densities of `m` at the contexts and directions of `lines` against `expected`, relative
+ * `tolerance`; returns the worst relative difference. */
+static double worst_pdf_difference(const nf_model *m, const float (*lines)[13], int count)
+{
+    double worst = 0.0;
+    for (int k = 0; k < count; ++k) {
+        nf_context c;
+        memcpy(c.position, lines[k], 3 * sizeof(float));
+        memcpy(c.normal, lines[k] + 3, 3 * sizeof(float));
+        memcpy(c.wo, lines[k] + 6, 3 * sizeof(float));
+        float pdf;
+        assert_int_equal(nf_pdf(m, 1, &c, lines[k] + 9, &pdf), NF_OK);
+        worst = fmax(worst, fabs((double)pdf - lines[k][12]) / lines[k][12]);
+    }
+    return worst;
+}
+
+/* Files of format version 1 still load, as NF_PHI_INTERVAL models (the only map version 1
+ * could hold) with the densities they had: the file libnisflow 0.1.0 wrote
+ * (tests/data/make_model_v1.c), against the densities that library computed with the generic
+ * kernels: the same arithmetic, so the same values up to the compiler's contraction of
+ * multiply-adds, which moves them by ~1e-6 relative (model.h, nf_isa); 1e-5 allowed. And a
+ * version-2 file of an interval model rewritten as version 1 gives the same bits. */
+static void test_version_1_files(void **state)
+{
+    (void)state;
+    nf_model *old = NULL;
+    assert_int_equal(nf_model_load(NF_TEST_SOURCE_DIR "/data/model-v1.nfm", NULL, &old), NF_OK);
+    nf_config c;
+    assert_int_equal(nf_model_config(old, &c), NF_OK);
+    assert_int_equal(c.phi_map, NF_PHI_INTERVAL);
+    assert_int_equal(nf_model_set_isa(old, NF_ISA_GENERIC), NF_OK);
+    FILE *f = fopen(NF_TEST_SOURCE_DIR "/data/model-v1.txt", "r");
+    assert_non_null(f);
+    static float lines[64][13];
+    int count = 0;
+    while (count < 64) {
+        int got = 0;
+        for (int j = 0; j < 13; ++j)
+            got += fscanf(f, "%a", &lines[count][j]);
+        if (got != 13)
+            break;
+        ++count;
+    }
+    fclose(f);
+    assert_int_equal(count, 64);
+    double worst = worst_pdf_difference(old, (const float(*)[13])lines, count);
+    print_message("version-1 file: worst relative density difference %.3g over %d\n", worst,
+                  count);
+    assert_true(worst < 1e-5);
+
+    /* Saved again it is a version-2 file of an interval model, with the same densities. */
+    size_t size, size_v1;
+    unsigned char *buf = serialize(old, &size);
+    assert_int_equal(get_u32(buf + OFF_VERSION), 2u);
+    assert_int_equal(size, HEADER + 12u * nf_param_count(old) + TRAILER);
+    unsigned char *v1 = as_version_1(buf, size, &size_v1);
+    nf_model *again = NULL;
+    assert_int_equal(nf_model_deserialize(v1, size_v1, NULL, &again), NF_OK);
+    assert_int_equal(nf_model_set_isa(again, NF_ISA_GENERIC), NF_OK);
+    assert_models_identical(old, again);
+    for (int k = 0; k < count; ++k) {
+        nf_context ctx;
+        memcpy(ctx.position, lines[k], sizeof ctx.position);
+        memcpy(ctx.normal, lines[k] + 3, sizeof ctx.normal);
+        memcpy(ctx.wo, lines[k] + 6, sizeof ctx.wo);
+        float a, b;
+        assert_int_equal(nf_pdf(old, 1, &ctx, lines[k] + 9, &a), NF_OK);
+        assert_int_equal(nf_pdf(again, 1, &ctx, lines[k] + 9, &b), NF_OK);
+        assert_memory_equal(&a, &b, sizeof a);
+    }
+    /* A version-1 file one byte short or long of its size is refused like any other. */
+    expect_refused(v1, size_v1 - 1u, NULL, NF_ERROR_FORMAT, "version 1, truncated");
+    free(v1);
+    free(buf);
+    nf_model_destroy(again);
+    nf_model_destroy(old);
+}
+
+/* A phi map outside the enum, with a valid checksum: NF_ERROR_FORMAT naming it. */
+static void test_unknown_phi_map(void **state)
+{
+    (void)state;
+    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    assert_non_null(m);
+    size_t size;
+    unsigned char *buf = serialize(m, &size);
+    static const uint32_t maps[] = {2u, 0x80000000u, 0xFFFFFFFFu};
+    for (size_t i = 0; i < sizeof maps / sizeof maps[0]; ++i) {
+        put_u32(buf + OFF_PHI_MAP, maps[i]);
+        fix_crc(buf, size);
+        expect_refused(buf, size, NULL, NF_ERROR_FORMAT, "unknown phi map");
+        if (!strstr(nf_last_error_message(), "phi map"))
+            fail_msg("phi map %u refused with \"%s\"", maps[i], nf_last_error_message());
     }
     free(buf);
     nf_model_destroy(m);
@@ -661,6 +779,8 @@ int main(void)
         cmocka_unit_test(test_truncated),
         cmocka_unit_test(test_bit_flips),
         cmocka_unit_test(test_other_version),
+        cmocka_unit_test(test_version_1_files),
+        cmocka_unit_test(test_unknown_phi_map),
         cmocka_unit_test(test_invalid_content),
         cmocka_unit_test(test_custom_prior_callbacks),
         cmocka_unit_test(test_null_arguments),

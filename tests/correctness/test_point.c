@@ -194,6 +194,7 @@ static nf_config config_for(nf_preset preset, nf_prior_kind prior)
     nf_config cfg;
     memset(&cfg, 0, sizeof cfg);
     nf_config_init(&cfg, preset);
+    nft_apply_phi_map(&cfg);
     cfg.prior = prior;
     if (prior == NF_PRIOR_CUSTOM)
         cfg.custom_prior = lobe_callbacks(&model_lobe);

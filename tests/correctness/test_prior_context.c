@@ -72,6 +72,7 @@ static nf_model *make_model(nf_isa isa)
 {
     nf_config cfg;
     nf_config_init(&cfg, NF_PRESET_SMALL);
+    nft_apply_phi_map(&cfg);
     cfg.prior = NF_PRIOR_CUSTOM;
     cfg.custom_prior = rec_callbacks();
     cfg.isa = isa;

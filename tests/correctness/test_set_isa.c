@@ -40,6 +40,7 @@ static nf_model *make_model(nf_isa isa)
 {
     nf_config cfg;
     nf_config_init(&cfg, NF_PRESET_LARGE);
+    nft_apply_phi_map(&cfg);
     cfg.isa = isa;
     cfg.learning_rate = 1e-2f; /* large steps: any difference of kernels shows at once */
     nf_model *m = NULL;

@@ -103,7 +103,7 @@ static void test_load_wrong_content(void **state)
             break;
         default:
             memcpy(buf, good, size);
-            buf[8] = 2; /* version 2, stale checksum */
+            buf[8] = 9; /* version 9, stale checksum */
             break;
         }
         FILE *f = fopen(path, "wb");

@@ -187,10 +187,13 @@ static void test_pdf_special_directions(void **state)
 /* nf_sample at every pair of special u values in every special context: unit directions,
  * finite positive densities, and nf_pdf of each sample finite and positive too. Away from
  * the poles (sin theta > 1e-2) the two densities agree: model.h promises relative 1e-4 for
- * well-conditioned flows and ~2e-3 for sharp ones; the randomized models here (scale 0.5,
- * extreme contexts) lie in between, so the bound is the sharp one, 2e-3. A sample that lands
- * on the wrong side of the seam or of a domain boundary is off by far more (66% before the
- * fix in src/kernels/kernel.c). */
+ * well-conditioned flows and ~2e-3 for all but rare samples of sharp ones; the randomized
+ * models here (scale 0.5, extreme contexts) are sharp in places: 2.7e-3 was measured
+ * (NF_PHI_CIRCULAR, the small model with the custom prior, normal (-1, 0, 0.5): a theta
+ * spline of slope 0.015 there turns the direction's float rounding into 2.3e-5 of theta,
+ * which the phi layer's conditioner feels), so the bound is 5e-3. A sample that lands on the
+ * wrong side of the seam or of a domain boundary is off by far more (66% before the fix in
+ * src/kernels/kernel.c). */
 static void test_sample_special_u(void **state)
 {
     (void)state;
@@ -236,7 +239,7 @@ static void test_sample_special_u(void **state)
                  * moves the cosine term by up to a third, the density by up to ~3% (measured:
                  * 2.99e-2 at worst over these contexts and models). 5e-2 for that u0 only;
                  * a seam or boundary error is far larger. */
-                double tol = u[2 * i] == 0.98999995f ? 5e-2 : 2e-3;
+                double tol = u[2 * i] == 0.98999995f ? 5e-2 : 5e-3;
                 if (!(rel < tol))
                     fail_msg("variant %d, u = (%a, %a): sample pdf %.9g, nf_pdf %.9g", v,
                              (double)u[2 * i], (double)u[2 * i + 1], (double)pdf[i],

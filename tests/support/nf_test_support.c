@@ -208,11 +208,31 @@ nf_prior_callbacks nft_phong_callbacks(void)
 
 /* ---- models ----------------------------------------------------------------------------------- */
 
+nf_phi_map nft_phi_map(void)
+{
+    const char *v = getenv("NF_TEST_PHI_MAP");
+    nf_config cfg;
+    nf_config_init(&cfg, NF_PRESET_SMALL);
+    if (v && !strcmp(v, "interval"))
+        return NF_PHI_INTERVAL;
+    if (v && !strcmp(v, "circular"))
+        return NF_PHI_CIRCULAR;
+    return cfg.phi_map;
+}
+
+void nft_apply_phi_map(nf_config *cfg) { cfg->phi_map = nft_phi_map(); }
+
+const char *nft_phi_map_name(nf_phi_map map)
+{
+    return map == NF_PHI_INTERVAL ? "interval" : map == NF_PHI_CIRCULAR ? "circular" : "?";
+}
+
 nf_config nft_config(nf_preset preset, nf_prior_kind prior)
 {
     nf_config cfg;
     memset(&cfg, 0, sizeof cfg);
     nf_config_init(&cfg, preset);
+    nft_apply_phi_map(&cfg);
     cfg.prior = prior;
     if (prior == NF_PRIOR_CUSTOM)
         cfg.custom_prior = nft_phong_callbacks();

@@ -78,7 +78,17 @@ double nft_phong_cosine(const nf_context *ctx, const float dir[3]);
 /* Callbacks for the Phong prior with exponent NFT_PHONG_EXPONENT. */
 nf_prior_callbacks nft_phong_callbacks(void);
 
-/* nf_config_init(preset) with `prior`; for NF_PRIOR_CUSTOM the Phong callbacks. */
+/* The phi map under test: NF_PHI_INTERVAL when the environment variable NF_TEST_PHI_MAP is
+ * "interval", NF_PHI_CIRCULAR when it is "circular", otherwise the library's default. CTest
+ * runs the tests of the flow once per map (tests/CMakeLists.txt). */
+nf_phi_map nft_phi_map(void);
+/* Sets cfg->phi_map to nft_phi_map(). */
+void nft_apply_phi_map(nf_config *cfg);
+/* A short name of a phi map, for messages. */
+const char *nft_phi_map_name(nf_phi_map map);
+
+/* nf_config_init(preset) with `prior` and nft_phi_map(); for NF_PRIOR_CUSTOM the Phong
+ * callbacks. */
 nf_config nft_config(nf_preset preset, nf_prior_kind prior);
 /* Creates a model with nft_config(preset, prior); NULL on error. */
 nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior);

@@ -1,7 +1,7 @@
 /*
  * test_options.c - the command line reaches the model: --prior-epsilon (used by the paper
  * study's sweep) is parsed, range-checked, and ends up in the created model's config, and
- * leaving it out keeps the library's default.
+ * leaving it out keeps the library's default; --phi-map (the seam study's) likewise.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -40,6 +40,40 @@ static void test_prior_epsilon_is_parsed_and_range_checked(void **state)
     }
 }
 
+static void test_phi_map_is_parsed_and_reaches_the_model(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(parse(&o, NULL, NULL, &err));
+    assert_int_equal(o.phi_interval, 0);
+    assert_true(parse(&o, "--phi-map", "interval", &err));
+    assert_int_equal(o.phi_interval, 1);
+    assert_true(parse(&o, "--phi-map", "circular", &err));
+    assert_int_equal(o.phi_interval, 0);
+    err.msg[0] = '\0';
+    assert_false(parse(&o, "--phi-map", "torus", &err));
+    assert_non_null(strstr(err.msg, "--phi-map"));
+
+    scene s;
+    char path[1024];
+    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
+    if (!scene_load(path, &s, &err))
+        fail_msg("%s", err.msg);
+    for (int interval = 0; interval < 2; ++interval) {
+        guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+        gs.phi_interval = interval;
+        nf_model *model = NULL;
+        if (!guide_create(&s, &gs, &model, &err))
+            fail_msg("%s", err.msg);
+        nf_config cfg;
+        nf_model_config(model, &cfg);
+        assert_int_equal(cfg.phi_map, interval ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR);
+        nf_model_destroy(model);
+    }
+    scene_free(&s);
+}
+
 static void test_created_model_carries_the_epsilon(void **state)
 {
     (void)state;
@@ -72,6 +106,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_prior_epsilon_is_parsed_and_range_checked),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
+        cmocka_unit_test(test_phi_map_is_parsed_and_reaches_the_model),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
