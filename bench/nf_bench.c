@@ -46,6 +46,7 @@ static void usage(FILE *f)
             "  --prior NAME               cosine (default), uniform-direction,\n"
             "                             uniform-angle, or custom (a cosine lobe given as\n"
             "                             callbacks)\n"
+            "  --phi-map NAME             circular (default) or interval (nf_config.phi_map)\n"
             "  --json FILE                write the results as JSON (default bench.json)\n"
             "  --markdown FILE            also write the table as Markdown\n"
             "  --label TEXT               a free-form label stored in the JSON and printed\n"
@@ -142,6 +143,8 @@ static int parse_args(int argc, char **argv, options *o)
     o->min_rep_s = -1.0;
     o->prior = NF_PRIOR_COSINE;
     o->prior_name = "cosine";
+    o->phi_map = NF_PHI_CIRCULAR;
+    o->phi_map_name = "circular";
     o->json_path = "bench.json";
     o->retries = 2;
     o->busy_threshold = 0.2;
@@ -209,6 +212,13 @@ static int parse_args(int argc, char **argv, options *o)
             }
             o->prior = PRIOR[k];
             o->prior_name = v;
+        } else if (strcmp(a, "--phi-map") == 0) {
+            if (strcmp(v, "circular") != 0 && strcmp(v, "interval") != 0) {
+                fprintf(stderr, "nf_bench: --phi-map takes circular or interval\n");
+                return -1;
+            }
+            o->phi_map = strcmp(v, "circular") == 0 ? NF_PHI_CIRCULAR : NF_PHI_INTERVAL;
+            o->phi_map_name = v;
         } else if (strcmp(a, "--op") == 0) {
             if (parse_ops(v, &o->op_mask) != 0) {
                 fprintf(stderr, "nf_bench: --op takes a comma-separated list of sample, pdf, "
@@ -345,8 +355,10 @@ int main(int argc, char **argv)
     o.nproc = nproc > 0 ? nproc : 1;
     printf("libnisflow %s benchmark%s%s\n", nf_version_string(), o.label ? ": " : "",
            o.label ? o.label : "");
-    printf("cpu: %s, %ld online CPUs; prior %s; median of %d reps, each >= %.0f ms%s\n", cpu,
-           nproc, o.prior_name, o.reps, o.min_rep_s * 1e3, o.quick ? " (quick)" : "");
+    printf("cpu: %s, %ld online CPUs; prior %s, phi map %s; median of %d reps, each >= %.0f "
+           "ms%s\n",
+           cpu, nproc, o.prior_name, o.phi_map_name, o.reps, o.min_rep_s * 1e3,
+           o.quick ? " (quick)" : "");
     fflush(stdout);
 
     int rc = EXIT_FAILURE;

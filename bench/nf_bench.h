@@ -63,6 +63,8 @@ typedef struct options {
     double min_rep_s;
     nf_prior_kind prior;
     const char *prior_name;
+    nf_phi_map phi_map;
+    const char *phi_map_name;
     const char *json_path;
     const char *label;
     const char *markdown_path;

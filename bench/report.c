@@ -277,6 +277,8 @@ int write_json(const options *o, const char *cpu, long nproc, const preset_info 
     json_string(f, cpu);
     fprintf(f, ",\n  \"online_cpus\": %ld,\n  \"prior\": ", nproc);
     json_string(f, o->prior_name);
+    fprintf(f, ",\n  \"phi_map\": ");
+    json_string(f, o->phi_map_name);
     fprintf(f,
             ",\n  \"quick\": %s,\n  \"reps\": %d,\n  \"min_rep_ms\": %.1f,\n"
             "  \"batch1_stream_calls\": %u,\n"

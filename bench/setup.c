@@ -190,6 +190,7 @@ int make_model(int preset, const options *o, counting_allocator *ca, preset_info
     nf_config cfg;
     nf_config_init(&cfg, preset == 0 ? NF_PRESET_SMALL : NF_PRESET_LARGE);
     cfg.prior = o->prior;
+    cfg.phi_map = o->phi_map;
     cfg.isa = o->isa;
     if (o->prior == NF_PRIOR_CUSTOM) {
         cfg.custom_prior.sample = custom_sample;

@@ -84,10 +84,10 @@ typedef enum nf_phi_map {
      * format version 1. */
     NF_PHI_INTERVAL = 0,
     /* phi is a coordinate on the circle: each spline of phi / 2 pi has equal slopes at 0 and
-     * 1 and is followed by a learned rotation (the last of its 3K + 1 conditioner outputs,
-     * which NF_PHI_INTERVAL spends on the slope at 1), and the conditioners see phi through a
-     * one-blob that wraps around. Mass moves across phi = 0 like anywhere else, and the
-     * density is continuous there. Same parameter count and cost. (default) */
+     * 1, the last one is followed by a learned turn of the circle (its last conditioner
+     * output, which NF_PHI_INTERVAL spends on the slope at 1), and the conditioners see phi
+     * through a one-blob that wraps around. Mass moves across phi = 0, and the density is
+     * continuous there. Same parameter count and kernels. (default) */
     NF_PHI_CIRCULAR = 1
 } nf_phi_map;
 
