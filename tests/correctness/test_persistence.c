@@ -493,25 +493,32 @@ static void test_bit_flips(void **state)
     nf_model_destroy(m);
 }
 
-/* A different format version, with a valid checksum: NF_ERROR_FORMAT, and the message says
- * it is the version. */
-static void test_other_version(void **state)
+/* Each of `values` written as the u32 at `offset` of a valid file, with a valid checksum:
+ * NF_ERROR_FORMAT, with a message containing `word`. */
+static void expect_u32_refused(size_t offset, const uint32_t *values, size_t count,
+                               const char *word)
 {
-    (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     assert_non_null(m);
     size_t size;
     unsigned char *buf = serialize(m, &size);
-    static const uint32_t versions[] = {0u, 3u, 7u, 0x01000000u, 0xFFFFFFFFu};
-    for (size_t i = 0; i < sizeof versions / sizeof versions[0]; ++i) {
-        put_u32(buf + OFF_VERSION, versions[i]);
+    for (size_t i = 0; i < count; ++i) {
+        put_u32(buf + offset, values[i]);
         fix_crc(buf, size);
-        expect_refused(buf, size, NULL, NF_ERROR_FORMAT, "other version");
-        if (!strstr(nf_last_error_message(), "version"))
-            fail_msg("version %u refused with \"%s\"", versions[i], nf_last_error_message());
+        expect_refused(buf, size, NULL, NF_ERROR_FORMAT, word);
+        if (!strstr(nf_last_error_message(), word))
+            fail_msg("%s %u refused with \"%s\"", word, values[i], nf_last_error_message());
     }
     free(buf);
     nf_model_destroy(m);
+}
+
+/* A different format version: refused, and the message says it is the version. */
+static void test_other_version(void **state)
+{
+    (void)state;
+    static const uint32_t versions[] = {0u, 3u, 7u, 0x01000000u, 0xFFFFFFFFu};
+    expect_u32_refused(OFF_VERSION, versions, sizeof versions / sizeof versions[0], "version");
 }
 
 /* A version-2 file written as version 1: the header without phi_map, the rest the same. */
@@ -606,24 +613,12 @@ static void test_version_1_files(void **state)
     nf_model_destroy(old);
 }
 
-/* A phi map outside the enum, with a valid checksum: NF_ERROR_FORMAT naming it. */
+/* A phi map outside the enum: refused, and the message names it. */
 static void test_unknown_phi_map(void **state)
 {
     (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
-    size_t size;
-    unsigned char *buf = serialize(m, &size);
     static const uint32_t maps[] = {2u, 0x80000000u, 0xFFFFFFFFu};
-    for (size_t i = 0; i < sizeof maps / sizeof maps[0]; ++i) {
-        put_u32(buf + OFF_PHI_MAP, maps[i]);
-        fix_crc(buf, size);
-        expect_refused(buf, size, NULL, NF_ERROR_FORMAT, "unknown phi map");
-        if (!strstr(nf_last_error_message(), "phi map"))
-            fail_msg("phi map %u refused with \"%s\"", maps[i], nf_last_error_message());
-    }
-    free(buf);
-    nf_model_destroy(m);
+    expect_u32_refused(OFF_PHI_MAP, maps, sizeof maps / sizeof maps[0], "phi map");
 }
 
 /* Structurally valid files (valid checksum, right size) whose content is invalid. */
