@@ -214,7 +214,9 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * flows with peaks of 100-2000 per sr: up to 4% of samples differ by more than 1e-4, none by
  * 1e-2 (tests/correctness/test_sampling.c). Trained flows with peaks of 450-5400 per sr: at
  * most 1 sample in 10,000 differs by more than 2e-3 and 1 in 25,000 by more than 1e-2, and
- * isolated samples by up to ~12% (the largest of 32 trained models measured by
+ * isolated samples by up to 40% (one sample in 5.6 million over 28 trained models with
+ * NF_PHI_CIRCULAR, at the flat end of a spline, where the float round trip through the turn
+ * lands far off in latent space; 12% with NF_PHI_INTERVAL; measured by
  * tests/correctness/test_sample_pdf_trained.c). One-sample MIS tolerates both. Densities are
  * clamped to [FLT_MIN, FLT_MAX], so that pdf and 1 / pdf are finite whatever the parameters
  * (docs/robustness.md). The map from u to dir is deterministic, and bit-identical however a

@@ -21,8 +21,7 @@ typedef struct nf_scratch {
     float raw[NF_MAX_RAW_PADDED];
     float g_raw[NF_MAX_RAW_PADDED];
     nf_spline spline;
-    float rotation_raw; /* a circular layer's rotation, raw (circle.h)            */
-    float solved;       /* the spline's solution in nf_layer_inverse (before rotation) */
+    float rotation_raw; /* a circular layer's rotation, raw (circle.h) */
 } nf_scratch;
 
 /* Forward map z -> s; returns |det J_F(z)| (a product of slopes, in double so that deep flows
@@ -52,8 +51,8 @@ static inline double nf_flow_forward(const nf_model *m, const nf_point *pt, cons
 }
 
 /* One inverse layer: x[t] <- S^-1(x[t]) (S^-1(wrap(x[t] - rotation)) for a turning layer);
- * returns dy/dx at the solution and leaves the bin in *bin (and the spline, activations,
- * rotation and the spline's solution in sc) for reverse mode. */
+ * returns dy/dx at the solution and leaves the bin in *bin (and the spline, activations and
+ * rotation in sc) for reverse mode. */
 static inline float nf_layer_inverse(const nf_model *m, const nf_point *pt, uint32_t i, float x[2],
                                      nf_scratch *sc, nf_spline_bin *bin)
 {
@@ -68,7 +67,6 @@ static inline float nf_layer_inverse(const nf_model *m, const nf_point *pt, uint
     nf_spline_bin_at(&sc->spline, nf_spline_find(sc->spline.y, m->cfg.spline_bins, x[t]), bin);
     float solved = nf_spline_bin_solve(bin, x[t]), slope;
     nf_spline_bin_eval(bin, solved, &slope);
-    sc->solved = solved;
     x[t] = solved;
     return slope;
 }
@@ -110,7 +108,7 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
         float xi[2] = {inputs[i][0], inputs[i][1]};
         float slope = nf_layer_inverse(m, pt, i, xi, sc, &bin);
         nf_spline_partials p;
-        nf_spline_partials_at(&bin, sc->solved, &p);
+        nf_spline_partials_at(&bin, xi[t], &p);
         /* x = S^-1(y): dx/dy = 1/S'; the layer's term is -log S'(x). */
         float g_y = (g[t] - coef * p.dl_dx) / slope;
         for (uint32_t r = 0; r < NF_MAX_RAW_PADDED; ++r)
