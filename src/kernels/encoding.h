@@ -79,8 +79,9 @@ static inline void nf_oneblob_slots(float v, uint32_t bins, uint32_t row_offset,
     for (int k = 0; k < 4; ++k)
         q[k] = nf_quartic_cdf((float)(first + k) - vb);
     for (int c = 0; c < 3; ++c) {
-        int bin = nf_oneblob_bin(first + c, bins, wrap);
-        int inside = bin >= 0;
+        int j = first + c;
+        int inside = wrap | ((j >= 0) & (j < (int)bins));
+        int bin = wrap ? nf_oneblob_bin(j, bins, 1) : j;
         row[c] = row_offset + (uint32_t)(inside ? bin : 0);
         value[c] = inside ? q[c + 1] - q[c] : 0.0f;
     }
