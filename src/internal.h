@@ -32,6 +32,16 @@
  * non-zero in double. Trained models stay orders of magnitude inside this bound. */
 #define NF_RAW_LIMIT 1e4f
 
+/* Per-lane helpers that the tile kernels call inside their loops over lanes must be inlined,
+ * or the loops do not vectorize. GCC's heuristics alone are not enough: in libnisflow 0.1 they
+ * left nf_to_square out of line in nf_sample's cosine-prior loop, 27% of the time of a batch
+ * (docs/performance.md, "Measurements behind the kernels"). */
+#if defined(__GNUC__) || defined(__clang__)
+#define NF_ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define NF_ALWAYS_INLINE inline
+#endif
+
 #define NF_MAX_RAW (3u * NF_MAX_SPLINE_BINS + 1u)
 #define NF_MAX_SH (NF_MAX_SH_BANDS * NF_MAX_SH_BANDS)
 #define NF_MAX_INPUT (4u * NF_MAX_ONEBLOB_BINS + 2u * NF_MAX_SH)

@@ -20,7 +20,7 @@ static inline float nf_sin_pi(float x)
     return nf_maxf(s, 0.0f);
 }
 
-static inline void nf_to_square(const float dir_in[3], float s[2])
+static NF_ALWAYS_INLINE void nf_to_square(const float dir_in[3], float s[2])
 {
     /* Directions may have any positive length. Squaring a component above ~2^64 overflows
      * and one below ~2^-63 underflows, which made theta wrong (e.g. (1e20, 1e20, 1e20) gave
