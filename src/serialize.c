@@ -142,9 +142,8 @@ static nf_status nf_decode(const char *fn, const void *buf, size_t size,
         return nf_fail(NF_ERROR_FORMAT, "%s: not a libnisflow model (bad magic)", fn);
     uint32_t version = nf_get_u32(p + 8);
     if (version != 1u && version != NF_FORMAT_VERSION)
-        return nf_fail(NF_ERROR_FORMAT,
-                       "%s: format version %u is not supported (expected 1 to %u)", fn, version,
-                       NF_FORMAT_VERSION);
+        return nf_fail(NF_ERROR_FORMAT, "%s: format version %u is not supported (expected 1 to %u)",
+                       fn, version, NF_FORMAT_VERSION);
     const size_t header = version == 1u ? NF_HEADER_BYTES_V1 : NF_HEADER_BYTES;
     if (size < header + NF_TRAILER_BYTES)
         return nf_fail(NF_ERROR_FORMAT, "%s: %zu bytes is too short for a model", fn, size);

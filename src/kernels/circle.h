@@ -71,15 +71,18 @@ static inline float nf_circular_take_rotation(float *raw, uint32_t bins)
  * knots by about that much: at the raw value's full rate (a turn per unit) random and
  * early-training weights spin phi with theta so fast that the next layer's features are
  * crossed within ~1e-4 of theta (tests/correctness/test_flow.c measured it). */
-static inline float nf_rotation(float raw, uint32_t bins) { return nf_wrap_unit(raw / (float)bins); }
+static inline float nf_rotation(float raw, uint32_t bins)
+{
+    return nf_wrap_unit(raw / (float)bins);
+}
 
 /* A turning layer is y = wrap(S(x) + rotation) and its inverse x = S^-1(wrap(y - rotation)).
  * Reverse mode of the inverse: g_raw holds the spline's raw gradients with d_K's in d_K's
  * place; g_u is d loss / d u, u = y - rotation, the spline's output side. Folds d_K's gradient
  * into d_0's and writes the rotation's (-g_u / K, as u = y - raw / K), zero when the layer
  * does not turn or the raw value was held at the conditioner's clamp. */
-static inline void nf_circular_backward(float *g_raw, uint32_t bins, int turns,
-                                        float rotation_raw, float g_u)
+static inline void nf_circular_backward(float *g_raw, uint32_t bins, int turns, float rotation_raw,
+                                        float g_u)
 {
     g_raw[2u * bins] += g_raw[3u * bins];
     int clamped = rotation_raw <= -NF_RAW_LIMIT || rotation_raw >= NF_RAW_LIMIT;

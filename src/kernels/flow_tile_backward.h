@@ -32,9 +32,9 @@ typedef struct nf_tile_gradient_work {
     float tape[NF_TILE_TAPE_ROWS][NF_TILE];
     float g_raw[NF_MAX_RAW_PADDED][NF_TILE];
     nf_tile_spline spline;
-    nf_tile_bin bin[NF_MAX_COUPLING_LAYERS];       /* each inverse layer's bins */
-    float solved[NF_MAX_COUPLING_LAYERS][NF_TILE]; /* its solutions x[t]        */
-    float slope[NF_MAX_COUPLING_LAYERS][NF_TILE];  /* dy/dx there               */
+    nf_tile_bin bin[NF_MAX_COUPLING_LAYERS];             /* each inverse layer's bins */
+    float solved[NF_MAX_COUPLING_LAYERS][NF_TILE];       /* its solutions x[t]        */
+    float slope[NF_MAX_COUPLING_LAYERS][NF_TILE];        /* dy/dx there               */
     float rotation_raw[NF_MAX_COUPLING_LAYERS][NF_TILE]; /* circular layers' rotations, raw */
     nf_tile_partials partials;
     nf_tile_backward_work backward;

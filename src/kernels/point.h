@@ -268,8 +268,8 @@ static inline void nf_point_walk_spline(const nf_model *m, nf_point_shape sh, in
 
 /* The second half of step j: the spline applied (forward) or inverted (inverse), with a
  * turning layer's rotation after it (forward) or before it (inverse), as flow.h. */
-static inline void nf_point_walk_map(const nf_model *m, nf_point_shape sh, int inverse,
-                                     uint32_t j, nf_point_walk *w, const nf_point_scratch *sc)
+static inline void nf_point_walk_map(const nf_model *m, nf_point_shape sh, int inverse, uint32_t j,
+                                     nf_point_walk *w, const nf_point_scratch *sc)
 {
     uint32_t i = nf_point_walk_layer(sh, inverse, j), t = nf_transformed(i);
     const int turns = nf_layer_turns(m, i);

@@ -59,8 +59,7 @@ static inline void nf_tile_prepare_from(const nf_model *m, const nf_context *con
         float lo = cfg->bounds_min[a], extent = cfg->bounds_max[a] - cfg->bounds_min[a];
         for (uint32_t i = 0; i < NF_TILE; ++i)
             t[i] = (position[a][i] - lo) / extent;
-        nf_tile_oneblob(t, cfg->oneblob_bins, (a + 1) * cfg->oneblob_bins, 0,
-                        &tile->position[a]);
+        nf_tile_oneblob(t, cfg->oneblob_bins, (a + 1) * cfg->oneblob_bins, 0, &tile->position[a]);
     }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {
