@@ -1,7 +1,7 @@
 # version_policy.cmake - the version and ABI policy of docs/integration.md ("Versions and
 # ABI"), run by CTest as test_version_policy:
 #
-#   cmake -DVERSION=0.1.0 -DVERSION_FILE=<build>/nisflowConfigVersion.cmake
+#   cmake -DVERSION=0.2.0 -DVERSION_FILE=<build>/nisflowConfigVersion.cmake
 #         -DLIBRARY=<shared library whose SONAME to check> -DREADELF=<readelf>
 #         [-DLIBNAME=<its name without lib, default nisflow>]
 #         [-DINSTALL_FROM=<build dir> -DINSTALL_PREFIX=<scratch dir>] -P version_policy.cmake
