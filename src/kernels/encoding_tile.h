@@ -26,7 +26,7 @@ static inline void nf_tile_oneblob_wrapped(const float *v, uint32_t bins, uint32
         for (uint32_t i = 0; i < NF_TILE; ++i) {
             float vb = nf_clampf(v[i], 0.0f, 1.0f) * (float)bins;
             int j = (int)vb - 1 + (int)c;
-            int bin = j < 0 ? j + (int)bins : (j >= (int)bins ? j - (int)bins : j);
+            int bin = nf_oneblob_bin(j, bins, 1);
             float hi = (float)(j + 1) - vb, lo = (float)j - vb;
             out->row[c][i] = row_offset + (uint32_t)bin;
             out->value[c][i] = nf_quartic_cdf(hi) - nf_quartic_cdf(lo);

@@ -534,16 +534,23 @@ static unsigned char *as_version_1(const unsigned char *buf, size_t size, size_t
     return v1;
 }
 
-/* Densities of `m` at the contexts and directions of `lines` against `expected`, relative
- * `tolerance`; returns the worst relative difference. */
+/* The context of a line of tests/data/model-v1.txt: position, normal, wo. */
+static nf_context line_context(const float line[13])
+{
+    nf_context c;
+    memcpy(c.position, line, sizeof c.position);
+    memcpy(c.normal, line + 3, sizeof c.normal);
+    memcpy(c.wo, line + 6, sizeof c.wo);
+    return c;
+}
+
+/* Densities of `m` at the contexts and directions of `lines` against the density each line
+ * stores; returns the worst relative difference. */
 static double worst_pdf_difference(const nf_model *m, const float (*lines)[13], int count)
 {
     double worst = 0.0;
     for (int k = 0; k < count; ++k) {
-        nf_context c;
-        memcpy(c.position, lines[k], 3 * sizeof(float));
-        memcpy(c.normal, lines[k] + 3, 3 * sizeof(float));
-        memcpy(c.wo, lines[k] + 6, 3 * sizeof(float));
+        nf_context c = line_context(lines[k]);
         float pdf;
         assert_int_equal(nf_pdf(m, 1, &c, lines[k] + 9, &pdf), NF_OK);
         worst = fmax(worst, fabs((double)pdf - lines[k][12]) / lines[k][12]);
@@ -596,10 +603,7 @@ static void test_version_1_files(void **state)
     assert_int_equal(nf_model_set_isa(again, NF_ISA_GENERIC), NF_OK);
     assert_models_identical(old, again);
     for (int k = 0; k < count; ++k) {
-        nf_context ctx;
-        memcpy(ctx.position, lines[k], sizeof ctx.position);
-        memcpy(ctx.normal, lines[k] + 3, sizeof ctx.normal);
-        memcpy(ctx.wo, lines[k] + 6, sizeof ctx.wo);
+        nf_context ctx = line_context(lines[k]);
         float a, b;
         assert_int_equal(nf_pdf(old, 1, &ctx, lines[k] + 9, &a), NF_OK);
         assert_int_equal(nf_pdf(again, 1, &ctx, lines[k] + 9, &b), NF_OK);
