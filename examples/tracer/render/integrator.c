@@ -189,214 +189,345 @@ static rgb shading_eval(const shading *sh, vec3 wi, vec3 *wi_l)
     return bsdf_eval(&sh->bp, sh->wo_l, *wi_l);
 }
 
-/* The flow's density of w at the vertex's prepared shading point. */
-static int flow_pdf(const tracer *t, const nf_shading_point *sp, vec3 w, float *pdf,
-                    path_stats *st)
-{
-    float d[3] = {w.x, w.y, w.z};
-    if (nf_point_pdf(t->model, sp, 1, d, pdf) != NF_OK) {
-        st->nf_errors++;
-        return 0;
-    }
-    return 1;
-}
+/* What a guided vertex asks the flow, once it has drawn all its random numbers: the density
+ * of the light sample's direction (balance mode, unoccluded light sample), and either a
+ * direction drawn for u or the density of the BSDF's direction. The answers come from a
+ * shading point at once (trace_path, docs/integration.md) or from one batched nf_sample and
+ * nf_pdf over many paths' vertices (trace_paths): the library gives the same bits either way. */
+typedef struct flow_questions {
+    nf_context ctx;
+    int light;  /* asks light_p_flow = p_flow(light_wi) */
+    int sample; /* asks wi and p_flow for u             */
+    int pdf;    /* asks p_flow = p_flow(wi)             */
+    float u[2];
+    vec3 light_wi, wi;
+    float light_p_flow, p_flow;
+    int failed; /* the library refused (counted in nf_errors): the path ends here, without
+                 * this vertex's light sample */
+} flow_questions;
 
-/* The MIS-weighted next-event estimate at a vertex (without the path throughput): one light
- * sample, weighed against the density of the scattering technique, p_mix. g = 0: no flow. */
-static rgb next_event(const tracer *t, const shading *sh, const surface *sf,
-                      const nf_shading_point *sp, float g, rng *r, path_stats *st)
+/* A vertex between drawing its random numbers and finishing. */
+typedef struct vertex_plan {
+    shading sh;
+    vec3 p;
+    guide_point gp; /* the BSDF prior's material, read by the point's callbacks */
+    float g;        /* the vertex's guiding probability; 0: not guided          */
+    size_t cell;
+    /* next-event estimation: an unoccluded light sample waiting for its MIS weight */
+    int nee;
+    rgb nee_value; /* f Le */
+    float nee_light_pdf, nee_p_bsdf;
+    /* scattering */
+    int scatters; /* 0: the path ends here (roulette, failed sample) */
+    float rr;
+    int flow_chosen;
+    int delta;
+    rgb delta_weight;
+    float p_bsdf;
+    flow_questions q;
+} vertex_plan;
+
+/* One light sample towards an unoccluded light, weighed later against the scattering
+ * density (vertex_finish). Returns 0 when it contributes nothing. */
+static int nee_plan(const tracer *t, vertex_plan *vp, rng *r, path_stats *st)
 {
     const scene *s = t->s;
-    rgb zero = rgb_gray(0.0f);
     light_sample ls;
     float u_pick = rng_next(r), u0 = rng_next(r), u1 = rng_next(r);
-    if (!light_sample_from(s, sf->p, u_pick, u0, u1, &ls))
-        return zero;
+    if (!light_sample_from(s, vp->p, u_pick, u0, u1, &ls))
+        return 0;
     vec3 wi_l;
-    rgb f = shading_eval(sh, ls.wi, &wi_l);
+    rgb f = shading_eval(&vp->sh, ls.wi, &wi_l);
     if (rgb_is_black(f) || rgb_is_black(ls.radiance))
-        return zero;
+        return 0;
     ray shadow;
-    shadow.o = offset_origin(sf->p, sh->ng, ls.wi);
+    shadow.o = offset_origin(vp->p, vp->sh.ng, ls.wi);
     shadow.d = ls.wi;
     shadow.tmax = isinf(ls.dist) ? INFINITY : ls.dist * (1.0f - 1e-4f);
     if (!scene_ray_valid(&shadow)) { /* never within the loader's world range */
         st->invalid_rays++;
-        return zero;
+        return 0;
     }
     st->rays++;
     if (scene_occluded(s, &shadow))
-        return zero;
-    float p_mix = bsdf_pdf(&sh->bp, sh->wo_l, wi_l);
-    if (g > 0.0f) {
-        float p_flow;
-        if (!flow_pdf(t, sp, ls.wi, &p_flow, st))
-            return zero;
-        p_mix = g * p_flow + (1.0f - g) * p_mix;
-    }
-    float w = power_heuristic(ls.pdf, p_mix);
-    return rgb_scale(rgb_mul(f, ls.radiance), w / ls.pdf);
-}
-
-/* A scattered direction and what the path needs to know about it. */
-typedef struct scattered {
-    vec3 wi;
-    float p_flow, p_bsdf; /* the two techniques' densities of wi (non-delta)            */
-    rgb weight;  /* f |cos| / p (delta lobes: the lobe's weight / its probability)       */
-    float pdf;   /* the solid-angle density of wi for MIS; 0 after a delta lobe          */
-    int delta;
-} scattered;
-
-/* The flow at a guided vertex. Balance mode prepares the shading point before next-event
- * estimation; plain mode prepares it only when the flow technique is chosen. */
-typedef struct vertex_flow {
-    float g;                        /* the vertex's guiding probability; 0: not guided      */
-    int plain;                      /* plain one-sample mixture (tracer.plain_mixture)      */
-    int prepared;
-    nf_shading_point *sp;
-    const nf_context *ctx;
-    const nf_prior_callbacks *prior;
-} vertex_flow;
-
-static int flow_point(const tracer *t, vertex_flow *vf, path_stats *st)
-{
-    if (!vf->prepared) {
-        if (nf_point_prepare(t->model, vf->ctx, vf->prior, vf->sp) != NF_OK) {
-            st->nf_errors++;
-            return 0;
-        }
-        vf->prepared = 1;
-    }
-    return 1;
-}
-
-/* Chooses the next direction. With g > 0 (a guided vertex), from the flow with probability
- * g and from the BSDF otherwise. Balance mode weighs either by the mixture density
- * p_mix = g p_flow + (1 - g) p_bsdf; plain mode weighs each by its own density (both
- * one-sample MIS estimators, docs/equal-time.md). With g = 0, from the BSDF alone. Returns 0
- * when the path ends here (failed sample, direction through the geometry, zero
- * contribution). */
-static int scatter(const tracer *t, const shading *sh, vertex_flow *vf, rng *r, path_stats *st,
-                   scattered *out)
-{
-    const float g = vf->g;
-    float u_sel = rng_next(r), u_lobe = rng_next(r), u0 = rng_next(r), u1 = rng_next(r);
-    float p_flow = 0.0f, p_bsdf = 0.0f;
-    int flow_chosen = g > 0.0f && u_sel < g;
-    out->delta = 0;
-    out->p_flow = out->p_bsdf = 0.0f;
-    if (flow_chosen) {
-        float u[2] = {u0, u1}, d[3];
-        if (!flow_point(t, vf, st))
-            return 0;
-        if (nf_point_sample(t->model, vf->sp, 1, u, d, &p_flow) != NF_OK) {
-            st->nf_errors++;
-            return 0;
-        }
-        out->wi = v3(d[0], d[1], d[2]);
-        p_bsdf = bsdf_pdf(&sh->bp, sh->wo_l, frame_to_local(&sh->fr, out->wi));
-    } else {
-        bsdf_sample bs;
-        if (!bsdf_sample_dir(&sh->bp, sh->wo_l, u_lobe, u0, u1, &bs))
-            return 0;
-        out->wi = frame_to_world(&sh->fr, bs.wi);
-        if (bs.delta) {
-            if (v3_dot(out->wi, sh->ng) * bs.wi.z <= 0.0f)
-                return 0; /* the shading normal sent the direction through the geometry */
-            out->delta = 1;
-            /* The BSDF technique ran with probability 1 - g. */
-            out->weight = rgb_scale(bs.weight, 1.0f / (1.0f - g));
-            out->pdf = 0.0f;
-            return 1;
-        }
-        p_bsdf = bs.pdf;
-        if (g > 0.0f && !vf->plain &&
-            !(flow_point(t, vf, st) && flow_pdf(t, vf->sp, out->wi, &p_flow, st)))
-            return 0;
-    }
-    vec3 wi_l;
-    rgb f = shading_eval(sh, out->wi, &wi_l);
-    out->p_flow = p_flow;
-    out->p_bsdf = p_bsdf;
-    float p_weight; /* the density the throughput divides by */
-    if (vf->plain) {
-        p_weight = flow_chosen ? p_flow : p_bsdf;
-        out->pdf = p_bsdf; /* MIS against light sampling ignores the flow (next_event too) */
-    } else {
-        p_weight = out->pdf = g * p_flow + (1.0f - g) * p_bsdf;
-    }
-    if (!(p_weight > 0.0f) || rgb_is_black(f))
         return 0;
-    out->weight = rgb_scale(f, 1.0f / p_weight);
+    vp->nee_value = rgb_mul(f, ls.radiance);
+    vp->nee_light_pdf = ls.pdf;
+    vp->nee_p_bsdf = bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, wi_l);
+    vp->q.light_wi = ls.wi;
     return 1;
+}
+
+/* Chooses the scattering technique: the flow with probability g, the BSDF otherwise (whose
+ * direction is drawn now). Returns 0 when the path ends here. */
+static int scatter_plan(const tracer *t, vertex_plan *vp, rng *r)
+{
+    const float g = vp->g;
+    float u_sel = rng_next(r), u_lobe = rng_next(r), u0 = rng_next(r), u1 = rng_next(r);
+    vp->flow_chosen = g > 0.0f && u_sel < g;
+    if (vp->flow_chosen) {
+        vp->q.sample = 1;
+        vp->q.u[0] = u0;
+        vp->q.u[1] = u1;
+        return 1;
+    }
+    bsdf_sample bs;
+    if (!bsdf_sample_dir(&vp->sh.bp, vp->sh.wo_l, u_lobe, u0, u1, &bs))
+        return 0;
+    vp->q.wi = frame_to_world(&vp->sh.fr, bs.wi);
+    if (bs.delta) {
+        if (v3_dot(vp->q.wi, vp->sh.ng) * bs.wi.z <= 0.0f)
+            return 0; /* the shading normal sent the direction through the geometry */
+        vp->delta = 1;
+        /* The BSDF technique ran with probability 1 - g. */
+        vp->delta_weight = rgb_scale(bs.weight, 1.0f / (1.0f - g));
+        return 1;
+    }
+    vp->p_bsdf = bs.pdf;
+    vp->q.pdf = g > 0.0f && !t->plain_mixture;
+    return 1;
+}
+
+/* Traces the path's next segment and plans the vertex it finds: emission found there is
+ * added (and handed to the previous record), then next-event estimation, roulette and the
+ * choice of the scattered direction draw their random numbers, and the flow's questions are
+ * set in vp->q. Returns 0 when the path ends before a vertex to plan. */
+static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats *st,
+                            nf_path_vertex *prev, vertex_plan *vp)
+{
+    const scene *s = t->s;
+    const int max_depth = s->max_depth < 0 ? 1 << 30 : s->max_depth;
+    const ray ry = ps->ry;
+    const int depth = ++ps->depth;
+    hit h;
+    if (!scene_ray_valid(&ry)) { /* never within the loader's world range */
+        st->invalid_rays++;
+        return 0;
+    }
+    st->rays++;
+    if (!scene_intersect(s, &ry, &h)) {
+        rgb le = env_eval(s, ry.d);
+        if (!rgb_is_black(le)) {
+            float w = ps->prev_pdf > 0.0f ? power_heuristic(ps->prev_pdf, light_pdf_env(s, ry.d)) : 1.0f;
+            if (!(depth == 1 && s->hide_emitters))
+                ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, rgb_scale(le, w)));
+            if (prev) {
+                put_rgb(prev->emitted, le);
+                prev->emitted_mis = w;
+            }
+        }
+        return 0;
+    }
+    surface sf;
+    scene_surface(s, &h, &ry, &sf);
+    vec3 wo = v3_neg(ry.d);
+    const shape *shp = &s->shapes[h.shape];
+
+    if (shp->emissive && v3_dot(wo, sf.ng) > 0.0f) {
+        float w = 1.0f;
+        if (ps->prev_pdf > 0.0f)
+            w = power_heuristic(ps->prev_pdf, light_pdf_area(s, h.shape, h.prim, ry.d, h.t, sf.ng));
+        if (!(depth == 1 && s->hide_emitters))
+            ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, rgb_scale(shp->radiance, w)));
+        if (prev) {
+            put_rgb(prev->emitted, shp->radiance);
+            prev->emitted_mis = w;
+        }
+    }
+    if (depth >= max_depth)
+        return 0;
+
+    /* Field by field rather than a memset of the whole plan, which cost plain path tracing
+     * 7% in Veach Ajar. */
+    vp->g = 0.0f;
+    vp->cell = 0;
+    vp->nee = vp->scatters = vp->flow_chosen = vp->delta = 0;
+    vp->p_bsdf = 0.0f;
+    vp->q.light = vp->q.sample = vp->q.pdf = vp->q.failed = 0;
+    vp->q.light_p_flow = vp->q.p_flow = 0.0f;
+    if (!setup_shading(s, &h, &sf, wo, &vp->sh)) {
+        st->camera_backfaces += depth == 1;
+        return 0;
+    }
+    const bsdf *b = vp->sh.bp.b;
+    const int smooth = bsdf_has_smooth_part(b);
+    const float g = t->model ? t->guide_prob : 0.0f;
+    const int guided = smooth && g > 0.0f && (t->guide_depth == 0 || depth <= t->guide_depth) &&
+                       !(b->type == BSDF_ROUGHCONDUCTOR && b->alpha < t->guide_min_roughness);
+    vp->p = sf.p;
+    vec3 n = vp->sh.fr.n;
+    nf_context *ctx = &vp->q.ctx;
+    ctx->position[0] = vp->gp.position[0] = sf.p.x;
+    ctx->position[1] = vp->gp.position[1] = sf.p.y;
+    ctx->position[2] = vp->gp.position[2] = sf.p.z;
+    ctx->normal[0] = n.x;
+    ctx->normal[1] = n.y;
+    ctx->normal[2] = n.z;
+    ctx->wo[0] = wo.x;
+    ctx->wo[1] = wo.y;
+    ctx->wo[2] = wo.z;
+    vp->gp.bp = vp->sh.bp;
+    if (guided) {
+        vp->g = g;
+        if (t->selection) { /* learned per cell; 0 there: not guided at all */
+            vp->cell = selection_cell(t->selection, sf.p, n);
+            vp->g = selection_prob(t->selection, vp->cell);
+        }
+        st->guided_vertices += vp->g > 0.0f;
+    }
+
+    /* Next-event estimation: balance mode weighs the light sample against p_mix, which
+     * needs the flow's density of its direction. */
+    if (smooth && s->has_lights && nee_plan(t, vp, r, st)) {
+        vp->nee = 1;
+        vp->q.light = vp->g > 0.0f && !t->plain_mixture;
+    }
+
+    /* Russian roulette, before scattering, so that a vertex either scatters fully or not at
+     * all (a recorded direction always gets its radiance). */
+    vp->rr = 1.0f;
+    if (depth >= s->rr_depth) {
+        float q = fminf(rgb_max(ps->throughput), 0.95f);
+        if (!(rng_next(r) < q))
+            return 1; /* scatters = 0: the light sample still counts */
+        vp->rr = 1.0f / q;
+    }
+    vp->scatters = scatter_plan(t, vp, r);
+    if (!vp->scatters)
+        vp->q.sample = vp->q.pdf = 0;
+    return 1;
+}
+
+static int flow_asks(const flow_questions *q) { return q->light || q->sample || q->pdf; }
+
+/* The recipe of docs/integration.md: one shading point per guided vertex, asked for the
+ * light sample's density and for the scattered direction or the BSDF direction's density. */
+static void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st)
+{
+    flow_questions *q = &vp->q;
+    if (!flow_asks(q))
+        return;
+    nf_shading_point sp;
+    nf_prior_callbacks bsdf_prior = guide_point_callbacks(&vp->gp);
+    int ok = nf_point_prepare(t->model, &q->ctx, t->bsdf_prior ? &bsdf_prior : NULL, &sp) == NF_OK;
+    if (ok && q->light) {
+        float d[3] = {q->light_wi.x, q->light_wi.y, q->light_wi.z};
+        ok = nf_point_pdf(t->model, &sp, 1, d, &q->light_p_flow) == NF_OK;
+    }
+    if (ok && q->sample) {
+        float d[3];
+        ok = nf_point_sample(t->model, &sp, 1, q->u, d, &q->p_flow) == NF_OK;
+        q->wi = v3(d[0], d[1], d[2]);
+    } else if (ok && q->pdf) {
+        float d[3] = {q->wi.x, q->wi.y, q->wi.z};
+        ok = nf_point_pdf(t->model, &sp, 1, d, &q->p_flow) == NF_OK;
+    }
+    if (!ok) {
+        st->nf_errors++;
+        q->failed = 1;
+    }
+}
+
+/* Finishes a planned vertex with the flow's answers: the light sample's contribution with its
+ * MIS weight, then the scattered direction's weight and the next ray. Returns 0 when the path
+ * ends here. */
+static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
+                         nf_path_vertex *v, vertex_extra *vx)
+{
+    const flow_questions *q = &vp->q;
+    if (q->failed)
+        return 0;
+    const float g = vp->g;
+    if (vp->nee) {
+        float p_mix = vp->nee_p_bsdf;
+        if (q->light)
+            p_mix = g * q->light_p_flow + (1.0f - g) * p_mix;
+        float w = power_heuristic(vp->nee_light_pdf, p_mix);
+        rgb d = rgb_scale(vp->nee_value, w / vp->nee_light_pdf);
+        ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, d));
+        if (v)
+            put_rgb(v->direct, d);
+    }
+    if (!vp->scatters)
+        return 0;
+
+    /* The scattered direction's weight: the mixture density p_mix = g p_flow + (1 - g) p_bsdf
+     * in balance mode, each technique's own density in plain mode. */
+    vec3 wi = q->wi;
+    rgb weight;
+    float pdf = 0.0f, p_flow = 0.0f, p_bsdf = vp->p_bsdf;
+    if (vp->delta) {
+        weight = vp->delta_weight;
+    } else {
+        if (vp->flow_chosen) {
+            p_flow = q->p_flow;
+            p_bsdf = bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, frame_to_local(&vp->sh.fr, wi));
+        } else if (q->pdf) {
+            p_flow = q->p_flow;
+        }
+        vec3 wi_l;
+        rgb f = shading_eval(&vp->sh, wi, &wi_l);
+        float p_weight; /* the density the throughput divides by */
+        if (t->plain_mixture) {
+            p_weight = vp->flow_chosen ? p_flow : p_bsdf;
+            pdf = p_bsdf; /* MIS against light sampling ignores the flow (nee_plan too) */
+        } else {
+            p_weight = pdf = g * p_flow + (1.0f - g) * p_bsdf;
+        }
+        if (!(p_weight > 0.0f) || rgb_is_black(f))
+            return 0;
+        weight = rgb_scale(f, 1.0f / p_weight);
+    }
+    if (!rgb_is_finite(weight) || rgb_is_black(weight))
+        return 0;
+    ps->throughput = rgb_mul(ps->throughput, rgb_scale(weight, vp->rr));
+    if (v) {
+        put_rgb(v->beta, rgb_scale(weight, vp->rr));
+        if (g > 0.0f && !vp->delta) { /* the flow can only learn non-delta directions */
+            v->learn = 1;
+            put_rgb(v->f_over_p, weight);
+            v->ctx = q->ctx;
+            v->dir[0] = wi.x;
+            v->dir[1] = wi.y;
+            v->dir[2] = wi.z;
+            vx->bp = vp->sh.bp;
+            vx->p_flow = p_flow;
+            vx->p_bsdf = p_bsdf;
+            vx->alpha = g;
+            vx->cell = (uint32_t)vp->cell;
+        }
+    }
+    ps->prev_pdf = pdf;
+    ps->ry.o = offset_origin(vp->p, vp->sh.ng, wi);
+    ps->ry.d = wi;
+    ps->ry.tmax = INFINITY;
+    return 1;
+}
+
+static void path_start(const scene *s, float px, float py, path_state *ps)
+{
+    ps->L = rgb_gray(0.0f);
+    ps->throughput = rgb_gray(1.0f);
+    ps->ry = camera_ray(s, px, py);
+    ps->prev_pdf = 0.0f; /* density of the last scattered direction (0: delta or camera) */
+    ps->depth = 0;
 }
 
 rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
                path_stats *st)
 {
-    const scene *s = t->s;
-    const int max_depth = s->max_depth < 0 ? 1 << 30 : s->max_depth;
-    const float g = t->model ? t->guide_prob : 0.0f;
     nf_path_vertex pv[MAX_RECORDED_VERTICES]; /* the library's record of the path */
     vertex_extra ex[MAX_RECORDED_VERTICES];
     int nv = 0; /* recorded vertices (only when training) */
-
-    rgb L = rgb_gray(0.0f), throughput = rgb_gray(1.0f);
-    ray ry = camera_ray(s, px, py);
-    float prev_pdf = 0.0f; /* density of the last scattered direction (0: delta or camera) */
+    path_state ps;
+    path_start(t->s, px, py, &ps);
     st->paths++;
-
-    for (int depth = 1;; ++depth) {
-        hit h;
-        if (!scene_ray_valid(&ry)) { /* never within the loader's world range */
-            st->invalid_rays++;
-            break;
-        }
-        st->rays++;
+    for (;;) {
         /* The previous vertex's record receives what this ray finds. */
         nf_path_vertex *prev = records && nv > 0 && nv <= MAX_RECORDED_VERTICES ? &pv[nv - 1] : NULL;
-        if (!scene_intersect(s, &ry, &h)) {
-            rgb le = env_eval(s, ry.d);
-            if (!rgb_is_black(le)) {
-                float w = prev_pdf > 0.0f ? power_heuristic(prev_pdf, light_pdf_env(s, ry.d)) : 1.0f;
-                if (!(depth == 1 && s->hide_emitters))
-                    L = rgb_add(L, rgb_mul(throughput, rgb_scale(le, w)));
-                if (prev) {
-                    put_rgb(prev->emitted, le);
-                    prev->emitted_mis = w;
-                }
-            }
+        vertex_plan vp;
+        if (!vertex_plan_next(t, &ps, r, st, prev, &vp))
             break;
-        }
-        surface sf;
-        scene_surface(s, &h, &ry, &sf);
-        vec3 wo = v3_neg(ry.d);
-        const shape *shp = &s->shapes[h.shape];
-
-        if (shp->emissive && v3_dot(wo, sf.ng) > 0.0f) {
-            float w = 1.0f;
-            if (prev_pdf > 0.0f)
-                w = power_heuristic(prev_pdf, light_pdf_area(s, h.shape, h.prim, ry.d, h.t, sf.ng));
-            if (!(depth == 1 && s->hide_emitters))
-                L = rgb_add(L, rgb_mul(throughput, rgb_scale(shp->radiance, w)));
-            if (prev) {
-                put_rgb(prev->emitted, shp->radiance);
-                prev->emitted_mis = w;
-            }
-        }
-        if (depth >= max_depth)
-            break;
-
-        shading sh;
-        if (!setup_shading(s, &h, &sf, wo, &sh)) {
-            st->camera_backfaces += depth == 1;
-            break;
-        }
-        const bsdf *b = sh.bp.b;
-        const int smooth = bsdf_has_smooth_part(b);
-        const int guided = smooth && g > 0.0f && (t->guide_depth == 0 || depth <= t->guide_depth) &&
-                           !(b->type == BSDF_ROUGHCONDUCTOR && b->alpha < t->guide_min_roughness);
-
         nf_path_vertex *v = NULL;
         vertex_extra *vx = NULL;
         if (records && nv < MAX_RECORDED_VERTICES) {
@@ -406,89 +537,108 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
         } else if (records) {
             nv = MAX_RECORDED_VERTICES + 1; /* past the cap: stop recording this path */
         }
-
-        nf_context ctx;
-        guide_point gp;
-        vec3 n = sh.fr.n;
-        ctx.position[0] = gp.position[0] = sf.p.x;
-        ctx.position[1] = gp.position[1] = sf.p.y;
-        ctx.position[2] = gp.position[2] = sf.p.z;
-        ctx.normal[0] = n.x;
-        ctx.normal[1] = n.y;
-        ctx.normal[2] = n.z;
-        ctx.wo[0] = wo.x;
-        ctx.wo[1] = wo.y;
-        ctx.wo[2] = wo.z;
-        gp.bp = sh.bp;
-
-        /* A guided vertex prepares the flow's shading point once; the light sample's density
-         * and the scattering below both use it (docs/integration.md). With the plain mixture
-         * it is prepared only if the flow samples. The BSDF prior gets this vertex's material
-         * through the point's own callbacks. */
-        nf_shading_point sp;
-        nf_prior_callbacks bsdf_prior = guide_point_callbacks(&gp);
-        vertex_flow vf = {0.0f, t->plain_mixture, 0, &sp, &ctx, t->bsdf_prior ? &bsdf_prior : NULL};
-        size_t cell = 0;
-        if (guided) {
-            vf.g = g;
-            if (t->selection) { /* learned per cell; 0 there: not guided at all */
-                cell = selection_cell(t->selection, sf.p, n);
-                vf.g = selection_prob(t->selection, cell);
-            }
-            if (vf.g > 0.0f && !vf.plain && !flow_point(t, &vf, st))
-                vf.g = 0.0f; /* the error is counted; the vertex goes unguided */
-            st->guided_vertices += vf.g > 0.0f;
-        }
-
-        /* Next-event estimation. */
-        if (smooth && s->has_lights) {
-            rgb d = next_event(t, &sh, &sf, &sp, vf.plain ? 0.0f : vf.g, r, st);
-            L = rgb_add(L, rgb_mul(throughput, d));
-            if (v)
-                put_rgb(v->direct, d);
-        }
-
-        /* Russian roulette, before scattering, so that a vertex either scatters fully or
-         * not at all (a recorded direction always gets its radiance). */
-        float rr = 1.0f;
-        if (depth >= s->rr_depth) {
-            float q = fminf(rgb_max(throughput), 0.95f);
-            if (!(rng_next(r) < q))
-                break;
-            rr = 1.0f / q;
-        }
-
-        /* Scattering: flow or BSDF, weighted by the mixture density. */
-        scattered sc;
-        if (!scatter(t, &sh, &vf, r, st, &sc))
+        answer_at_point(t, &vp, st);
+        if (!vertex_finish(t, &ps, &vp, v, vx))
             break;
-        if (!rgb_is_finite(sc.weight) || rgb_is_black(sc.weight))
-            break;
-        throughput = rgb_mul(throughput, rgb_scale(sc.weight, rr));
-        if (v) {
-            put_rgb(v->beta, rgb_scale(sc.weight, rr));
-            if (vf.g > 0.0f && !sc.delta) { /* the flow can only learn non-delta directions */
-                v->learn = 1;
-                put_rgb(v->f_over_p, sc.weight);
-                v->ctx = ctx;
-                v->dir[0] = sc.wi.x;
-                v->dir[1] = sc.wi.y;
-                v->dir[2] = sc.wi.z;
-                vx->bp = sh.bp;
-                vx->p_flow = sc.p_flow;
-                vx->p_bsdf = sc.p_bsdf;
-                vx->alpha = vf.g;
-                vx->cell = (uint32_t)cell;
-            }
-        }
-        prev_pdf = sc.pdf;
-        ry.o = offset_origin(sf.p, sh.ng, sc.wi);
-        ry.d = sc.wi;
-        ry.tmax = INFINITY;
     }
 
     /* Training: the library walks the path backwards (nisflow/path.h). */
     if (records && nv > 0 && nv <= MAX_RECORDED_VERTICES && !record_path(t, pv, ex, nv, records))
         st->nf_errors++;
-    return L;
+    return ps.L;
+}
+
+/* The questions of n planned vertices, answered by one nf_sample call for the flow samples
+ * and one nf_pdf call for every density (light samples' and BSDF directions'), which run
+ * the library's 16-lane kernels. A refused batch (which valid contexts never cause) is asked
+ * again one vertex at a time, so that only the vertex the library refuses fails. */
+static void answer_batch(const tracer *t, vertex_plan *const *vps, size_t n, path_stats *st)
+{
+    nf_context sctx[TRACE_BATCH], pctx[2 * TRACE_BATCH];
+    float su[2 * TRACE_BATCH], sdir[3 * TRACE_BATCH], spdf[TRACE_BATCH];
+    float pdir[6 * TRACE_BATCH], ppdf[2 * TRACE_BATCH];
+    float *pout[2 * TRACE_BATCH];
+    vertex_plan *sfrom[TRACE_BATCH];
+    size_t ns = 0, np = 0;
+    for (size_t i = 0; i < n; ++i) {
+        flow_questions *q = &vps[i]->q;
+        if (q->light) {
+            pctx[np] = q->ctx;
+            pdir[3 * np] = q->light_wi.x;
+            pdir[3 * np + 1] = q->light_wi.y;
+            pdir[3 * np + 2] = q->light_wi.z;
+            pout[np++] = &q->light_p_flow;
+        }
+        if (q->sample) {
+            sctx[ns] = q->ctx;
+            su[2 * ns] = q->u[0];
+            su[2 * ns + 1] = q->u[1];
+            sfrom[ns++] = vps[i];
+        } else if (q->pdf) {
+            pctx[np] = q->ctx;
+            pdir[3 * np] = q->wi.x;
+            pdir[3 * np + 1] = q->wi.y;
+            pdir[3 * np + 2] = q->wi.z;
+            pout[np++] = &q->p_flow;
+        }
+    }
+    if ((ns && nf_sample(t->model, ns, sctx, su, sdir, spdf) != NF_OK) ||
+        (np && nf_pdf(t->model, np, pctx, pdir, ppdf) != NF_OK)) {
+        for (size_t i = 0; i < n; ++i)
+            answer_at_point(t, vps[i], st);
+        return;
+    }
+    for (size_t i = 0; i < ns; ++i) {
+        sfrom[i]->q.wi = v3(sdir[3 * i], sdir[3 * i + 1], sdir[3 * i + 2]);
+        sfrom[i]->q.p_flow = spdf[i];
+    }
+    for (size_t i = 0; i < np; ++i)
+        *pout[i] = ppdf[i];
+}
+
+int trace_paths_pay(const tracer *t)
+{
+    /* Models with the BSDF prior answer at shading points: the batch calls would hand its
+     * callbacks contexts they cannot find the material of (guide.h). */
+    return t->model && t->guide_prob > 0.0f && !t->bsdf_prior;
+}
+
+void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
+                 path_stats *st)
+{
+    path_state ps[TRACE_BATCH];
+    vertex_plan vp[TRACE_BATCH];
+    vertex_plan *asking[TRACE_BATCH];
+    size_t live[TRACE_BATCH], nlive = 0;
+    const int batched = trace_paths_pay(t);
+    n = n < TRACE_BATCH ? n : TRACE_BATCH;
+    for (size_t i = 0; i < n; ++i) {
+        path_start(t->s, px[i], py[i], &ps[i]);
+        st->paths++;
+        live[nlive++] = i;
+    }
+    /* Every round takes each live path one vertex further. */
+    while (nlive > 0) {
+        size_t nask = 0, kept = 0;
+        for (size_t k = 0; k < nlive; ++k) {
+            size_t i = live[k];
+            if (!vertex_plan_next(t, &ps[i], &r[i], st, NULL, &vp[i]))
+                continue;
+            live[kept++] = i;
+            if (batched && flow_asks(&vp[i].q))
+                asking[nask++] = &vp[i];
+            else
+                answer_at_point(t, &vp[i], st);
+        }
+        answer_batch(t, asking, nask, st);
+        nlive = kept, kept = 0;
+        for (size_t k = 0; k < nlive; ++k) {
+            size_t i = live[k];
+            if (vertex_finish(t, &ps[i], &vp[i], NULL, NULL))
+                live[kept++] = i;
+        }
+        nlive = kept;
+    }
+    for (size_t i = 0; i < n; ++i)
+        out[i] = ps[i].L;
 }

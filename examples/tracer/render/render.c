@@ -105,6 +105,31 @@ typedef struct pass_job {
     path_stats *stats;
 } pass_job;
 
+/* One pixel's sample of a pass, written into the pass image. */
+static void pass_pixel(image *img, int x, int y, rgb c)
+{
+    if (!rgb_is_finite(c)) /* as in render_tile: a NaN must not poison the pixel */
+        c = rgb_gray(0.0f);
+    float *p = image_pixel(img, x, y);
+    p[0] = c.r;
+    p[1] = c.g;
+    p[2] = c.b;
+}
+
+/* Traces n gathered paths together and writes their pixels; returns 0, the new count. */
+static size_t pass_paths(pass_job *job, int thread, size_t n, rng *r, const float *px,
+                         const float *py, int (*at)[2])
+{
+    rgb c[TRACE_BATCH];
+    trace_paths(job->t, n, r, px, py, c, &job->stats[thread]);
+    for (size_t i = 0; i < n; ++i)
+        pass_pixel(job->img, at[i][0], at[i][1], c[i]);
+    return 0;
+}
+
+/* A guided pass without records traces its tile's paths TRACE_BATCH at a time (trace_paths:
+ * the flow's questions batched, the same bits); a training pass traces them one by one, each
+ * recording its training samples, and so does an unguided pass. */
 static void pass_tile(void *user, size_t k, int thread)
 {
     pass_job *job = user;
@@ -112,19 +137,33 @@ static void pass_tile(void *user, size_t k, int thread)
     record_buffer *out = job->tiles ? &job->tiles[k] : NULL;
     size_t item = rank_tile(job->t, k);
     int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
+    /* Unguided paths ask nothing: advancing them together would only cost locality. */
+    const int batched = !out && trace_paths_pay(job->t);
+    rng r[TRACE_BATCH];
+    float px[TRACE_BATCH], py[TRACE_BATCH];
+    int at[TRACE_BATCH][2];
+    size_t n = 0;
     for (int y = y0; y < y0 + TILE && y < s->height; ++y)
         for (int x = x0; x < x0 + TILE && x < s->width; ++x) {
             uint64_t pixel = (uint64_t)y * (uint64_t)s->width + (uint64_t)x;
-            rng r = rng_seed(job->seed, RNG_RENDER, job->pass, pixel);
-            float jx = rng_next(&r), jy = rng_next(&r);
-            rgb c = trace_path(job->t, &r, (float)x + jx, (float)y + jy, out, &job->stats[thread]);
-            if (!rgb_is_finite(c)) /* as in render_tile: a NaN must not poison the pixel */
-                c = rgb_gray(0.0f);
-            float *p = image_pixel(job->img, x, y);
-            p[0] = c.r;
-            p[1] = c.g;
-            p[2] = c.b;
+            rng pr = rng_seed(job->seed, RNG_RENDER, job->pass, pixel);
+            float jx = rng_next(&pr), jy = rng_next(&pr);
+            if (!batched) {
+                pass_pixel(job->img, x, y,
+                           trace_path(job->t, &pr, (float)x + jx, (float)y + jy, out,
+                                      &job->stats[thread]));
+                continue;
+            }
+            r[n] = pr;
+            px[n] = (float)x + jx;
+            py[n] = (float)y + jy;
+            at[n][0] = x;
+            at[n++][1] = y;
+            if (n == TRACE_BATCH)
+                n = pass_paths(job, thread, n, r, px, py, at);
         }
+    if (n)
+        pass_paths(job, thread, n, r, px, py, at);
 }
 
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,

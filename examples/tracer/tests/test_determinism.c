@@ -2,7 +2,9 @@
  * test_determinism.c - a given seed gives the same result whatever the number of threads:
  * rendered images and trained models are compared bit for bit between 1 and 3 threads, and
  * a different seed must change them (so the comparison is not vacuous). Also: a saved model
- * loads with its BSDF-prior callbacks and renders identically.
+ * loads with its BSDF-prior callbacks and renders identically. A render pass gives the same
+ * bits whether its paths ask the flow one vertex at a time (a training pass, trace_path) or
+ * batched across paths (trace_paths).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -126,12 +128,59 @@ static void test_saved_model_renders_identically(void **state)
     scene_free(&s);
 }
 
+/* One pass rendered twice: with records (trace_path, the flow asked at shading points) and
+ * without (trace_paths, the questions of TRACE_BATCH paths batched). 37 x 23 pixels leave
+ * partial tiles and partial batches. */
+static void check_batched_pass(guide_prior prior, int plain_mixture)
+{
+    scene s;
+    tr_error err;
+    load_cornell(&s);
+    scene_set_resolution(&s, 37, 23);
+    nf_model *m;
+    image trained, one, batched, other;
+    train_and_render(&s, prior, 2, 7, &m, &trained);
+    tracer t = {.s = &s, .model = m, .guide_prob = 0.5f, .bsdf_prior = prior == GUIDE_PRIOR_BSDF,
+                .plain_mixture = plain_mixture};
+    assert_true(image_alloc(&one, s.width, s.height, &err));
+    assert_true(image_alloc(&batched, s.width, s.height, &err));
+    assert_true(image_alloc(&other, s.width, s.height, &err));
+    record_buffer records = {0};
+    path_stats st_one = {0}, st_batched = {0};
+    assert_true(render_pass(&t, 7, 3, 2, &one, &records, &st_one, &err));
+    assert_true(render_pass(&t, 7, 3, 2, &batched, NULL, &st_batched, &err));
+    assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, &err));
+    size_t bytes = (size_t)s.width * (size_t)s.height * 3u * sizeof(float);
+    assert_memory_equal(one.data, batched.data, bytes);
+    assert_memory_not_equal(one.data, other.data, bytes); /* the comparison is not vacuous */
+    assert_memory_equal(&st_one, &st_batched, sizeof st_one);
+    assert_true(st_batched.guided_vertices > 0);
+    assert_int_equal(st_batched.nf_errors, 0);
+    assert_true(records.count > 0);
+    record_buffer_free(&records);
+    nf_model_destroy(m);
+    image_free(&trained);
+    image_free(&one);
+    image_free(&batched);
+    image_free(&other);
+    scene_free(&s);
+}
+
+static void test_batched_pass_equals_one_path_at_a_time(void **state)
+{
+    (void)state;
+    check_batched_pass(GUIDE_PRIOR_COSINE, 0);
+    check_batched_pass(GUIDE_PRIOR_COSINE, 1);
+    check_batched_pass(GUIDE_PRIOR_BSDF, 0); /* asked at shading points in both passes */
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_threads_do_not_change_results_cosine),
         cmocka_unit_test(test_threads_do_not_change_results_bsdf_prior),
         cmocka_unit_test(test_saved_model_renders_identically),
+        cmocka_unit_test(test_batched_pass_equals_one_path_at_a_time),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
