@@ -337,6 +337,7 @@ static int run(int argc, char **argv)
     t.guide_min_roughness = o.guide_min_roughness;
     t.mis_training = o.mis_training;
     t.plain_mixture = o.plain_mixture;
+    t.no_batching = o.no_batching;
     t.rank = ranks_rank();
     t.ranks = ranks_size();
     t.model = NULL;

@@ -85,6 +85,9 @@ void options_print_help(const char *program)
         "  --plain-mixture       weigh a flow sample by the flow's density and a BSDF sample\n"
         "                        by the BSDF's (instead of both by the mixture's): the flow\n"
         "                        is evaluated only at vertices where it samples\n"
+        "  --no-batching         render passes trace one path at a time and ask the flow at\n"
+        "                        shading points, instead of advancing 64 paths together\n"
+        "                        and batching their questions (the same image, slower)\n"
         "  --mis-training        train the flow on the MIS-weighted emission its directions\n"
         "                        find (the part next-event estimation leaves to scattering)\n"
         "  --guide-min-roughness A  rough conductors with alpha below A are not guided\n"
@@ -169,6 +172,10 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
         }
         if (!strcmp(a, "--plain-mixture")) {
             o->plain_mixture = 1;
+            continue;
+        }
+        if (!strcmp(a, "--no-batching")) {
+            o->no_batching = 1;
             continue;
         }
         if (!strcmp(a, "--mis-training")) {

@@ -44,6 +44,7 @@ typedef struct options {
     float selection_cost;     /* --selection-cost; < 0: the default                          */
     int mis_training;         /* --mis-training                                               */
     int plain_mixture;        /* --plain-mixture                                              */
+    int no_batching;          /* --no-batching                                                */
     float guide_min_roughness; /* --guide-min-roughness                                      */
     int guide_depth;          /* guide vertices up to this depth (segments), 0: all           */
     int help;

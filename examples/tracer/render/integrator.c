@@ -20,6 +20,11 @@
  * (the weights still sum to one); the flow is then called only where it samples. Which
  * vertices are guided: non-delta ones up to guide_depth, not smooth rough conductors
  * (guide_min_roughness), and where a learned selection grid gives g = 0 none at all.
+ *
+ * A vertex runs in three steps: vertex_plan_next traces the segment to it and draws every
+ * random number the vertex needs (light sample, roulette, technique, BSDF direction), stating
+ * what it asks the flow; the questions are answered; vertex_finish weighs. trace_path answers
+ * at a shading point right away; trace_paths answers the questions of many paths at once.
  */
 #include "integrator.h"
 
@@ -600,7 +605,7 @@ int trace_paths_pay(const tracer *t)
 {
     /* Models with the BSDF prior answer at shading points: the batch calls would hand its
      * callbacks contexts they cannot find the material of (guide.h). */
-    return t->model && t->guide_prob > 0.0f && !t->bsdf_prior;
+    return t->model && t->guide_prob > 0.0f && !t->bsdf_prior && !t->no_batching;
 }
 
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,

@@ -30,6 +30,7 @@ typedef struct tracer {
                             * NULL: guide_prob everywhere                                  */
     int plain_mixture;     /* each technique weighs by its own density, MIS against lights
                             * by the BSDF's: the flow is evaluated only where it samples   */
+    int no_batching;       /* render passes trace one path at a time (trace_paths_pay)      */
     int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
                             * (what the scattering estimator needs) instead of all of it   */
     int rank, ranks;       /* render_image renders this rank's share of the film's tiles;
@@ -100,7 +101,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
                  path_stats *stats);
 
-/* Whether trace_paths batches anything for t: a guided model without a custom prior. Without
+/* Whether trace_paths batches anything for t: a guided model without a custom prior, and
+ * t->no_batching not set. Without
  * one it only interleaves the paths, which costs plain path tracing about 7% in Veach Ajar
  * (the caches see 64 paths' scattered rays instead of one path's). */
 int trace_paths_pay(const tracer *t);
