@@ -116,15 +116,14 @@ static void pass_pixel(image *img, int x, int y, rgb c)
     p[2] = c.b;
 }
 
-/* Traces n gathered paths together and writes their pixels; returns 0, the new count. */
-static size_t pass_paths(pass_job *job, int thread, size_t n, rng *r, const float *px,
+/* Traces n gathered paths together and writes their pixels. */
+static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float *px,
                          const float *py, int (*at)[2])
 {
     rgb c[TRACE_BATCH];
     trace_paths(job->t, n, r, px, py, c, &job->stats[thread]);
     for (size_t i = 0; i < n; ++i)
         pass_pixel(job->img, at[i][0], at[i][1], c[i]);
-    return 0;
 }
 
 /* A guided pass without records traces its tile's paths TRACE_BATCH at a time (trace_paths:
@@ -159,8 +158,10 @@ static void pass_tile(void *user, size_t k, int thread)
             py[n] = (float)y + jy;
             at[n][0] = x;
             at[n++][1] = y;
-            if (n == TRACE_BATCH)
-                n = pass_paths(job, thread, n, r, px, py, at);
+            if (n == TRACE_BATCH) {
+                pass_paths(job, thread, n, r, px, py, at);
+                n = 0;
+            }
         }
     if (n)
         pass_paths(job, thread, n, r, px, py, at);
