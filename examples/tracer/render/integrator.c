@@ -608,6 +608,22 @@ int trace_paths_pay(const tracer *t)
     return t->model && t->guide_prob > 0.0f && !t->bsdf_prior && !t->no_batching;
 }
 
+/* Takes a path to its next vertex that asks the flow something (returns 1, the questions in
+ * vp->q) or to its end (returns 0); the vertices between, which ask nothing, are finished
+ * on the way, so that a path that seldom asks runs as trace_path runs it. */
+static int advance_to_question(const tracer *t, path_state *ps, rng *r, path_stats *st,
+                               vertex_plan *vp)
+{
+    for (;;) {
+        if (!vertex_plan_next(t, ps, r, st, NULL, vp))
+            return 0;
+        if (flow_asks(&vp->q))
+            return 1;
+        if (!vertex_finish(t, ps, vp, NULL, NULL))
+            return 0;
+    }
+}
+
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
                  path_stats *st)
 {
@@ -615,34 +631,35 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
     vertex_plan vp[TRACE_BATCH];
     vertex_plan *asking[TRACE_BATCH];
     size_t live[TRACE_BATCH], nlive = 0;
-    const int batched = trace_paths_pay(t);
     n = n < TRACE_BATCH ? n : TRACE_BATCH;
+    if (!trace_paths_pay(t)) {
+        for (size_t i = 0; i < n; ++i)
+            out[i] = trace_path(t, &r[i], px[i], py[i], NULL, st);
+        return;
+    }
     for (size_t i = 0; i < n; ++i) {
         path_start(t->s, px[i], py[i], &ps[i]);
         st->paths++;
         live[nlive++] = i;
     }
-    /* Every round takes each live path one vertex further. */
+    /* Every round takes each live path to its next question, answers them all, and finishes
+     * the vertices that asked. */
     while (nlive > 0) {
-        size_t nask = 0, kept = 0;
+        size_t nask = 0;
         for (size_t k = 0; k < nlive; ++k) {
             size_t i = live[k];
-            if (!vertex_plan_next(t, &ps[i], &r[i], st, NULL, &vp[i]))
-                continue;
-            live[kept++] = i;
-            if (batched && flow_asks(&vp[i].q))
+            if (advance_to_question(t, &ps[i], &r[i], st, &vp[i])) {
+                live[nask] = i;
                 asking[nask++] = &vp[i];
-            else
-                answer_at_point(t, &vp[i], st);
+            }
         }
         answer_batch(t, asking, nask, st);
-        nlive = kept, kept = 0;
-        for (size_t k = 0; k < nlive; ++k) {
+        nlive = 0;
+        for (size_t k = 0; k < nask; ++k) {
             size_t i = live[k];
             if (vertex_finish(t, &ps[i], &vp[i], NULL, NULL))
-                live[kept++] = i;
+                live[nlive++] = i;
         }
-        nlive = kept;
     }
     for (size_t i = 0; i < n; ++i)
         out[i] = ps[i].L;

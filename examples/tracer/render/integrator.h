@@ -92,9 +92,10 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
 
 /* Traces the paths through film positions (px[i], py[i]), i < n <= TRACE_BATCH, with path i
  * drawing from r[i], and writes their radiance estimates to out[i]: the same bits as n calls
- * of trace_path without records, but the paths advance together, one vertex per round, and
- * each round's flow questions (the guided vertices' light sample densities, flow samples and
- * BSDF directions' densities) go to the library as one nf_sample and one nf_pdf call. Batches
+ * of trace_path without records, but the paths advance together: each round takes every path
+ * to its next vertex that asks the flow something (a guided vertex: its light sample's
+ * density, a flow sample or its BSDF direction's density), and the round's questions go to
+ * the library as one nf_sample and one nf_pdf call. Batches
  * run the library's 16-lane kernels, several times faster per direction than a shading point
  * (docs/performance.md). Models with a custom prior are asked at shading points. Uses about
  * 40 KiB of stack. */
@@ -102,9 +103,7 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
                  path_stats *stats);
 
 /* Whether trace_paths batches anything for t: a guided model without a custom prior, and
- * t->no_batching not set. Without
- * one it only interleaves the paths, which costs plain path tracing about 7% in Veach Ajar
- * (the caches see 64 paths' scattered rays instead of one path's). */
+ * t->no_batching not set. Otherwise trace_paths traces the paths one after the other. */
 int trace_paths_pay(const tracer *t);
 
 #endif /* TRACER_INTEGRATOR_H */
