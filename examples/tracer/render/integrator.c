@@ -119,6 +119,13 @@ static void put_rgb(float out[3], rgb c)
     out[2] = c.b;
 }
 
+static void put_vec3(float out[3], vec3 v)
+{
+    out[0] = v.x;
+    out[1] = v.y;
+    out[2] = v.z;
+}
+
 /* Appends the training samples of a recorded path (nf_path_training_samples does the walk:
  * next-event estimates, MIS weights, roulette). Returns 0 if the library refused the path. */
 static int record_path(const tracer *t, nf_path_vertex *pv, const vertex_extra *ex, int nv,
@@ -415,16 +422,16 @@ static void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st)
     nf_shading_point sp;
     nf_prior_callbacks bsdf_prior = guide_point_callbacks(&vp->gp);
     int ok = nf_point_prepare(t->model, &q->ctx, t->bsdf_prior ? &bsdf_prior : NULL, &sp) == NF_OK;
+    float d[3];
     if (ok && q->light) {
-        float d[3] = {q->light_wi.x, q->light_wi.y, q->light_wi.z};
+        put_vec3(d, q->light_wi);
         ok = nf_point_pdf(t->model, &sp, 1, d, &q->light_p_flow) == NF_OK;
     }
     if (ok && q->sample) {
-        float d[3];
         ok = nf_point_sample(t->model, &sp, 1, q->u, d, &q->p_flow) == NF_OK;
         q->wi = v3(d[0], d[1], d[2]);
     } else if (ok && q->pdf) {
-        float d[3] = {q->wi.x, q->wi.y, q->wi.z};
+        put_vec3(d, q->wi);
         ok = nf_point_pdf(t->model, &sp, 1, d, &q->p_flow) == NF_OK;
     }
     if (!ok) {
@@ -460,16 +467,13 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
      * in balance mode, each technique's own density in plain mode. */
     vec3 wi = q->wi;
     rgb weight;
-    float pdf = 0.0f, p_flow = 0.0f, p_bsdf = vp->p_bsdf;
+    /* p_flow stays 0 where the flow was not asked (the plan zeroes it) */
+    float pdf = 0.0f, p_flow = q->p_flow, p_bsdf = vp->p_bsdf;
     if (vp->delta) {
         weight = vp->delta_weight;
     } else {
-        if (vp->flow_chosen) {
-            p_flow = q->p_flow;
+        if (vp->flow_chosen)
             p_bsdf = bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, frame_to_local(&vp->sh.fr, wi));
-        } else if (q->pdf) {
-            p_flow = q->p_flow;
-        }
         vec3 wi_l;
         rgb f = shading_eval(&vp->sh, wi, &wi_l);
         float p_weight; /* the density the throughput divides by */
@@ -492,9 +496,7 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
             v->learn = 1;
             put_rgb(v->f_over_p, weight);
             v->ctx = q->ctx;
-            v->dir[0] = wi.x;
-            v->dir[1] = wi.y;
-            v->dir[2] = wi.z;
+            put_vec3(v->dir, wi);
             vx->bp = vp->sh.bp;
             vx->p_flow = p_flow;
             vx->p_bsdf = p_bsdf;
@@ -569,9 +571,7 @@ static void answer_batch(const tracer *t, vertex_plan *const *vps, size_t n, pat
         flow_questions *q = &vps[i]->q;
         if (q->light) {
             pctx[np] = q->ctx;
-            pdir[3 * np] = q->light_wi.x;
-            pdir[3 * np + 1] = q->light_wi.y;
-            pdir[3 * np + 2] = q->light_wi.z;
+            put_vec3(pdir + 3 * np, q->light_wi);
             pout[np++] = &q->light_p_flow;
         }
         if (q->sample) {
@@ -581,9 +581,7 @@ static void answer_batch(const tracer *t, vertex_plan *const *vps, size_t n, pat
             sfrom[ns++] = vps[i];
         } else if (q->pdf) {
             pctx[np] = q->ctx;
-            pdir[3 * np] = q->wi.x;
-            pdir[3 * np + 1] = q->wi.y;
-            pdir[3 * np + 2] = q->wi.z;
+            put_vec3(pdir + 3 * np, q->wi);
             pout[np++] = &q->p_flow;
         }
     }
