@@ -199,6 +199,7 @@ static int render_in_budget(const options *o, tracer *t, nf_model *model, double
     bs.combine = o->combine;
     bs.clamp_quantile = o->clamp_quantile;
     bs.learn_selection = o->learn_selection;
+    bs.relative_training = o->relative_training;
     bs.selection_cost = o->selection_cost;
     bs.threads = o->threads;
     bs.seed = o->seed;

@@ -82,6 +82,9 @@ void options_print_help(const char *program)
         "                        does not cut the estimate's second moment by 1 + C, the\n"
         "                        flow is not used\n"
         "  --selection-cost C    a guided vertex's relative extra cost (default 1)\n"
+        "  --relative-training   divide each training weight by its pixel's estimated\n"
+        "                        value (blurred training passes), so that the flow learns\n"
+        "                        where the relative error is, not only where it is bright\n"
         "  --plain-mixture       weigh a flow sample by the flow's density and a BSDF sample\n"
         "                        by the BSDF's (instead of both by the mixture's): the flow\n"
         "                        is evaluated only at vertices where it samples\n"
@@ -168,6 +171,10 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
         }
         if (!strcmp(a, "--learn-selection")) {
             o->learn_selection = 1;
+            continue;
+        }
+        if (!strcmp(a, "--relative-training")) {
+            o->relative_training = 1;
             continue;
         }
         if (!strcmp(a, "--plain-mixture")) {

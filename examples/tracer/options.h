@@ -41,6 +41,7 @@ typedef struct options {
     int combine;              /* 0: --no-combine, training passes left out of the image       */
     float clamp_quantile;     /* 0: training weights unclamped                                */
     int learn_selection;      /* --learn-selection                                            */
+    int relative_training;    /* --relative-training                                          */
     float selection_cost;     /* --selection-cost; < 0: the default                          */
     int mis_training;         /* --mis-training                                               */
     int plain_mixture;        /* --plain-mixture                                              */

@@ -15,6 +15,7 @@
 #include "parallel.h"
 #include "progress.h"
 #include "ranks.h"
+#include "relative.h"
 #include "render.h"
 #include "selection.h"
 
@@ -39,6 +40,7 @@ budget_settings budget_default_settings(void)
     b.combine = 1;
     b.clamp_quantile = 0.0f;
     b.learn_selection = 0;
+    b.relative_training = 0;
     b.selection_cost = -1.0f;
     b.threads = 1;
     b.seed = 1;
@@ -409,6 +411,7 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
     pass_groups groups;
     trainer tr;
     selection_grid selection;
+    relative_weights relative;
     record_buffer records = {0};
     image pass = {0};
     double *render_sum = NULL, *render_sq = NULL;
@@ -417,6 +420,7 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
     memset(&groups, 0, sizeof groups);
     memset(&tr, 0, sizeof tr);
     memset(&selection, 0, sizeof selection);
+    memset(&relative, 0, sizeof relative);
     groups.n = 3 * pixels;
     groups.per_group = 1;
     /* Every step of the setup may fail on one rank only: the ranks agree before going on. */
@@ -435,6 +439,9 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
         if (ready)
             t->selection = &selection;
     }
+    if (ready && model && bs->relative_training)
+        ready = relative_init(&relative, t) ||
+                tr_fail(err, "out of memory for the relative training weights");
     uint64_t shards = 0;
     if (model) {
         tr.model = model;
@@ -485,6 +492,10 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
                                  tr_fail(err, "out of memory for a training pass"),
                              err))
                 goto done;
+            if (relative.sum) { /* this pass enters the pixels' estimate before it is used */
+                relative_add_pass(&relative, &pass);
+                relative_apply(&relative, &records);
+            }
             if (t->selection && !learn_selection(&selection, &records, err))
                 goto done;
             if (!train_on_pass(&tr, t, &records, bs, k, rep, &loss, err))
@@ -544,6 +555,7 @@ int render_with_budget(tracer *t, nf_model *model, const budget_settings *bs, im
 done:
     t->selection = NULL;
     selection_free(&selection);
+    relative_free(&relative);
     groups_free(&groups);
     trainer_free(&tr);
     record_buffer_free(&records);

@@ -34,6 +34,8 @@ typedef struct budget_settings {
     int combine;             /* 1: inverse-variance combination; 0: training passes dropped */
     float clamp_quantile;    /* training weights clamped at this running quantile, 0: none  */
     int learn_selection;     /* learn the guiding probability per cell (selection.h)        */
+    int relative_training;   /* training weights divided by their pixel's estimated value
+                              * (relative.h)                                               */
     float selection_cost;    /* the cost test's relative cost of a guided vertex; < 0: the
                               * grid's default                                             */
     int threads;

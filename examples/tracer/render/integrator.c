@@ -129,7 +129,7 @@ static void put_vec3(float out[3], vec3 v)
 /* Appends the training samples of a recorded path (nf_path_training_samples does the walk:
  * next-event estimates, MIS weights, roulette). Returns 0 if the library refused the path. */
 static int record_path(const tracer *t, nf_path_vertex *pv, const vertex_extra *ex, int nv,
-                       record_buffer *records)
+                       uint32_t pixel, record_buffer *records)
 {
     nf_context ctx[MAX_RECORDED_VERTICES];
     float dir[3 * MAX_RECORDED_VERTICES], weight[MAX_RECORDED_VERTICES];
@@ -155,6 +155,7 @@ static int record_path(const tracer *t, nf_path_vertex *pv, const vertex_extra *
         rec->p_bsdf = x->p_bsdf;
         rec->alpha = x->alpha;
         rec->cell = x->cell;
+        rec->pixel = pixel;
     }
     return 1;
 }
@@ -511,6 +512,15 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
     return 1;
 }
 
+/* The pixel a film position falls in, clamped to the film. */
+static uint32_t film_pixel(const scene *s, float px, float py)
+{
+    int x = (int)px, y = (int)py;
+    x = x < 0 ? 0 : x >= s->width ? s->width - 1 : x;
+    y = y < 0 ? 0 : y >= s->height ? s->height - 1 : y;
+    return (uint32_t)y * (uint32_t)s->width + (uint32_t)x;
+}
+
 static void path_start(const scene *s, float px, float py, path_state *ps)
 {
     ps->L = rgb_gray(0.0f);
@@ -550,7 +560,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
     }
 
     /* Training: the library walks the path backwards (nisflow/path.h). */
-    if (records && nv > 0 && nv <= MAX_RECORDED_VERTICES && !record_path(t, pv, ex, nv, records))
+    if (records && nv > 0 && nv <= MAX_RECORDED_VERTICES &&
+        !record_path(t, pv, ex, nv, film_pixel(t->s, px, py), records))
         st->nf_errors++;
     return ps.L;
 }

@@ -47,6 +47,7 @@ typedef struct train_record {
     bsdf_point bp;
     float p_flow, p_bsdf, alpha; /* the mixture at dir, for the learned guiding probability */
     uint32_t cell;               /* the selection grid's cell (0 without a grid)            */
+    uint32_t pixel;              /* the film pixel the path went through, y * width + x     */
 } train_record;
 
 typedef struct record_buffer {

@@ -7,7 +7,9 @@
  *   - render_with_budget, guided, with its training passes combined into the image, agrees
  *     with plain path tracing too, ends within its budget and reports consistent counts;
  *   - the learned guiding probability moves towards the technique whose density is larger
- *     where the integrand is.
+ *     where the integrand is;
+ *   - relative training weights divide each record's weight by its pixel's filtered
+ *     estimate, counting only the pixels this rank renders.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -23,6 +25,7 @@
 #include "guide.h"
 #include "integrator.h"
 #include "progress.h"
+#include "relative.h"
 #include "render.h"
 #include "scene.h"
 #include "selection.h"
@@ -155,7 +158,7 @@ static void test_levers_match_unguided(void **state)
     scene_free(&s);
 }
 
-static void check_budget_job(int learn_selection)
+static void check_budget_job(int learn_selection, int relative_training)
 {
     scene s = load_mixed();
     tr_error err;
@@ -179,6 +182,7 @@ static void check_budget_job(int learn_selection)
     bs.threads = 2;
     bs.seed = 9;
     bs.learn_selection = learn_selection;
+    bs.relative_training = relative_training;
     image img;
     budget_report rep;
     if (!render_with_budget(&t, model, &bs, &img, &rep, &err))
@@ -197,8 +201,9 @@ static void check_budget_job(int learn_selection)
      * milliseconds (tens under sanitizers), so 0.25 s is a wide margin for a loaded machine
      * and still catches a job that ignores its budget. */
     assert_true(elapsed < bs.seconds + 0.25);
-    assert_same_mean(learn_selection ? "budget job, learned guiding probability"
-                                     : "budget job, training passes combined",
+    assert_same_mean(relative_training ? "budget job, relative training weights"
+                     : learn_selection ? "budget job, learned guiding probability"
+                                       : "budget job, training passes combined",
                      &reference, &img);
     image_free(&img);
     image_free(&reference);
@@ -209,13 +214,19 @@ static void check_budget_job(int learn_selection)
 static void test_budget_job(void **state)
 {
     (void)state;
-    check_budget_job(0);
+    check_budget_job(0, 0);
 }
 
 static void test_budget_job_learned_selection(void **state)
 {
     (void)state;
-    check_budget_job(1);
+    check_budget_job(1, 0);
+}
+
+static void test_budget_job_relative_training(void **state)
+{
+    (void)state;
+    check_budget_job(0, 1);
 }
 
 /* A scene without light: no training sample, zero variance everywhere; the combination must
@@ -322,6 +333,102 @@ static void test_selection_cost_switches_off(void **state)
     selection_free(&g);
 }
 
+/* A film of w x h pixels for relative_weights, which reads only the size. */
+static scene film_only(int w, int h)
+{
+    scene s;
+    memset(&s, 0, sizeof s);
+    s.width = w;
+    s.height = h;
+    return s;
+}
+
+/* 1 / sqrt(I^2 + METRIC_EPSILON), the scale relative.h promises for a filtered value I. */
+static float expected_scale(double i)
+{
+    return (float)(1.0 / sqrt(i * i + 1e-2));
+}
+
+/* Fills the pass: luminance left of column `split`, right from it (grey pixels). */
+static void fill_halves(image *img, int split, float left, float right)
+{
+    for (int y = 0; y < img->height; ++y)
+        for (int x = 0; x < img->width; ++x) {
+            float *p = image_pixel(img, x, y);
+            p[0] = p[1] = p[2] = x < split ? left : right;
+        }
+}
+
+/* Far from the edge between two halves the box filter sees one value: the scale is exact
+ * there (up to float rounding, 1e-6 relative); a second pass averages with the first; a
+ * record takes its own pixel's scale. */
+static void test_relative_weights_scale_by_pixel(void **state)
+{
+    (void)state;
+    tr_error err;
+    scene s = film_only(40, 12);
+    tracer t = {.s = &s};
+    relative_weights rw;
+    assert_true(relative_init(&rw, &t));
+    assert_true(rw.scale[0] == 1.0f); /* nothing known yet */
+    image pass;
+    assert_true(image_alloc(&pass, 40, 12, &err));
+    fill_halves(&pass, 20, 10.0f, 0.1f);
+    relative_add_pass(&rw, &pass);
+    size_t left = 5 * 40 + 2, right = 5 * 40 + 35, edge = 5 * 40 + 20;
+    assert_float_equal(rw.scale[left], expected_scale(10.0), 1e-6 * expected_scale(10.0));
+    assert_float_equal(rw.scale[right], expected_scale(0.1), 1e-6 * expected_scale(0.1));
+    /* At the edge the window holds 3 columns of 10 and 4 of 0.1. */
+    double mixed = (3.0 * 10.0 + 4.0 * 0.1) / 7.0;
+    assert_float_equal(rw.scale[edge], expected_scale(mixed), 1e-5 * expected_scale(mixed));
+
+    fill_halves(&pass, 20, 30.0f, 0.1f); /* the mean of 10 and 30 on the left */
+    pass.data[3 * right] = NAN;          /* counts as black */
+    relative_add_pass(&rw, &pass);
+    assert_float_equal(rw.scale[left], expected_scale(20.0), 1e-6 * expected_scale(20.0));
+    double with_black = 0.1 - 0.1 / (2.0 * 49.0); /* one of 98 samples in the window is 0 */
+    assert_float_equal(rw.scale[right], expected_scale(with_black),
+                       1e-5 * expected_scale(with_black));
+
+    record_buffer rec = {0};
+    train_record r[3];
+    memset(r, 0, sizeof r);
+    r[0].pixel = (uint32_t)left;
+    r[1].pixel = (uint32_t)right;
+    r[2].pixel = 40u * 12u; /* outside the film: left as it is */
+    for (int i = 0; i < 3; ++i)
+        r[i].weight = 2.0f;
+    rec.data = r;
+    rec.count = rec.capacity = 3;
+    relative_apply(&rw, &rec);
+    assert_true(r[0].weight == 2.0f * rw.scale[left]);
+    assert_true(r[1].weight == 2.0f * rw.scale[right]);
+    assert_true(r[2].weight == 2.0f);
+    image_free(&pass);
+    relative_free(&rw);
+}
+
+/* With two ranks, the other rank's tiles (black in this rank's passes; here 1e6, so that a
+ * leak would show) stay out of the filter. Tiles are 16 pixels (render.c). */
+static void test_relative_weights_own_tiles_only(void **state)
+{
+    (void)state;
+    tr_error err;
+    scene s = film_only(32, 16);
+    tracer t = {.s = &s, .rank = 0, .ranks = 2};
+    assert_true(render_pixel_mine(&t, 15, 8));
+    assert_false(render_pixel_mine(&t, 16, 8));
+    relative_weights rw;
+    assert_true(relative_init(&rw, &t));
+    image pass;
+    assert_true(image_alloc(&pass, 32, 16, &err));
+    fill_halves(&pass, 16, 0.5f, 1e6f);
+    relative_add_pass(&rw, &pass);
+    assert_float_equal(rw.scale[8 * 32 + 15], expected_scale(0.5), 1e-6 * expected_scale(0.5));
+    image_free(&pass);
+    relative_free(&rw);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -330,6 +437,9 @@ int main(void)
         cmocka_unit_test(test_levers_match_unguided),
         cmocka_unit_test(test_budget_job),
         cmocka_unit_test(test_budget_job_learned_selection),
+        cmocka_unit_test(test_budget_job_relative_training),
+        cmocka_unit_test(test_relative_weights_scale_by_pixel),
+        cmocka_unit_test(test_relative_weights_own_tiles_only),
         cmocka_unit_test(test_budget_job_black_scene),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
