@@ -160,6 +160,46 @@ static int record_path(const tracer *t, nf_path_vertex *pv, const vertex_extra *
     return 1;
 }
 
+/* A path's record while it is traced: its vertices for nf_path_training_samples and what the
+ * tracer keeps beside them. A path longer than `cap` vertices is not recorded at all (nv is
+ * then cap + 1). */
+typedef struct path_recorder {
+    nf_path_vertex *pv;
+    vertex_extra *ex;
+    int nv, cap;
+} path_recorder;
+
+/* The last recorded vertex, which receives what the next ray finds; NULL without a record. */
+static nf_path_vertex *recorder_last(const path_recorder *pr)
+{
+    return pr && pr->nv > 0 && pr->nv <= pr->cap ? &pr->pv[pr->nv - 1] : NULL;
+}
+
+/* Opens the record of a planned vertex (*v, *vx stay NULL without a record). */
+static void recorder_open(path_recorder *pr, nf_path_vertex **v, vertex_extra **vx)
+{
+    *v = NULL;
+    *vx = NULL;
+    if (!pr)
+        return;
+    if (pr->nv < pr->cap) {
+        *v = &pr->pv[pr->nv];
+        *vx = &pr->ex[pr->nv++];
+        memset(*v, 0, sizeof **v);
+    } else {
+        pr->nv = pr->cap + 1; /* past the cap: stop recording this path */
+    }
+}
+
+/* Training: the library walks the finished path backwards (nisflow/path.h). */
+static void recorder_close(const tracer *t, const path_recorder *pr, uint32_t pixel,
+                           record_buffer *records, path_stats *st)
+{
+    if (pr->nv > 0 && pr->nv <= pr->cap &&
+        !record_path(t, pr->pv, pr->ex, pr->nv, pixel, records))
+        st->nf_errors++;
+}
+
 /* The shading setup at a hit: material, frame and orientation. Returns 0 when the surface
  * cannot scatter towards wo (the back of a one-sided material). */
 typedef struct shading {
@@ -535,34 +575,24 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
 {
     nf_path_vertex pv[MAX_RECORDED_VERTICES]; /* the library's record of the path */
     vertex_extra ex[MAX_RECORDED_VERTICES];
-    int nv = 0; /* recorded vertices (only when training) */
+    path_recorder rec = {pv, ex, 0, MAX_RECORDED_VERTICES}, *pr = records ? &rec : NULL;
     path_state ps;
     path_start(t->s, px, py, &ps);
     st->paths++;
     for (;;) {
         /* The previous vertex's record receives what this ray finds. */
-        nf_path_vertex *prev = records && nv > 0 && nv <= MAX_RECORDED_VERTICES ? &pv[nv - 1] : NULL;
+        nf_path_vertex *prev = recorder_last(pr), *v;
+        vertex_extra *vx;
         vertex_plan vp;
         if (!vertex_plan_next(t, &ps, r, st, prev, &vp))
             break;
-        nf_path_vertex *v = NULL;
-        vertex_extra *vx = NULL;
-        if (records && nv < MAX_RECORDED_VERTICES) {
-            v = &pv[nv];
-            vx = &ex[nv++];
-            memset(v, 0, sizeof *v);
-        } else if (records) {
-            nv = MAX_RECORDED_VERTICES + 1; /* past the cap: stop recording this path */
-        }
+        recorder_open(pr, &v, &vx);
         answer_at_point(t, &vp, st);
         if (!vertex_finish(t, &ps, &vp, v, vx))
             break;
     }
-
-    /* Training: the library walks the path backwards (nisflow/path.h). */
-    if (records && nv > 0 && nv <= MAX_RECORDED_VERTICES &&
-        !record_path(t, pv, ex, nv, film_pixel(t->s, px, py), records))
-        st->nf_errors++;
+    if (pr)
+        recorder_close(t, pr, film_pixel(t->s, px, py), records, st);
     return ps.L;
 }
 
@@ -618,32 +648,74 @@ int trace_paths_pay(const tracer *t)
 }
 
 /* Takes a path to its next vertex that asks the flow something (returns 1, the questions in
- * vp->q) or to its end (returns 0); the vertices between, which ask nothing, are finished
- * on the way, so that a path that seldom asks runs as trace_path runs it. */
+ * vp->q, its record opened in *v, *vx) or to its end (returns 0); the vertices between, which
+ * ask nothing, are finished on the way, so that a path that seldom asks runs as trace_path
+ * runs it. pr: the path's record, or NULL. */
 static int advance_to_question(const tracer *t, path_state *ps, rng *r, path_stats *st,
-                               vertex_plan *vp)
+                               path_recorder *pr, vertex_plan *vp, nf_path_vertex **v,
+                               vertex_extra **vx)
 {
     for (;;) {
-        if (!vertex_plan_next(t, ps, r, st, NULL, vp))
+        if (!vertex_plan_next(t, ps, r, st, recorder_last(pr), vp))
             return 0;
+        recorder_open(pr, v, vx);
         if (flow_asks(&vp->q))
             return 1;
-        if (!vertex_finish(t, ps, vp, NULL, NULL))
+        if (!vertex_finish(t, ps, vp, *v, *vx))
             return 0;
     }
 }
 
+void trace_scratch_free(trace_scratch *sc)
+{
+    free(sc->mem);
+    sc->mem = NULL;
+    sc->bytes = 0;
+}
+
+/* The records of n paths in sc (grown if it is too small); NULL when out of memory. */
+static path_recorder *recorders_in(const scene *s, size_t n, trace_scratch *sc)
+{
+    /* A path plans at most max_depth - 1 vertices (vertex_plan_next): a cap of max_depth
+     * records every path trace_path records, and drops the same ones. */
+    int cap = s->max_depth > 0 && s->max_depth < MAX_RECORDED_VERTICES ? s->max_depth
+                                                                      : MAX_RECORDED_VERTICES;
+    /* Largest alignment first: recorders, then the extras (a pointer inside), then the
+     * library's vertices (floats). */
+    size_t bytes = n * (sizeof(path_recorder) +
+                        (size_t)cap * (sizeof(vertex_extra) + sizeof(nf_path_vertex)));
+    if (sc->bytes < bytes) {
+        trace_scratch_free(sc);
+        if (!(sc->mem = malloc(bytes)))
+            return NULL;
+        sc->bytes = bytes;
+    }
+    path_recorder *pr = sc->mem;
+    vertex_extra *ex = (vertex_extra *)(pr + n);
+    nf_path_vertex *pv = (nf_path_vertex *)(ex + n * (size_t)cap);
+    for (size_t i = 0; i < n; ++i) {
+        pr[i].pv = pv + i * (size_t)cap;
+        pr[i].ex = ex + i * (size_t)cap;
+        pr[i].nv = 0;
+        pr[i].cap = cap;
+    }
+    return pr;
+}
+
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
-                 path_stats *st)
+                 record_buffer *records, trace_scratch *scratch, path_stats *st)
 {
     path_state ps[TRACE_BATCH];
     vertex_plan vp[TRACE_BATCH];
     vertex_plan *asking[TRACE_BATCH];
+    nf_path_vertex *v[TRACE_BATCH];
+    vertex_extra *vx[TRACE_BATCH];
     size_t live[TRACE_BATCH], nlive = 0;
     n = n < TRACE_BATCH ? n : TRACE_BATCH;
-    if (!trace_paths_pay(t)) {
+    path_recorder *pr = trace_paths_pay(t) && records ? recorders_in(t->s, n, scratch) : NULL;
+    if (!trace_paths_pay(t) || (records && !pr)) { /* the same bits, one path at a time */
         for (size_t i = 0; i < n; ++i)
-            out[i] = trace_path(t, &r[i], px[i], py[i], NULL, st);
+            out[i] = trace_path(t, &r[i], px[i], py[i], records, st);
         return;
     }
     for (size_t i = 0; i < n; ++i) {
@@ -657,7 +729,8 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
         size_t nask = 0;
         for (size_t k = 0; k < nlive; ++k) {
             size_t i = live[k];
-            if (advance_to_question(t, &ps[i], &r[i], st, &vp[i])) {
+            if (advance_to_question(t, &ps[i], &r[i], st, pr ? &pr[i] : NULL, &vp[i], &v[i],
+                                    &vx[i])) {
                 live[nask] = i;
                 asking[nask++] = &vp[i];
             }
@@ -666,10 +739,13 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
         nlive = 0;
         for (size_t k = 0; k < nask; ++k) {
             size_t i = live[k];
-            if (vertex_finish(t, &ps[i], &vp[i], NULL, NULL))
+            if (vertex_finish(t, &ps[i], &vp[i], v[i], vx[i]))
                 live[nlive++] = i;
         }
     }
-    for (size_t i = 0; i < n; ++i)
+    for (size_t i = 0; i < n; ++i) {
         out[i] = ps[i].L;
+        if (pr) /* in path order, as n calls of trace_path append them */
+            recorder_close(t, &pr[i], film_pixel(t->s, px[i], py[i]), records, st);
+    }
 }

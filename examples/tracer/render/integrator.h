@@ -87,21 +87,35 @@ typedef struct path_state {
 rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
                path_stats *stats);
 
-/* How many paths trace_paths takes at once: enough that each round's flow questions fill
- * several of the library's 16-lane tiles. */
-#define TRACE_BATCH 64
+/* How many paths trace_paths takes at once: a whole 16 x 16 tile of pixels, so that even
+ * the later rounds, when most paths have ended, and scenes where guided vertices are rare
+ * still fill several of the library's 16-lane tiles (it cost 5-7% less CPU per render pass in
+ * Veach Ajar than 64 paths). */
+#define TRACE_BATCH 256
+
+/* Memory that trace_paths reuses from call to call for its paths' records: one per thread,
+ * zero-initialized ({0}), released with trace_scratch_free. */
+typedef struct trace_scratch {
+    void *mem;
+    size_t bytes;
+} trace_scratch;
+
+void trace_scratch_free(trace_scratch *scratch);
 
 /* Traces the paths through film positions (px[i], py[i]), i < n <= TRACE_BATCH, with path i
  * drawing from r[i], and writes their radiance estimates to out[i]: the same bits as n calls
- * of trace_path without records, but the paths advance together: each round takes every path
- * to its next vertex that asks the flow something (a guided vertex: its light sample's
- * density, a flow sample or its BSDF direction's density), and the round's questions go to
- * the library as one nf_sample and one nf_pdf call. Batches
- * run the library's 16-lane kernels, several times faster per direction than a shading point
- * (docs/performance.md). Models with a custom prior are asked at shading points. Uses about
- * 40 KiB of stack. */
+ * of trace_path, records included (appended in path order), but the paths advance together:
+ * each round takes every path to its next vertex that asks the flow something (a guided
+ * vertex: its light sample's density, a flow sample or its BSDF direction's density), and the
+ * round's questions go to the library as one nf_sample and one nf_pdf call. Batches run the
+ * library's 16-lane kernels, several times faster per direction than a shading point
+ * (docs/performance.md). Models with a custom prior are asked at shading points. With
+ * records != NULL the paths' vertices are kept in *scratch (about 170 bytes per vertex, up to
+ * the scene's max_depth vertices per path); when it cannot grow, the paths are traced one at
+ * a time (the same bits). Uses about 170 KiB of stack (360 bytes of plan
+ * per path). */
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
-                 path_stats *stats);
+                 record_buffer *records, trace_scratch *scratch, path_stats *stats);
 
 /* Whether trace_paths batches anything for t: a guided model without a custom prior, and
  * t->no_batching not set. Otherwise trace_paths traces the paths one after the other. */

@@ -112,6 +112,7 @@ typedef struct pass_job {
     uint32_t pass;
     record_buffer *tiles; /* one per tile; NULL: no records */
     path_stats *stats;
+    trace_scratch *scratch; /* one per thread: trace_paths' records */
 } pass_job;
 
 /* One pixel's sample of a pass, written into the pass image. */
@@ -125,19 +126,18 @@ static void pass_pixel(image *img, int x, int y, rgb c)
     p[2] = c.b;
 }
 
-/* Traces n gathered paths together and writes their pixels. */
+/* Traces n gathered paths together and writes their pixels (and their records to out). */
 static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float *px,
-                         const float *py, int (*at)[2])
+                       const float *py, int (*at)[2], record_buffer *out)
 {
     rgb c[TRACE_BATCH];
-    trace_paths(job->t, n, r, px, py, c, &job->stats[thread]);
+    trace_paths(job->t, n, r, px, py, c, out, &job->scratch[thread], &job->stats[thread]);
     for (size_t i = 0; i < n; ++i)
         pass_pixel(job->img, at[i][0], at[i][1], c[i]);
 }
 
-/* A guided pass without records traces its tile's paths TRACE_BATCH at a time (trace_paths:
- * the flow's questions batched, the same bits); a training pass traces them one by one, each
- * recording its training samples, and so does an unguided pass. */
+/* A guided pass traces its tile's paths TRACE_BATCH at a time (trace_paths: the flow's
+ * questions batched, the same bits and records); an unguided pass traces them one by one. */
 static void pass_tile(void *user, size_t k, int thread)
 {
     pass_job *job = user;
@@ -146,7 +146,7 @@ static void pass_tile(void *user, size_t k, int thread)
     size_t item = rank_tile(job->t, k);
     int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
     /* Unguided paths ask nothing: advancing them together would only cost locality. */
-    const int batched = !out && trace_paths_pay(job->t);
+    const int batched = trace_paths_pay(job->t);
     rng r[TRACE_BATCH];
     float px[TRACE_BATCH], py[TRACE_BATCH];
     int at[TRACE_BATCH][2];
@@ -168,12 +168,12 @@ static void pass_tile(void *user, size_t k, int thread)
             at[n][0] = x;
             at[n++][1] = y;
             if (n == TRACE_BATCH) {
-                pass_paths(job, thread, n, r, px, py, at);
+                pass_paths(job, thread, n, r, px, py, at, out);
                 n = 0;
             }
         }
     if (n)
-        pass_paths(job, thread, n, r, px, py, at);
+        pass_paths(job, thread, n, r, px, py, at, out);
 }
 
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
@@ -190,9 +190,11 @@ int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, imag
     int nthreads = threads > 0 ? threads : 1;
     job.tiles = records ? calloc(ntiles, sizeof *job.tiles) : NULL;
     job.stats = calloc((size_t)nthreads, sizeof *job.stats);
-    if ((records && !job.tiles) || !job.stats) {
+    job.scratch = calloc((size_t)nthreads, sizeof *job.scratch);
+    if ((records && !job.tiles) || !job.stats || !job.scratch) {
         free(job.tiles);
         free(job.stats);
+        free(job.scratch);
         return tr_fail(err, "out of memory");
     }
     clear_for_ranks(t, img);
@@ -207,8 +209,11 @@ int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, imag
     }
     for (int i = 0; stats && i < nthreads; ++i)
         path_stats_add(stats, &job.stats[i]);
+    for (int i = 0; i < nthreads; ++i)
+        trace_scratch_free(&job.scratch[i]);
     free(job.tiles);
     free(job.stats);
+    free(job.scratch);
     return ok;
 }
 

@@ -3,8 +3,8 @@
  * rendered images and trained models are compared bit for bit between 1 and 3 threads, and
  * a different seed must change them (so the comparison is not vacuous). Also: a saved model
  * loads with its BSDF-prior callbacks and renders identically. A render pass gives the same
- * bits whether its paths ask the flow one vertex at a time (a training pass, trace_path) or
- * batched across paths (trace_paths).
+ * bits, and a training pass the same records, whether its paths ask the flow one vertex at a
+ * time (trace_path) or batched across paths (trace_paths).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -128,9 +128,24 @@ static void test_saved_model_renders_identically(void **state)
     scene_free(&s);
 }
 
-/* One pass rendered twice: with records (trace_path, the flow asked at shading points) and
- * without (trace_paths, the questions of TRACE_BATCH paths batched). 37 x 23 pixels leave
- * partial tiles and partial batches. */
+/* The records of two passes, field by field (their padding is not written). */
+static void assert_same_records(const record_buffer *a, const record_buffer *b)
+{
+    assert_int_equal(a->count, b->count);
+    for (size_t i = 0; i < a->count; ++i) {
+        const train_record *x = &a->data[i], *y = &b->data[i];
+        assert_memory_equal(&x->ctx, &y->ctx, sizeof x->ctx);
+        assert_memory_equal(x->dir, y->dir, sizeof x->dir);
+        assert_true(x->weight == y->weight && x->p_flow == y->p_flow);
+        assert_true(x->p_bsdf == y->p_bsdf && x->alpha == y->alpha);
+        assert_true(x->cell == y->cell && x->pixel == y->pixel && x->bp.b == y->bp.b);
+    }
+}
+
+/* One pass rendered three times: one path at a time with the flow asked at shading points
+ * (no_batching), and with the questions of TRACE_BATCH paths batched (trace_paths), with
+ * records (a training pass) and without. 37 x 23 pixels leave partial tiles and partial
+ * batches. */
 static void check_batched_pass(guide_prior prior, int plain_mixture)
 {
     scene s;
@@ -138,30 +153,39 @@ static void check_batched_pass(guide_prior prior, int plain_mixture)
     load_cornell(&s);
     scene_set_resolution(&s, 37, 23);
     nf_model *m;
-    image trained, one, batched, other;
+    image trained, one, batched, recorded, other;
     train_and_render(&s, prior, 2, 7, &m, &trained);
     tracer t = {.s = &s, .model = m, .guide_prob = 0.5f, .bsdf_prior = prior == GUIDE_PRIOR_BSDF,
                 .plain_mixture = plain_mixture};
+    tracer one_by_one = t;
+    one_by_one.no_batching = 1;
     assert_true(image_alloc(&one, s.width, s.height, &err));
     assert_true(image_alloc(&batched, s.width, s.height, &err));
+    assert_true(image_alloc(&recorded, s.width, s.height, &err));
     assert_true(image_alloc(&other, s.width, s.height, &err));
-    record_buffer records = {0};
-    path_stats st_one = {0}, st_batched = {0};
-    assert_true(render_pass(&t, 7, 3, 2, &one, &records, &st_one, &err));
+    record_buffer records_one = {0}, records_batched = {0};
+    path_stats st_one = {0}, st_batched = {0}, st_recorded = {0};
+    assert_true(render_pass(&one_by_one, 7, 3, 2, &one, &records_one, &st_one, &err));
     assert_true(render_pass(&t, 7, 3, 2, &batched, NULL, &st_batched, &err));
+    assert_true(render_pass(&t, 7, 3, 2, &recorded, &records_batched, &st_recorded, &err));
     assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, &err));
     size_t bytes = (size_t)s.width * (size_t)s.height * 3u * sizeof(float);
     assert_memory_equal(one.data, batched.data, bytes);
+    assert_memory_equal(one.data, recorded.data, bytes);
     assert_memory_not_equal(one.data, other.data, bytes); /* the comparison is not vacuous */
     assert_memory_equal(&st_one, &st_batched, sizeof st_one);
+    assert_memory_equal(&st_one, &st_recorded, sizeof st_one);
     assert_true(st_batched.guided_vertices > 0);
     assert_int_equal(st_batched.nf_errors, 0);
-    assert_true(records.count > 0);
-    record_buffer_free(&records);
+    assert_true(records_one.count > 0);
+    assert_same_records(&records_one, &records_batched);
+    record_buffer_free(&records_one);
+    record_buffer_free(&records_batched);
     nf_model_destroy(m);
     image_free(&trained);
     image_free(&one);
     image_free(&batched);
+    image_free(&recorded);
     image_free(&other);
     scene_free(&s);
 }
