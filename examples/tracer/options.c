@@ -88,7 +88,7 @@ void options_print_help(const char *program)
         "  --plain-mixture       weigh a flow sample by the flow's density and a BSDF sample\n"
         "                        by the BSDF's (instead of both by the mixture's): the flow\n"
         "                        is evaluated only at vertices where it samples\n"
-        "  --no-batching         render passes trace one path at a time and ask the flow at\n"
+        "  --no-batching         passes trace one path at a time and ask the flow at\n"
         "                        shading points, instead of advancing 256 paths together\n"
         "                        and batching their questions (the same image, slower)\n"
         "  --mis-training        train the flow on the MIS-weighted emission its directions\n"

@@ -30,7 +30,7 @@ typedef struct tracer {
                             * NULL: guide_prob everywhere                                  */
     int plain_mixture;     /* each technique weighs by its own density, MIS against lights
                             * by the BSDF's: the flow is evaluated only where it samples   */
-    int no_batching;       /* render passes trace one path at a time (trace_paths_pay)      */
+    int no_batching;       /* budget passes trace one path at a time (trace_paths_pay)      */
     int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
                             * (what the scattering estimator needs) instead of all of it   */
     int rank, ranks;       /* render_image renders this rank's share of the film's tiles;
