@@ -85,7 +85,8 @@ ABLATION=(
     "train up to 30 % of the budget|$(without --train-fraction value) --train-fraction 0.3"
     "trained on all the emission found, not its MIS-weighted part|$(without --mis-training)"
     "plain mixture (the flow evaluated only where it samples)|$GUIDED --plain-mixture"
-    "render passes one path at a time, the flow asked at shading points|$GUIDED --no-batching"
+    "passes one path at a time, the flow asked at shading points|$GUIDED --no-batching"
+    "training weights relative to their pixel's value|$GUIDED --relative-training"
 )
 
 start=$(date +%s)
