@@ -62,9 +62,9 @@ declare -A SIZE=([cornell-box]="--width 256 --height 256"
 
 # The guided tracer as the study runs it: every option of the equal-time configuration
 # (docs/equal-time.md, "The guided configuration"); the tracer's defaults for the rest.
-GUIDED="--learn-selection --mis-training --guide-depth 2 --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
+GUIDED="--learn-selection --selection-cost 0.2 --mis-training --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15"
 # The ablation: one lever changed at a time from GUIDED, name|options.
-without() { # GUIDED without the option $1 (and its value, if it has one)
+without() { # GUIDED without the option $1 (and its value, if $2 is "value")
     local out="" skip=0 w
     for w in $GUIDED; do
         if [ "$skip" = 1 ]; then skip=0; continue; fi
@@ -76,9 +76,9 @@ without() { # GUIDED without the option $1 (and its value, if it has one)
 ABLATION=(
     "plain path tracing|--no-guiding"
     "guided, the study's configuration|$GUIDED"
-    "guiding probability fixed at 0.5 (no learned selection, no cost test)|$(without --learn-selection)"
-    "cost test stricter (--selection-cost 3)|$GUIDED --selection-cost 3"
-    "all vertices guided (no depth limit)|$(without --guide-depth value)"
+    "guiding probability fixed at 0.5 (no learned selection, no cost test)|$(GUIDED=$(without --learn-selection); without --selection-cost value)"
+    "cost test at the tracer's default (--selection-cost 1)|$(without --selection-cost value)"
+    "only the first two vertices guided (--guide-depth 2)|$GUIDED --guide-depth 2"
     "smooth conductors guided too|$(without --guide-min-roughness value)"
     "training weights not clamped|$(without --clamp-quantile value)"
     "training passes dropped, not combined|$GUIDED --no-combine"
