@@ -339,6 +339,7 @@ static int run(int argc, char **argv)
     t.mis_training = o.mis_training;
     t.plain_mixture = o.plain_mixture;
     t.no_batching = o.no_batching;
+    t.light_mis_bsdf = o.light_mis_bsdf;
     t.rank = ranks_rank();
     t.ranks = ranks_size();
     t.model = NULL;

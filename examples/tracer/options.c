@@ -88,6 +88,10 @@ void options_print_help(const char *program)
         "  --plain-mixture       weigh a flow sample by the flow's density and a BSDF sample\n"
         "                        by the BSDF's (instead of both by the mixture's): the flow\n"
         "                        is evaluated only at vertices where it samples\n"
+        "  --light-mis-bsdf      weigh light samples against scattering by the BSDF's\n"
+        "                        density, not the mixture's: the flow is not asked the\n"
+        "                        density of a light sample's direction (the scattered\n"
+        "                        direction still weighs by the mixture)\n"
         "  --no-batching         passes trace one path at a time and ask the flow at\n"
         "                        shading points, instead of advancing 256 paths together\n"
         "                        and batching their questions (the same image, slower)\n"
@@ -183,6 +187,10 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
         }
         if (!strcmp(a, "--no-batching")) {
             o->no_batching = 1;
+            continue;
+        }
+        if (!strcmp(a, "--light-mis-bsdf")) {
+            o->light_mis_bsdf = 1;
             continue;
         }
         if (!strcmp(a, "--mis-training")) {

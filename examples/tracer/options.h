@@ -46,6 +46,7 @@ typedef struct options {
     int mis_training;         /* --mis-training                                               */
     int plain_mixture;        /* --plain-mixture                                              */
     int no_batching;          /* --no-batching                                                */
+    int light_mis_bsdf;       /* --light-mis-bsdf                                             */
     float guide_min_roughness; /* --guide-min-roughness                                      */
     int guide_depth;          /* guide vertices up to this depth (segments), 0: all           */
     int help;

@@ -433,7 +433,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
      * needs the flow's density of its direction. */
     if (smooth && s->has_lights && nee_plan(t, vp, r, st)) {
         vp->nee = 1;
-        vp->q.light = vp->g > 0.0f && !t->plain_mixture;
+        vp->q.light = vp->g > 0.0f && !t->plain_mixture && !t->light_mis_bsdf;
     }
 
     /* Russian roulette, before scattering, so that a vertex either scatters fully or not at
@@ -522,7 +522,8 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
             p_weight = vp->flow_chosen ? p_flow : p_bsdf;
             pdf = p_bsdf; /* MIS against light sampling ignores the flow (nee_plan too) */
         } else {
-            p_weight = pdf = g * p_flow + (1.0f - g) * p_bsdf;
+            p_weight = g * p_flow + (1.0f - g) * p_bsdf;
+            pdf = t->light_mis_bsdf ? p_bsdf : p_weight; /* as nee_plan weighs, see tracer */
         }
         if (!(p_weight > 0.0f) || rgb_is_black(f))
             return 0;

@@ -30,6 +30,9 @@ typedef struct tracer {
                             * NULL: guide_prob everywhere                                  */
     int plain_mixture;     /* each technique weighs by its own density, MIS against lights
                             * by the BSDF's: the flow is evaluated only where it samples   */
+    int light_mis_bsdf;    /* MIS between light sampling and scattering by the BSDF's density
+                            * (the scattered direction still weighs by the mixture's): a
+                            * light sample never asks the flow                            */
     int no_batching;       /* budget passes trace one path at a time (trace_paths_pay)      */
     int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
                             * (what the scattering estimator needs) instead of all of it   */

@@ -2,7 +2,8 @@
  * test_budget.c - the equal-time levers stay unbiased, and the time-budgeted job keeps its
  * budget:
  *   - every lever of the guided vertex (plain mixture, guiding depth, smooth conductors left
- *     unguided, MIS-aware training, a learned guiding probability with cells switched off)
+ *     unguided, MIS-aware training, a learned guiding probability with cells switched off,
+ *     light samples weighed against the BSDF's density)
  *     renders the mixed scene with the same mean as plain path tracing;
  *   - render_with_budget, guided, with its training passes combined into the image, agrees
  *     with plain path tracing too, ends within its budget and reports consistent counts;
@@ -110,19 +111,22 @@ typedef struct lever {
     const char *name;
     int plain, depth, mis_training, selection;
     float min_roughness;
+    int light_mis_bsdf;
 } lever;
 
 static void test_levers_match_unguided(void **state)
 {
     (void)state;
     static const lever levers[] = {
-        {"balance mixture (default)", 0, 0, 0, 0, 0.0f},
-        {"plain mixture", 1, 0, 0, 0, 0.0f},
-        {"guiding depth 1", 0, 1, 0, 0, 0.0f},
-        {"rough conductor (alpha 0.3) unguided", 0, 0, 0, 0, 0.5f},
-        {"MIS-aware training", 0, 0, 1, 0, 0.0f},
-        {"guiding probability per cell, some off", 0, 0, 0, 1, 0.0f},
-        {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f},
+        {"balance mixture (default)", 0, 0, 0, 0, 0.0f, 0},
+        {"plain mixture", 1, 0, 0, 0, 0.0f, 0},
+        {"guiding depth 1", 0, 1, 0, 0, 0.0f, 0},
+        {"rough conductor (alpha 0.3) unguided", 0, 0, 0, 0, 0.5f, 0},
+        {"MIS-aware training", 0, 0, 1, 0, 0.0f, 0},
+        {"guiding probability per cell, some off", 0, 0, 0, 1, 0.0f, 0},
+        {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f, 0},
+        {"light MIS by the BSDF's density", 0, 0, 0, 0, 0.0f, 1},
+        {"light MIS by p_bsdf, MIS-aware, cells off", 0, 0, 1, 1, 0.0f, 1},
     };
     scene s = load_mixed();
     tracer plain = {.s = &s};
@@ -135,6 +139,7 @@ static void test_levers_match_unguided(void **state)
         t.guide_depth = l->depth;
         t.mis_training = l->mis_training;
         t.guide_min_roughness = l->min_roughness;
+        t.light_mis_bsdf = l->light_mis_bsdf;
         selection_grid grid;
         if (l->selection) {
             assert_true(selection_init(&grid, s.bounds_min, s.bounds_max, 0.5f));

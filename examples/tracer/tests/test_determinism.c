@@ -146,7 +146,7 @@ static void assert_same_records(const record_buffer *a, const record_buffer *b)
  * (no_batching), and with the questions of TRACE_BATCH paths batched (trace_paths), with
  * records (a training pass) and without. 37 x 23 pixels leave partial tiles and partial
  * batches. */
-static void check_batched_pass(guide_prior prior, int plain_mixture)
+static void check_batched_pass(guide_prior prior, int plain_mixture, int light_mis_bsdf)
 {
     scene s;
     tr_error err;
@@ -156,7 +156,7 @@ static void check_batched_pass(guide_prior prior, int plain_mixture)
     image trained, one, batched, recorded, other;
     train_and_render(&s, prior, 2, 7, &m, &trained);
     tracer t = {.s = &s, .model = m, .guide_prob = 0.5f, .bsdf_prior = prior == GUIDE_PRIOR_BSDF,
-                .plain_mixture = plain_mixture};
+                .plain_mixture = plain_mixture, .light_mis_bsdf = light_mis_bsdf};
     tracer one_by_one = t;
     one_by_one.no_batching = 1;
     assert_true(image_alloc(&one, s.width, s.height, &err));
@@ -193,9 +193,10 @@ static void check_batched_pass(guide_prior prior, int plain_mixture)
 static void test_batched_pass_equals_one_path_at_a_time(void **state)
 {
     (void)state;
-    check_batched_pass(GUIDE_PRIOR_COSINE, 0);
-    check_batched_pass(GUIDE_PRIOR_COSINE, 1);
-    check_batched_pass(GUIDE_PRIOR_BSDF, 0); /* asked at shading points in both passes */
+    check_batched_pass(GUIDE_PRIOR_COSINE, 0, 0);
+    check_batched_pass(GUIDE_PRIOR_COSINE, 1, 0);
+    check_batched_pass(GUIDE_PRIOR_COSINE, 0, 1); /* light samples ask nothing */
+    check_batched_pass(GUIDE_PRIOR_BSDF, 0, 0); /* asked at shading points in both passes */
 }
 
 int main(void)
