@@ -17,7 +17,9 @@
  *     scattered ray weighs p_mix against the light density (power heuristic).
  * The plain mixture (tracer.plain_mixture) is the other one-sample estimator: each technique
  * weighs its direction by its own density, and light-sampling MIS uses p_bsdf on both sides
- * (the weights still sum to one); the flow is then called only where it samples. Which
+ * (the weights still sum to one); the flow is then called only where it samples. With
+ * tracer.light_mis_bsdf only light-sampling MIS uses p_bsdf on both sides, and the light
+ * sample asks the flow nothing; the scattered direction still weighs by p_mix. Which
  * vertices are guided: non-delta ones up to guide_depth, not smooth rough conductors
  * (guide_min_roughness), and where a learned selection grid gives g = 0 none at all.
  *
@@ -523,7 +525,8 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
             pdf = p_bsdf; /* MIS against light sampling ignores the flow (nee_plan too) */
         } else {
             p_weight = g * p_flow + (1.0f - g) * p_bsdf;
-            pdf = t->light_mis_bsdf ? p_bsdf : p_weight; /* as nee_plan weighs, see tracer */
+            /* light MIS's density, the same as the light sample's side uses (vertex_finish) */
+            pdf = t->light_mis_bsdf ? p_bsdf : p_weight;
         }
         if (!(p_weight > 0.0f) || rgb_is_black(f))
             return 0;
