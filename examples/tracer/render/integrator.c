@@ -282,6 +282,13 @@ typedef struct vertex_plan {
     flow_questions q;
 } vertex_plan;
 
+/* Whether light-sampling MIS weighs with the mixture's density, which asks the flow; the plain
+ * mixture and light_mis_bsdf weigh both sides with p_bsdf instead. */
+static int light_mis_uses_flow(const tracer *t)
+{
+    return !t->plain_mixture && !t->light_mis_bsdf;
+}
+
 /* One light sample towards an unoccluded light, weighed later against the scattering
  * density (vertex_finish). Returns 0 when it contributes nothing. */
 static int nee_plan(const tracer *t, vertex_plan *vp, rng *r, path_stats *st)
@@ -435,7 +442,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
      * needs the flow's density of its direction. */
     if (smooth && s->has_lights && nee_plan(t, vp, r, st)) {
         vp->nee = 1;
-        vp->q.light = vp->g > 0.0f && !t->plain_mixture && !t->light_mis_bsdf;
+        vp->q.light = vp->g > 0.0f && light_mis_uses_flow(t);
     }
 
     /* Russian roulette, before scattering, so that a vertex either scatters fully or not at
@@ -520,14 +527,12 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         vec3 wi_l;
         rgb f = shading_eval(&vp->sh, wi, &wi_l);
         float p_weight; /* the density the throughput divides by */
-        if (t->plain_mixture) {
+        if (t->plain_mixture)
             p_weight = vp->flow_chosen ? p_flow : p_bsdf;
-            pdf = p_bsdf; /* MIS against light sampling ignores the flow (nee_plan too) */
-        } else {
+        else
             p_weight = g * p_flow + (1.0f - g) * p_bsdf;
-            /* light MIS's density, the same as the light sample's side uses (vertex_finish) */
-            pdf = t->light_mis_bsdf ? p_bsdf : p_weight;
-        }
+        /* the density light MIS weighs with, as the light sample's side above */
+        pdf = light_mis_uses_flow(t) ? p_weight : p_bsdf;
         if (!(p_weight > 0.0f) || rgb_is_black(f))
             return 0;
         weight = rgb_scale(f, 1.0f / p_weight);
