@@ -124,6 +124,7 @@ guide_settings guide_default_settings(guide_prior prior)
     g.phi_interval = 0;
     g.learning_rate = 5e-3f;
     g.prior_epsilon = -1.0f;
+    g.sh_bands = -1;
     g.seed = 1;
     return g;
 }
@@ -182,6 +183,8 @@ int guide_create(const scene *s, const guide_settings *settings, nf_model **out,
         cfg.custom_prior = guide_bsdf_callbacks();
     if (settings->prior_epsilon >= 0.0f)
         cfg.prior_epsilon = settings->prior_epsilon;
+    if (settings->sh_bands >= 0)
+        cfg.sh_bands = (uint32_t)settings->sh_bands;
     model_bounds(s, cfg.bounds_min, cfg.bounds_max);
     cfg.learning_rate = settings->learning_rate;
     cfg.seed = settings->seed;

@@ -57,11 +57,13 @@ typedef struct guide_settings {
     int phi_interval;       /* NF_PHI_INTERVAL instead of the library's NF_PHI_CIRCULAR       */
     float learning_rate;
     float prior_epsilon;    /* the cosine/bsdf priors' uniform mixture weight; < 0: default   */
+    int sh_bands;           /* nf_config.sh_bands, the context's normal and wo encoding;
+                             * < 0: the preset's (4)                                       */
     uint64_t seed;
 } guide_settings;
 
 /* The defaults for `prior` (the command line's too): small model, rate 5e-3, the library's
- * prior_epsilon, seed 1. */
+ * prior_epsilon and sh_bands, seed 1. */
 guide_settings guide_default_settings(guide_prior prior);
 
 /* Creates a model for the scene: positions are normalized by the scene's bounds (padded a

@@ -351,6 +351,7 @@ static int run(int argc, char **argv)
         gs.phi_interval = o.phi_interval;
         gs.learning_rate = o.learning_rate;
         gs.prior_epsilon = o.prior_epsilon;
+        gs.sh_bands = o.sh_bands;
         gs.seed = o.seed;
         int ok = o.load_model ? guide_load(o.load_model, &model, &err)
                               : guide_create(&s, &gs, &model, &err);

@@ -44,11 +44,14 @@ void options_print_help(const char *program)
         "  --guide-prob P        probability of sampling the flow at a guided vertex (default 0.5)\n"
         "  --prior-epsilon E     weight of the uniform density mixed into the cosine and bsdf\n"
         "                        priors, in (0, 1] (default: the library's, 0.01)\n"
+        "  --sh-bands N          spherical-harmonic bands of the normal and of the\n"
+        "                        outgoing direction in the flow's input, 0-6; 0: the\n"
+        "                        position alone (default: the model's, 4)\n"
         "  --no-guiding          plain path tracing (BSDF sampling and next-event estimation)\n"
         "  --save-model FILE     save the trained model\n"
         "  --load-model FILE     start from a saved model (its prior, epsilon and architecture\n"
-        "                        replace --prior, --prior-epsilon and --model; --lr, if given,\n"
-        "                        replaces its rate)\n"
+        "                        replace --prior, --prior-epsilon, --sh-bands and --model;\n"
+        "                        --lr, if given, replaces its rate)\n"
         "\n"
         "Rendering and evaluation:\n"
         "  --spp N               samples per pixel of the final image (default 32)\n"
@@ -145,6 +148,7 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->prior = model.prior;
     o->learning_rate = model.learning_rate;
     o->prior_epsilon = model.prior_epsilon;
+    o->sh_bands = model.sh_bands;
     o->seed = model.seed;
     o->iterations = 200;
     o->batch = 4096;
@@ -275,6 +279,8 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             ok = parse_float(a, v, 0.0, 0.99, &o->guide_prob, err);
         else if (!strcmp(a, "--prior-epsilon"))
             ok = parse_float(a, v, 1e-6, 1.0, &o->prior_epsilon, err);
+        else if (!strcmp(a, "--sh-bands"))
+            ok = parse_int(a, v, 0, NF_MAX_SH_BANDS, &o->sh_bands, err);
         else if (!strcmp(a, "--time-budget"))
             ok = parse_float(a, v, 0.01, 1e6, &o->time_budget, err);
         else if (!strcmp(a, "--train-fraction"))

@@ -29,6 +29,7 @@ typedef struct options {
     uint64_t seed;
     float guide_prob;
     float prior_epsilon;      /* cosine/bsdf defensive mixture weight; < 0: the library's     */
+    int sh_bands;             /* the context's normal/wo encoding bands; < 0: the preset's    */
     int guiding;
     int reference_mode;
     float exposure;

@@ -1,8 +1,10 @@
 /*
  * test_options.c - the command line reaches the model: --prior-epsilon (used by the paper
  * study's sweep) is parsed, range-checked, and ends up in the created model's config, and
- * leaving it out keeps the library's default; --phi-map (the seam study's) likewise.
+ * leaving it out keeps the library's default; --phi-map (the seam study's) and --sh-bands
+ * (the equal-time study's) likewise.
  */
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -101,12 +103,59 @@ static void test_created_model_carries_the_epsilon(void **state)
     scene_free(&s);
 }
 
+static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(parse(&o, NULL, NULL, &err));
+    assert_true(o.sh_bands < 0); /* not given: the preset's */
+    assert_true(parse(&o, "--sh-bands", "0", &err));
+    assert_int_equal(o.sh_bands, 0);
+    assert_true(parse(&o, "--sh-bands", "6", &err));
+    assert_int_equal(o.sh_bands, 6);
+    const char *bad[] = {"-1", "7", "2.5", "two", ""};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; ++i) {
+        err.msg[0] = '\0';
+        assert_false(parse(&o, "--sh-bands", bad[i], &err));
+        assert_non_null(strstr(err.msg, "--sh-bands"));
+    }
+
+    scene s;
+    char path[1024];
+    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
+    if (!scene_load(path, &s, &err))
+        fail_msg("%s", err.msg);
+    nf_config defaults;
+    nf_config_init(&defaults, NF_PRESET_SMALL);
+    const int wanted[] = {-1, 0, 2};
+    for (size_t i = 0; i < 3; ++i) {
+        guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+        gs.sh_bands = wanted[i];
+        nf_model *model = NULL;
+        if (!guide_create(&s, &gs, &model, &err))
+            fail_msg("%s", err.msg);
+        nf_config cfg;
+        nf_model_config(model, &cfg);
+        assert_int_equal(cfg.sh_bands, wanted[i] < 0 ? defaults.sh_bands : (uint32_t)wanted[i]);
+        /* A position-only model still samples and evaluates (no SH rows in its input). */
+        nf_context ctx = {{0.1f, 0.2f, 0.3f}, {0.0f, 0.0f, 1.0f}, {0.0f, 1.0f, 0.0f}};
+        float u[2] = {0.3f, 0.7f}, dir[3], pdf = 0.0f, back = 0.0f;
+        assert_int_equal(nf_sample(model, 1, &ctx, u, dir, &pdf), NF_OK);
+        assert_int_equal(nf_pdf(model, 1, &ctx, dir, &back), NF_OK);
+        assert_true(pdf > 0.0f && fabsf(back - pdf) <= 1e-3f * pdf); /* model.h's bound */
+        nf_model_destroy(model);
+    }
+    scene_free(&s);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_prior_epsilon_is_parsed_and_range_checked),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
         cmocka_unit_test(test_phi_map_is_parsed_and_reaches_the_model),
+        cmocka_unit_test(test_sh_bands_are_parsed_and_reach_the_model),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
