@@ -143,7 +143,9 @@ static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
         float u[2] = {0.3f, 0.7f}, dir[3], pdf = 0.0f, back = 0.0f;
         assert_int_equal(nf_sample(model, 1, &ctx, u, dir, &pdf), NF_OK);
         assert_int_equal(nf_pdf(model, 1, &ctx, dir, &back), NF_OK);
-        assert_true(pdf > 0.0f && fabsf(back - pdf) <= 1e-3f * pdf); /* model.h's bound */
+        /* A fresh model is a well-conditioned flow: model.h bounds the relative difference
+         * by 1e-4 away from the poles; 1e-3 leaves room for a direction near one. */
+        assert_true(pdf > 0.0f && fabsf(back - pdf) <= 1e-3f * pdf);
         nf_model_destroy(model);
     }
     scene_free(&s);
