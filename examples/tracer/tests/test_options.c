@@ -24,6 +24,33 @@ static int parse(options *o, const char *a, const char *b, tr_error *err)
     return options_parse(a ? 5 : 3, argv, o, err);
 }
 
+/* The Cornell box, the scene every model below is created for. */
+static void load_cornell(scene *s)
+{
+    tr_error err;
+    char path[1024];
+    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
+    if (!scene_load(path, s, &err))
+        fail_msg("%s", err.msg);
+}
+
+/* The config of the model guide_create makes from gs (the model itself in *keep when asked
+ * for, else destroyed). */
+static nf_config created_config(const scene *s, const guide_settings *gs, nf_model **keep)
+{
+    tr_error err;
+    nf_model *model = NULL;
+    if (!guide_create(s, gs, &model, &err))
+        fail_msg("%s", err.msg);
+    nf_config cfg;
+    nf_model_config(model, &cfg);
+    if (keep)
+        *keep = model;
+    else
+        nf_model_destroy(model);
+    return cfg;
+}
+
 static void test_prior_epsilon_is_parsed_and_range_checked(void **state)
 {
     (void)state;
@@ -58,20 +85,12 @@ static void test_phi_map_is_parsed_and_reaches_the_model(void **state)
     assert_non_null(strstr(err.msg, "--phi-map"));
 
     scene s;
-    char path[1024];
-    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
-    if (!scene_load(path, &s, &err))
-        fail_msg("%s", err.msg);
+    load_cornell(&s);
     for (int interval = 0; interval < 2; ++interval) {
         guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
         gs.phi_interval = interval;
-        nf_model *model = NULL;
-        if (!guide_create(&s, &gs, &model, &err))
-            fail_msg("%s", err.msg);
-        nf_config cfg;
-        nf_model_config(model, &cfg);
+        nf_config cfg = created_config(&s, &gs, NULL);
         assert_int_equal(cfg.phi_map, interval ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR);
-        nf_model_destroy(model);
     }
     scene_free(&s);
 }
@@ -80,25 +99,15 @@ static void test_created_model_carries_the_epsilon(void **state)
 {
     (void)state;
     scene s;
-    tr_error err;
-    char path[1024];
-    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
-    if (!scene_load(path, &s, &err))
-        fail_msg("%s", err.msg);
-
+    load_cornell(&s);
     nf_config defaults;
     nf_config_init(&defaults, NF_PRESET_SMALL);
     const float wanted[] = {-1.0f, 0.001f, 0.25f};
     for (size_t i = 0; i < 3; ++i) {
         guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
         gs.prior_epsilon = wanted[i];
-        nf_model *model = NULL;
-        if (!guide_create(&s, &gs, &model, &err))
-            fail_msg("%s", err.msg);
-        nf_config cfg;
-        nf_model_config(model, &cfg);
+        nf_config cfg = created_config(&s, &gs, NULL);
         assert_true(cfg.prior_epsilon == (wanted[i] < 0.0f ? defaults.prior_epsilon : wanted[i]));
-        nf_model_destroy(model);
     }
     scene_free(&s);
 }
@@ -122,10 +131,7 @@ static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
     }
 
     scene s;
-    char path[1024];
-    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
-    if (!scene_load(path, &s, &err))
-        fail_msg("%s", err.msg);
+    load_cornell(&s);
     nf_config defaults;
     nf_config_init(&defaults, NF_PRESET_SMALL);
     const int wanted[] = {-1, 0, 2};
@@ -133,10 +139,7 @@ static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
         guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
         gs.sh_bands = wanted[i];
         nf_model *model = NULL;
-        if (!guide_create(&s, &gs, &model, &err))
-            fail_msg("%s", err.msg);
-        nf_config cfg;
-        nf_model_config(model, &cfg);
+        nf_config cfg = created_config(&s, &gs, &model);
         assert_int_equal(cfg.sh_bands, wanted[i] < 0 ? defaults.sh_bands : (uint32_t)wanted[i]);
         /* A position-only model still samples and evaluates (no SH rows in its input). */
         nf_context ctx = {{0.1f, 0.2f, 0.3f}, {0.0f, 0.0f, 1.0f}, {0.0f, 1.0f, 0.0f}};
