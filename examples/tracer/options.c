@@ -103,6 +103,9 @@ void options_print_help(const char *program)
         "  --guide-min-roughness A  rough conductors with alpha below A are not guided\n"
         "                        (default 0)\n"
         "  --guide-depth N       guide vertices up to N segments deep, 0 all (default 0)\n"
+        "  --guide-max-boost B   lower the guiding probability along a path so that the\n"
+        "                        mixture raises its throughput over BSDF sampling's at\n"
+        "                        most B-fold (default 0: no cap)\n"
         "\n"
         "Execution:\n"
         "  --threads N           worker threads (default: the number of processors); under\n"
@@ -297,6 +300,8 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             ok = parse_float(a, v, 0.0, 1000.0, &o->selection_cost, err);
         else if (!strcmp(a, "--guide-min-roughness"))
             ok = parse_float(a, v, 0.0, 1.0, &o->guide_min_roughness, err);
+        else if (!strcmp(a, "--guide-max-boost"))
+            ok = parse_float(a, v, 0.0, 1e6, &o->guide_max_boost, err);
         else if (!strcmp(a, "--guide-depth"))
             ok = parse_int(a, v, 0, 100000, &o->guide_depth, err);
         else if (!strcmp(a, "--exposure"))

@@ -26,6 +26,9 @@ typedef struct tracer {
     int guide_depth;       /* guide only vertices up to this many segments deep; 0: all    */
     float guide_min_roughness; /* rough conductors smoother than this are not guided: their
                             * lobe is sharper than the flow learns, BSDF sampling wins     */
+    float guide_max_boost; /* > 0: a vertex's g is lowered so that the path's boost (path_state)
+                            * times 1 / (1 - g), the most this vertex can add, stays within
+                            * it; 0: g as given everywhere                                 */
     const struct selection_grid *selection; /* learned guiding probability per cell (selection.h);
                             * NULL: guide_prob everywhere                                  */
     int plain_mixture;     /* each technique weighs by its own density, MIS against lights
@@ -82,6 +85,8 @@ typedef struct path_state {
     ray ry;
     float prev_pdf; /* density of the last scattered direction (0: delta or camera) */
     int depth;      /* segments traced so far                                       */
+    float boost;    /* product over the guided vertices so far of p_bsdf / p_mix: how much
+                     * the mixture has raised the throughput over BSDF sampling's        */
 } path_state;
 
 /* Traces the path through film position (px, py) and returns its radiance estimate.

@@ -112,21 +112,26 @@ typedef struct lever {
     int plain, depth, mis_training, selection;
     float min_roughness;
     int light_mis_bsdf;
+    float max_boost;
 } lever;
 
 static void test_levers_match_unguided(void **state)
 {
     (void)state;
     static const lever levers[] = {
-        {"balance mixture (default)", 0, 0, 0, 0, 0.0f, 0},
-        {"plain mixture", 1, 0, 0, 0, 0.0f, 0},
-        {"guiding depth 1", 0, 1, 0, 0, 0.0f, 0},
-        {"rough conductor (alpha 0.3) unguided", 0, 0, 0, 0, 0.5f, 0},
-        {"MIS-aware training", 0, 0, 1, 0, 0.0f, 0},
-        {"guiding probability per cell, some off", 0, 0, 0, 1, 0.0f, 0},
-        {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f, 0},
-        {"light MIS by the BSDF's density", 0, 0, 0, 0, 0.0f, 1},
-        {"light MIS by p_bsdf, MIS-aware, cells off", 0, 0, 1, 1, 0.0f, 1},
+        {"balance mixture (default)", 0, 0, 0, 0, 0.0f, 0, 0.0f},
+        {"plain mixture", 1, 0, 0, 0, 0.0f, 0, 0.0f},
+        {"guiding depth 1", 0, 1, 0, 0, 0.0f, 0, 0.0f},
+        {"rough conductor (alpha 0.3) unguided", 0, 0, 0, 0, 0.5f, 0, 0.0f},
+        {"MIS-aware training", 0, 0, 1, 0, 0.0f, 0, 0.0f},
+        {"guiding probability per cell, some off", 0, 0, 0, 1, 0.0f, 0, 0.0f},
+        {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f, 0, 0.0f},
+        {"light MIS by the BSDF's density", 0, 0, 0, 0, 0.0f, 1, 0.0f},
+        {"light MIS by p_bsdf, MIS-aware, cells off", 0, 0, 1, 1, 0.0f, 1, 0.0f},
+        /* g = 0.5 raises a BSDF sample at most 2-fold: a cap of 3 lowers the second guided
+         * vertex's g to 1 - boost / 3 or turns it off, so g varies along every path */
+        {"boost capped at 3", 0, 0, 0, 0, 0.0f, 0, 3.0f},
+        {"boost capped at 3, MIS-aware, light MIS by p_bsdf", 0, 0, 1, 0, 0.0f, 1, 3.0f},
     };
     scene s = load_mixed();
     tracer plain = {.s = &s};
@@ -140,6 +145,7 @@ static void test_levers_match_unguided(void **state)
         t.mis_training = l->mis_training;
         t.guide_min_roughness = l->min_roughness;
         t.light_mis_bsdf = l->light_mis_bsdf;
+        t.guide_max_boost = l->max_boost;
         selection_grid grid;
         if (l->selection) {
             assert_true(selection_init(&grid, s.bounds_min, s.bounds_max, 0.5f));

@@ -2,7 +2,7 @@
  * test_options.c - the command line reaches the model: --prior-epsilon (used by the paper
  * study's sweep) is parsed, range-checked, and ends up in the created model's config, and
  * leaving it out keeps the library's default; --phi-map (the seam study's) and --sh-bands
- * (the equal-time study's) likewise.
+ * (the equal-time study's) likewise; --guide-max-boost is parsed and range-checked.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -66,6 +66,25 @@ static void test_prior_epsilon_is_parsed_and_range_checked(void **state)
         err.msg[0] = '\0';
         assert_false(parse(&o, "--prior-epsilon", bad[i], &err));
         assert_non_null(strstr(err.msg, "--prior-epsilon"));
+    }
+}
+
+static void test_guide_max_boost_is_parsed_and_range_checked(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(parse(&o, NULL, NULL, &err));
+    assert_true(o.guide_max_boost == 0.0f); /* not given: no cap */
+    assert_true(parse(&o, "--guide-max-boost", "10", &err));
+    assert_true(o.guide_max_boost == 10.0f);
+    assert_true(parse(&o, "--guide-max-boost", "0", &err));
+    assert_true(o.guide_max_boost == 0.0f);
+    const char *bad[] = {"-1", "1e7", "nan", "abc", ""};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; ++i) {
+        err.msg[0] = '\0';
+        assert_false(parse(&o, "--guide-max-boost", bad[i], &err));
+        assert_non_null(strstr(err.msg, "--guide-max-boost"));
     }
 }
 
@@ -157,6 +176,7 @@ static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_guide_max_boost_is_parsed_and_range_checked),
         cmocka_unit_test(test_prior_epsilon_is_parsed_and_range_checked),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
         cmocka_unit_test(test_phi_map_is_parsed_and_reaches_the_model),
