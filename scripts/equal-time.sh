@@ -62,7 +62,7 @@ declare -A SIZE=([cornell-box]="--width 256 --height 256"
 
 # The guided tracer as the study runs it: every option of the equal-time configuration
 # (docs/equal-time.md, "The guided configuration"); the tracer's defaults for the rest.
-GUIDED="--guide-prob 0.7 --mis-training --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15 --sh-bands 0"
+GUIDED="--guide-prob 0.7 --mis-training --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15 --sh-bands 0 --guide-max-boost 10"
 # The ablation: one lever changed at a time from GUIDED, name|options.
 without() { # GUIDED without the option $1 (and its value, if $2 is "value")
     local out="" skip=0 w
@@ -88,6 +88,7 @@ ABLATION=(
     "trained on all the emission found, not its MIS-weighted part|$(without --mis-training)"
     "plain mixture (the flow evaluated only where it samples)|$GUIDED --plain-mixture"
     "passes one path at a time, the flow asked at shading points|$GUIDED --no-batching"
+    "the mixture's boost over BSDF sampling not capped|$(without --guide-max-boost value)"
 )
 
 start=$(date +%s)
