@@ -350,13 +350,7 @@ static int scatter_plan(const tracer *t, vertex_plan *vp, rng *r)
     return 1;
 }
 
-/* A BSDF sample where the flow has no mass weighs 1 / (1 - g) times what BSDF sampling alone
- * would give it, and along a path these factors multiply: four guided vertices at g = 0.7
- * can raise a path 120-fold where the flow missed its light, which is how guided renders
- * of veach-bidir get their fireflies. Capping the product bounds that. The cap depends only
- * on the path so far, so the estimator stays unbiased; below g = 0.05 the vertex is left
- * unguided, since the flow's evaluation would cost more than it could help. */
-static float boost_capped_prob(float g, float boost, float cap)
+float guide_capped_prob(float g, float boost, float cap)
 {
     float most = 1.0f - boost / cap; /* boost / (1 - g) <= cap */
     if (g <= most)
@@ -450,7 +444,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
             vp->g = selection_prob(t->selection, vp->cell);
         }
         if (t->guide_max_boost > 0.0f)
-            vp->g = boost_capped_prob(vp->g, ps->boost, t->guide_max_boost);
+            vp->g = guide_capped_prob(vp->g, ps->boost, t->guide_max_boost);
         st->guided_vertices += vp->g > 0.0f;
     }
 

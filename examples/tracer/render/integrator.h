@@ -77,6 +77,15 @@ typedef struct path_stats {
 } path_stats;
 _Static_assert(sizeof(path_stats) == 6 * sizeof(uint64_t), "path_stats: uint64_t counters only");
 
+/* The guiding probability of a vertex under tracer.guide_max_boost = cap (> 0), for a path
+ * whose boost (path_state) is `boost`: g itself, or 1 - boost / cap where that is smaller, or
+ * 0 below 0.05 (a vertex guided that little would pay the flow's evaluation for nothing).
+ * A BSDF sample where the flow has no mass weighs 1 / (1 - g) times what BSDF sampling alone
+ * would give it, and along a path these factors multiply (four guided vertices at g = 0.7:
+ * 120-fold); the cap bounds their product. It depends only on the path so far, so the
+ * estimator stays unbiased. */
+float guide_capped_prob(float g, float boost, float cap);
+
 void path_stats_add(path_stats *a, const path_stats *b);
 
 /* A path between two vertices: what it has gathered and the ray it follows next. */

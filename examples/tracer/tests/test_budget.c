@@ -3,8 +3,10 @@
  * budget:
  *   - every lever of the guided vertex (plain mixture, guiding depth, smooth conductors left
  *     unguided, MIS-aware training, a learned guiding probability with cells switched off,
- *     light samples weighed against the BSDF's density)
+ *     light samples weighed against the BSDF's density, the mixture's boost capped)
  *     renders the mixed scene with the same mean as plain path tracing;
+ *   - the boost cap lowers the guiding probability as integrator.h says, and a cap the first
+ *     vertex already reaches guides nothing;
  *   - render_with_budget, guided, with its training passes combined into the image, agrees
  *     with plain path tracing too, ends within its budget and reports consistent counts;
  *   - the learned guiding probability moves towards the technique whose density is larger
@@ -242,6 +244,50 @@ static void test_budget_job_relative_training(void **state)
 
 /* A scene without light: no training sample, zero variance everywhere; the combination must
  * fall back to pass counts, not divide by zero (which gave NaN pixels). */
+/* Guided vertices of one render of the mixed scene with the cap `max_boost` (0: none). */
+static uint64_t guided_vertices_with_cap(float max_boost)
+{
+    scene s = load_mixed();
+    tracer t = {.s = &s};
+    nf_model *model = trained_model(&t);
+    t.guide_max_boost = max_boost;
+    tr_error err;
+    path_stats st = {0};
+    image img;
+    assert_true(image_alloc(&img, s.width, s.height, &err));
+    if (!render_image(&t, 8, 11, 0, 2, &img, &st, NULL, &err))
+        fail_msg("%s", err.msg);
+    assert_int_equal(st.nf_errors, 0);
+    image_free(&img);
+    nf_model_destroy(model);
+    scene_free(&s);
+    return st.guided_vertices;
+}
+
+static void test_boost_cap_lowers_guiding(void **state)
+{
+    (void)state;
+    /* boost / (1 - g) <= cap: g kept where it fits, lowered to 1 - boost / cap where not,
+     * 0 once that is below 0.05. The expected values are exact in float up to rounding of
+     * 1 - boost / cap, hence the 1e-6. */
+    assert_true(guide_capped_prob(0.7f, 1.0f, 10.0f) == 0.7f); /* 3.3 <= 10          */
+    assert_true(guide_capped_prob(0.7f, 3.0f, 10.0f) == 0.7f); /* 3 / 0.3 = 10       */
+    assert_true(fabsf(guide_capped_prob(0.7f, 5.0f, 10.0f) - 0.5f) < 1e-6f);
+    assert_true(fabsf(guide_capped_prob(0.7f, 0.5f, 1.0f) - 0.5f) < 1e-6f);
+    assert_true(guide_capped_prob(0.7f, 9.6f, 10.0f) == 0.0f); /* 0.04 < 0.05        */
+    assert_true(guide_capped_prob(0.7f, 12.0f, 10.0f) == 0.0f);
+    assert_true(guide_capped_prob(0.2f, 0.1f, 1.0f) == 0.2f); /* a well-drawn path  */
+
+    /* Wired into the integrator: g = 0.5 lets the first vertex alone raise a path 2-fold,
+     * so a cap of 1.02 leaves it g = 0.02 and no vertex is guided. */
+    uint64_t none = guided_vertices_with_cap(0.0f);
+    uint64_t first = guided_vertices_with_cap(1.02f);
+    printf("  guided vertices: no cap %llu, cap 1.02 %llu\n", (unsigned long long)none,
+           (unsigned long long)first);
+    assert_true(none > 0);
+    assert_int_equal(first, 0);
+}
+
 static void test_budget_job_black_scene(void **state)
 {
     (void)state;
@@ -446,6 +492,7 @@ int main(void)
         cmocka_unit_test(test_selection_learns_direction),
         cmocka_unit_test(test_selection_cost_switches_off),
         cmocka_unit_test(test_levers_match_unguided),
+        cmocka_unit_test(test_boost_cap_lowers_guiding),
         cmocka_unit_test(test_budget_job),
         cmocka_unit_test(test_budget_job_learned_selection),
         cmocka_unit_test(test_budget_job_relative_training),
