@@ -531,6 +531,8 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
     float pdf = 0.0f, p_flow = q->p_flow, p_bsdf = vp->p_bsdf;
     if (vp->delta) {
         weight = vp->delta_weight;
+        if (g > 0.0f && !t->plain_mixture)
+            ps->boost /= 1.0f - g; /* the BSDF technique ran with probability 1 - g */
     } else {
         if (vp->flow_chosen)
             p_bsdf = bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, frame_to_local(&vp->sh.fr, wi));

@@ -94,8 +94,9 @@ typedef struct path_state {
     ray ry;
     float prev_pdf; /* density of the last scattered direction (0: delta or camera) */
     int depth;      /* segments traced so far                                       */
-    float boost;    /* product over the guided vertices so far of p_bsdf / p_mix: how much
-                     * the mixture has raised the throughput over BSDF sampling's        */
+    float boost;    /* product over the guided vertices so far of p_bsdf / p_mix (1 / (1 - g)
+                     * for a delta lobe): how much the mixture has raised the throughput
+                     * over BSDF sampling's; not tracked under the plain mixture         */
 } path_state;
 
 /* Traces the path through film position (px, py) and returns its radiance estimate.

@@ -130,8 +130,8 @@ static void test_levers_match_unguided(void **state)
         {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f, 0, 0.0f},
         {"light MIS by the BSDF's density", 0, 0, 0, 0, 0.0f, 1, 0.0f},
         {"light MIS by p_bsdf, MIS-aware, cells off", 0, 0, 1, 1, 0.0f, 1, 0.0f},
-        /* g = 0.5 raises a BSDF sample at most 2-fold: a cap of 3 lowers the second guided
-         * vertex's g to 1 - boost / 3 or turns it off, so g varies along every path */
+        /* g = 0.5 raises a BSDF sample at most 2-fold: a cap of 3 lowers the g of a vertex
+         * after misses to 1 - boost / 3 or turns it off, so g varies along the paths */
         {"boost capped at 3", 0, 0, 0, 0, 0.0f, 0, 3.0f},
         {"boost capped at 3, MIS-aware, light MIS by p_bsdf", 0, 0, 1, 0, 0.0f, 1, 3.0f},
     };
@@ -242,8 +242,6 @@ static void test_budget_job_relative_training(void **state)
     check_budget_job(0, 1);
 }
 
-/* A scene without light: no training sample, zero variance everywhere; the combination must
- * fall back to pass counts, not divide by zero (which gave NaN pixels). */
 /* Guided vertices of one render of the mixed scene with the cap `max_boost` (0: none). */
 static uint64_t guided_vertices_with_cap(float max_boost)
 {
@@ -288,6 +286,8 @@ static void test_boost_cap_lowers_guiding(void **state)
     assert_int_equal(first, 0);
 }
 
+/* A scene without light: no training sample, zero variance everywhere; the combination must
+ * fall back to pass counts, not divide by zero (which gave NaN pixels). */
 static void test_budget_job_black_scene(void **state)
 {
     (void)state;
