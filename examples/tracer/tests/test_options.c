@@ -24,6 +24,18 @@ static int parse(options *o, const char *a, const char *b, tr_error *err)
     return options_parse(a ? 5 : 3, argv, o, err);
 }
 
+/* Each of `bad` given to `flag` is refused, with a message that names the flag. */
+static void assert_refused(const char *flag, const char *const *bad, size_t count)
+{
+    options o;
+    tr_error err;
+    for (size_t i = 0; i < count; ++i) {
+        err.msg[0] = '\0';
+        assert_false(parse(&o, flag, bad[i], &err));
+        assert_non_null(strstr(err.msg, flag));
+    }
+}
+
 /* The Cornell box, the scene every model below is created for. */
 static void load_cornell(scene *s)
 {
@@ -61,12 +73,8 @@ static void test_prior_epsilon_is_parsed_and_range_checked(void **state)
     assert_true(parse(&o, "--prior-epsilon", "0.25", &err));
     assert_true(o.prior_epsilon == 0.25f);
     assert_true(parse(&o, "--prior-epsilon", "1", &err));
-    const char *bad[] = {"0", "-0.1", "1.5", "nan", "abc", ""};
-    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; ++i) {
-        err.msg[0] = '\0';
-        assert_false(parse(&o, "--prior-epsilon", bad[i], &err));
-        assert_non_null(strstr(err.msg, "--prior-epsilon"));
-    }
+    const char *const bad[] = {"0", "-0.1", "1.5", "nan", "abc", ""};
+    assert_refused("--prior-epsilon", bad, sizeof bad / sizeof bad[0]);
 }
 
 static void test_guide_max_boost_is_parsed_and_range_checked(void **state)
@@ -80,12 +88,8 @@ static void test_guide_max_boost_is_parsed_and_range_checked(void **state)
     assert_true(o.guide_max_boost == 10.0f);
     assert_true(parse(&o, "--guide-max-boost", "0", &err));
     assert_true(o.guide_max_boost == 0.0f);
-    const char *bad[] = {"-1", "1e7", "nan", "abc", ""};
-    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; ++i) {
-        err.msg[0] = '\0';
-        assert_false(parse(&o, "--guide-max-boost", bad[i], &err));
-        assert_non_null(strstr(err.msg, "--guide-max-boost"));
-    }
+    const char *const bad[] = {"-1", "1e7", "nan", "abc", ""};
+    assert_refused("--guide-max-boost", bad, sizeof bad / sizeof bad[0]);
 }
 
 static void test_phi_map_is_parsed_and_reaches_the_model(void **state)
@@ -142,12 +146,8 @@ static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
     assert_int_equal(o.sh_bands, 0);
     assert_true(parse(&o, "--sh-bands", "6", &err));
     assert_int_equal(o.sh_bands, 6);
-    const char *bad[] = {"-1", "7", "2.5", "two", ""};
-    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; ++i) {
-        err.msg[0] = '\0';
-        assert_false(parse(&o, "--sh-bands", bad[i], &err));
-        assert_non_null(strstr(err.msg, "--sh-bands"));
-    }
+    const char *const bad[] = {"-1", "7", "2.5", "two", ""};
+    assert_refused("--sh-bands", bad, sizeof bad / sizeof bad[0]);
 
     scene s;
     load_cornell(&s);
