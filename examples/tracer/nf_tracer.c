@@ -337,6 +337,7 @@ static int run(int argc, char **argv)
     t.guide_depth = o.guide_depth;
     t.guide_min_roughness = o.guide_min_roughness;
     t.guide_max_boost = o.guide_max_boost;
+    t.throughput_roulette = o.throughput_roulette;
     t.mis_training = o.mis_training;
     t.plain_mixture = o.plain_mixture;
     t.no_batching = o.no_batching;

@@ -106,6 +106,10 @@ void options_print_help(const char *program)
         "  --guide-max-boost B   lower the guiding probability along a path so that the\n"
         "                        mixture raises its throughput over BSDF sampling's at\n"
         "                        most B-fold (default 0: no cap)\n"
+        "  --throughput-roulette  Russian roulette on the guided path's throughput as the\n"
+        "                        mixture weighed it, instead of the throughput BSDF\n"
+        "                        sampling would have given the same path (the default,\n"
+        "                        which lets a guided path live as plain path tracing would)\n"
         "\n"
         "Execution:\n"
         "  --threads N           worker threads (default: the number of processors); under\n"
@@ -198,6 +202,10 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
         }
         if (!strcmp(a, "--light-mis-bsdf")) {
             o->light_mis_bsdf = 1;
+            continue;
+        }
+        if (!strcmp(a, "--throughput-roulette")) {
+            o->throughput_roulette = 1;
             continue;
         }
         if (!strcmp(a, "--mis-training")) {

@@ -50,6 +50,7 @@ typedef struct options {
     int light_mis_bsdf;       /* --light-mis-bsdf                                             */
     float guide_min_roughness; /* --guide-min-roughness                                      */
     float guide_max_boost;     /* --guide-max-boost; 0: none                                 */
+    int throughput_roulette;   /* --throughput-roulette                                      */
     int guide_depth;          /* guide vertices up to this depth (segments), 0: all           */
     int help;
 } options;

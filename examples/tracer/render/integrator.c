@@ -350,6 +350,11 @@ static int scatter_plan(const tracer *t, vertex_plan *vp, rng *r)
     return 1;
 }
 
+float roulette_survival(rgb throughput, float boost)
+{
+    return fminf(rgb_max(throughput) / boost, 0.95f);
+}
+
 float guide_capped_prob(float g, float boost, float cap)
 {
     float most = 1.0f - boost / cap; /* boost / (1 - g) <= cap */
@@ -459,7 +464,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
      * all (a recorded direction always gets its radiance). */
     vp->rr = 1.0f;
     if (depth >= s->rr_depth) {
-        float q = fminf(rgb_max(ps->throughput), 0.95f);
+        float q = roulette_survival(ps->throughput, t->throughput_roulette ? 1.0f : ps->boost);
         if (!(rng_next(r) < q))
             return 1; /* scatters = 0: the light sample still counts */
         vp->rr = 1.0f / q;

@@ -29,6 +29,9 @@ typedef struct tracer {
     float guide_max_boost; /* > 0: a vertex's g is lowered so that the path's boost (path_state)
                             * times 1 / (1 - g), the most this vertex can add, stays within
                             * it; 0: g as given everywhere                                 */
+    int throughput_roulette; /* Russian roulette on the throughput as the mixture weighed it;
+                            * 0 (default): on the throughput BSDF sampling would have given
+                            * the same path (roulette_survival)                         */
     const struct selection_grid *selection; /* learned guiding probability per cell (selection.h);
                             * NULL: guide_prob everywhere                                  */
     int plain_mixture;     /* each technique weighs by its own density, MIS against lights
@@ -85,6 +88,17 @@ _Static_assert(sizeof(path_stats) == 6 * sizeof(uint64_t), "path_stats: uint64_t
  * 120-fold); the cap bounds their product. It depends only on the path so far, so the
  * estimator stays unbiased. */
 float guide_capped_prob(float g, float boost, float cap);
+
+/* The probability that Russian roulette lets a path go on: its throughput's largest channel,
+ * at most 0.95, with the throughput divided by the path's boost (path_state) first. That
+ * quotient is the throughput BSDF sampling would have given the same path, so a guided path
+ * survives as often as plain path tracing would let it. The throughput itself would punish
+ * guiding where it works: a direction the flow prefers has p_mix above p_bsdf and a lower
+ * throughput, so the paths sent towards the light would die more often than the others, and
+ * the few that live would carry 1/q fireflies. Any survival probability that depends only on
+ * the path so far keeps the estimator unbiased. boost = 1 (no guided vertex, or the plain
+ * mixture, which does not track it) gives plain path tracing's roulette. */
+float roulette_survival(rgb throughput, float boost);
 
 void path_stats_add(path_stats *a, const path_stats *b);
 

@@ -2,7 +2,8 @@
  * test_options.c - the command line reaches the model: --prior-epsilon (used by the paper
  * study's sweep) is parsed, range-checked, and ends up in the created model's config, and
  * leaving it out keeps the library's default; --phi-map (the seam study's) and --sh-bands
- * (the equal-time study's) likewise; --guide-max-boost is parsed and range-checked.
+ * (the equal-time study's) likewise; --guide-max-boost is parsed and range-checked, and
+ * --throughput-roulette switches the roulette.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -21,7 +22,7 @@
 static int parse(options *o, const char *a, const char *b, tr_error *err)
 {
     char *argv[] = {"nf_tracer", "--scene", "x.xml", (char *)a, (char *)b, NULL};
-    return options_parse(a ? 5 : 3, argv, o, err);
+    return options_parse(a ? (b ? 5 : 4) : 3, argv, o, err);
 }
 
 /* Each of `bad` given to `flag` is refused, with a message that names the flag. */
@@ -90,6 +91,17 @@ static void test_guide_max_boost_is_parsed_and_range_checked(void **state)
     assert_true(o.guide_max_boost == 0.0f);
     const char *const bad[] = {"-1", "1e7", "nan", "abc", ""};
     assert_refused("--guide-max-boost", bad, sizeof bad / sizeof bad[0]);
+}
+
+static void test_throughput_roulette_is_a_switch(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(parse(&o, NULL, NULL, &err));
+    assert_int_equal(o.throughput_roulette, 0); /* default: roulette on the BSDF throughput */
+    assert_true(parse(&o, "--throughput-roulette", NULL, &err));
+    assert_int_equal(o.throughput_roulette, 1);
 }
 
 static void test_phi_map_is_parsed_and_reaches_the_model(void **state)
@@ -177,6 +189,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_guide_max_boost_is_parsed_and_range_checked),
+        cmocka_unit_test(test_throughput_roulette_is_a_switch),
         cmocka_unit_test(test_prior_epsilon_is_parsed_and_range_checked),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
         cmocka_unit_test(test_phi_map_is_parsed_and_reaches_the_model),
