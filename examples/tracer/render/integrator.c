@@ -14,7 +14,9 @@
  *   - a delta lobe chosen by the BSDF technique (the coating of a plastic) has probability
  *     (1 - g) times its own, so its weight is divided by (1 - g);
  *   - next-event estimation weighs the light sample against p_mix, and an emitter hit by the
- *     scattered ray weighs p_mix against the light density (power heuristic).
+ *     scattered ray weighs p_mix against the light density (power heuristic);
+ *   - Russian roulette sees the throughput divided by the path's boost, the throughput BSDF
+ *     sampling would have given it (roulette_survival in integrator.h says why).
  * The plain mixture (tracer.plain_mixture) is the other one-sample estimator: each technique
  * weighs its direction by its own density, and light-sampling MIS uses p_bsdf on both sides
  * (the weights still sum to one); the flow is then called only where it samples. With
