@@ -342,6 +342,7 @@ static int run(int argc, char **argv)
     t.plain_mixture = o.plain_mixture;
     t.no_batching = o.no_batching;
     t.light_mis_bsdf = o.light_mis_bsdf;
+    t.light_mis_depth = o.light_mis_depth;
     t.rank = ranks_rank();
     t.ranks = ranks_size();
     t.model = NULL;

@@ -95,6 +95,10 @@ void options_print_help(const char *program)
         "                        density, not the mixture's: the flow is not asked the\n"
         "                        density of a light sample's direction (the scattered\n"
         "                        direction still weighs by the mixture)\n"
+        "  --light-mis-depth N   --light-mis-bsdf at vertices deeper than N segments, the\n"
+        "                        mixture's density up to N (default 0: at every depth)\n"
+        );
+    printf(
         "  --no-batching         passes trace one path at a time and ask the flow at\n"
         "                        shading points, instead of advancing 256 paths together\n"
         "                        and batching their questions (the same image, slower)\n"
@@ -310,6 +314,8 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             ok = parse_float(a, v, 0.0, 1.0, &o->guide_min_roughness, err);
         else if (!strcmp(a, "--guide-max-boost"))
             ok = parse_float(a, v, 0.0, 1e6, &o->guide_max_boost, err);
+        else if (!strcmp(a, "--light-mis-depth"))
+            ok = parse_int(a, v, 0, 100000, &o->light_mis_depth, err);
         else if (!strcmp(a, "--guide-depth"))
             ok = parse_int(a, v, 0, 100000, &o->guide_depth, err);
         else if (!strcmp(a, "--exposure"))

@@ -52,6 +52,7 @@ typedef struct options {
     float guide_max_boost;     /* --guide-max-boost; 0: none                                 */
     int throughput_roulette;   /* --throughput-roulette                                      */
     int guide_depth;          /* guide vertices up to this depth (segments), 0: all           */
+    int light_mis_depth;      /* --light-mis-depth; 0: the mixture's weighting at every depth */
     int help;
 } options;
 

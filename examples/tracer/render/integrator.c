@@ -21,7 +21,8 @@
  * weighs its direction by its own density, and light-sampling MIS uses p_bsdf on both sides
  * (the weights still sum to one); the flow is then called only where it samples. With
  * tracer.light_mis_bsdf only light-sampling MIS uses p_bsdf on both sides, and the light
- * sample asks the flow nothing; the scattered direction still weighs by p_mix. Which
+ * sample asks the flow nothing; the scattered direction still weighs by p_mix. With
+ * tracer.light_mis_depth the same holds for the vertices deeper than it. Which
  * vertices are guided: non-delta ones up to guide_depth, not smooth rough conductors
  * (guide_min_roughness), and where a learned selection grid gives g = 0 none at all.
  *
@@ -284,11 +285,14 @@ typedef struct vertex_plan {
     flow_questions q;
 } vertex_plan;
 
-/* Whether light-sampling MIS weighs with the mixture's density, which asks the flow; the plain
- * mixture and light_mis_bsdf weigh both sides with p_bsdf instead. */
-static int light_mis_uses_flow(const tracer *t)
+/* Whether light-sampling MIS at a vertex `depth` segments deep weighs with the mixture's
+ * density, which asks the flow; the plain mixture, light_mis_bsdf and vertices deeper than
+ * light_mis_depth weigh both sides with p_bsdf instead. Both sides of one vertex ask this with
+ * the same depth, so the two weights still sum to one. */
+static int light_mis_uses_flow(const tracer *t, int depth)
 {
-    return !t->plain_mixture && !t->light_mis_bsdf;
+    return !t->plain_mixture && !t->light_mis_bsdf &&
+           (t->light_mis_depth == 0 || depth <= t->light_mis_depth);
 }
 
 /* One light sample towards an unoccluded light, weighed later against the scattering
@@ -459,7 +463,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
      * needs the flow's density of its direction. */
     if (smooth && s->has_lights && nee_plan(t, vp, r, st)) {
         vp->nee = 1;
-        vp->q.light = vp->g > 0.0f && light_mis_uses_flow(t);
+        vp->q.light = vp->g > 0.0f && light_mis_uses_flow(t, depth);
     }
 
     /* Russian roulette, before scattering, so that a vertex either scatters fully or not at
@@ -551,7 +555,7 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         else
             p_weight = g * p_flow + (1.0f - g) * p_bsdf;
         /* the density light MIS weighs with, as the light sample's side above */
-        pdf = light_mis_uses_flow(t) ? p_weight : p_bsdf;
+        pdf = light_mis_uses_flow(t, ps->depth) ? p_weight : p_bsdf;
         if (!(p_weight > 0.0f) || rgb_is_black(f))
             return 0;
         weight = rgb_scale(f, 1.0f / p_weight);

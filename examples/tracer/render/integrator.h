@@ -39,6 +39,10 @@ typedef struct tracer {
     int light_mis_bsdf;    /* MIS between light sampling and scattering by the BSDF's density
                             * (the scattered direction still weighs by the mixture's): a
                             * light sample never asks the flow                            */
+    int light_mis_depth;   /* > 0: light_mis_bsdf's weighting at vertices deeper than this
+                            * many segments, the mixture's up to it; 0: at no depth. Where
+                            * a vertex's paths carry little of the pixel, the light sample's
+                            * flow question costs more than its better weight gains       */
     int no_batching;       /* budget passes trace one path at a time (trace_paths_pay)      */
     int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
                             * (what the scattering estimator needs) instead of all of it   */

@@ -4,7 +4,8 @@
  *   - every lever of the guided vertex (plain mixture, guiding depth, smooth conductors left
  *     unguided, MIS-aware training, a learned guiding probability with cells switched off,
  *     light samples weighed against the BSDF's density, the mixture's boost capped, Russian
- *     roulette on the BSDF sampling throughput or on the mixture's, from an early depth)
+ *     roulette on the BSDF sampling throughput or on the mixture's, from an early depth, light
+ *     samples weighed against the mixture's density only up to a depth)
  *     renders the mixed scene with the same mean as plain path tracing;
  *   - the boost cap lowers the guiding probability as integrator.h says, and a cap the first
  *     vertex already reaches guides nothing;
@@ -120,29 +121,32 @@ typedef struct lever {
     float max_boost;
     int rr_depth; /* 0: the scene's (5, which only the mixed scene's last vertex reaches) */
     int throughput_roulette;
+    int light_mis_depth;
 } lever;
 
 static void test_levers_match_unguided(void **state)
 {
     (void)state;
     static const lever levers[] = {
-        {"balance mixture (default)", 0, 0, 0, 0, 0.0f, 0, 0.0f, 0, 0},
-        {"plain mixture", 1, 0, 0, 0, 0.0f, 0, 0.0f, 0, 0},
-        {"guiding depth 1", 0, 1, 0, 0, 0.0f, 0, 0.0f, 0, 0},
-        {"rough conductor (alpha 0.3) unguided", 0, 0, 0, 0, 0.5f, 0, 0.0f, 0, 0},
-        {"MIS-aware training", 0, 0, 1, 0, 0.0f, 0, 0.0f, 0, 0},
-        {"guiding probability per cell, some off", 0, 0, 0, 1, 0.0f, 0, 0.0f, 0, 0},
-        {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f, 0, 0.0f, 0, 0},
-        {"light MIS by the BSDF's density", 0, 0, 0, 0, 0.0f, 1, 0.0f, 0, 0},
-        {"light MIS by p_bsdf, MIS-aware, cells off", 0, 0, 1, 1, 0.0f, 1, 0.0f, 0, 0},
+        {"balance mixture (default)", 0, 0, 0, 0, 0.0f, 0, 0.0f, 0, 0, 0},
+        {"plain mixture", 1, 0, 0, 0, 0.0f, 0, 0.0f, 0, 0, 0},
+        {"guiding depth 1", 0, 1, 0, 0, 0.0f, 0, 0.0f, 0, 0, 0},
+        {"rough conductor (alpha 0.3) unguided", 0, 0, 0, 0, 0.5f, 0, 0.0f, 0, 0, 0},
+        {"MIS-aware training", 0, 0, 1, 0, 0.0f, 0, 0.0f, 0, 0, 0},
+        {"guiding probability per cell, some off", 0, 0, 0, 1, 0.0f, 0, 0.0f, 0, 0, 0},
+        {"plain mixture, depth 2, MIS-aware", 1, 2, 1, 0, 0.0f, 0, 0.0f, 0, 0, 0},
+        {"light MIS by the BSDF's density", 0, 0, 0, 0, 0.0f, 1, 0.0f, 0, 0, 0},
+        {"light MIS by p_bsdf, MIS-aware, cells off", 0, 0, 1, 1, 0.0f, 1, 0.0f, 0, 0, 0},
         /* g = 0.5 raises a BSDF sample at most 2-fold: a cap of 3 lowers the g of a vertex
          * after misses to 1 - boost / 3 or turns it off, so g varies along the paths */
-        {"boost capped at 3", 0, 0, 0, 0, 0.0f, 0, 3.0f, 0, 0},
-        {"boost capped at 3, MIS-aware, light MIS by p_bsdf", 0, 0, 1, 0, 0.0f, 1, 3.0f, 0, 0},
+        {"boost capped at 3", 0, 0, 0, 0, 0.0f, 0, 3.0f, 0, 0, 0},
+        {"boost capped at 3, MIS-aware, light MIS by p_bsdf", 0, 0, 1, 0, 0.0f, 1, 3.0f, 0, 0, 0},
         /* roulette from the second vertex on, so that most vertices play it */
-        {"roulette from depth 2 (BSDF throughput)", 0, 0, 0, 0, 0.0f, 0, 0.0f, 2, 0},
-        {"roulette from depth 2 on the mixture's", 0, 0, 0, 0, 0.0f, 0, 0.0f, 2, 1},
-        {"roulette from depth 2, boost capped at 3", 0, 0, 1, 0, 0.0f, 0, 3.0f, 2, 0},
+        {"roulette from depth 2 (BSDF throughput)", 0, 0, 0, 0, 0.0f, 0, 0.0f, 2, 0, 0},
+        {"roulette from depth 2 on the mixture's", 0, 0, 0, 0, 0.0f, 0, 0.0f, 2, 1, 0},
+        {"roulette from depth 2, boost capped at 3", 0, 0, 1, 0, 0.0f, 0, 3.0f, 2, 0, 0},
+        {"light MIS by the mixture's density to depth 1", 0, 0, 0, 0, 0.0f, 0, 0.0f, 0, 0, 1},
+        {"light MIS by the mixture's to depth 2, capped", 0, 0, 1, 0, 0.0f, 0, 3.0f, 2, 0, 2},
     };
     scene s = load_mixed();
     const int scene_rr_depth = s.rr_depth;
@@ -159,6 +163,7 @@ static void test_levers_match_unguided(void **state)
         t.mis_training = l->mis_training;
         t.guide_min_roughness = l->min_roughness;
         t.light_mis_bsdf = l->light_mis_bsdf;
+        t.light_mis_depth = l->light_mis_depth;
         t.guide_max_boost = l->max_boost;
         selection_grid grid;
         if (l->selection) {

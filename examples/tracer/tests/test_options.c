@@ -3,7 +3,7 @@
  * study's sweep) is parsed, range-checked, and ends up in the created model's config, and
  * leaving it out keeps the library's default; --phi-map (the seam study's) and --sh-bands
  * (the equal-time study's) likewise; --guide-max-boost is parsed and range-checked, and
- * --throughput-roulette switches the roulette.
+ * --throughput-roulette switches the roulette; --light-mis-depth is parsed and range-checked.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -104,6 +104,19 @@ static void test_throughput_roulette_is_a_switch(void **state)
     assert_int_equal(o.throughput_roulette, 1);
 }
 
+static void test_light_mis_depth_is_parsed_and_range_checked(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(parse(&o, NULL, NULL, &err));
+    assert_int_equal(o.light_mis_depth, 0); /* not given: the mixture's weighting everywhere */
+    assert_true(parse(&o, "--light-mis-depth", "2", &err));
+    assert_int_equal(o.light_mis_depth, 2);
+    const char *const bad[] = {"-1", "1.5", "abc", ""};
+    assert_refused("--light-mis-depth", bad, sizeof bad / sizeof bad[0]);
+}
+
 static void test_phi_map_is_parsed_and_reaches_the_model(void **state)
 {
     (void)state;
@@ -190,6 +203,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_guide_max_boost_is_parsed_and_range_checked),
         cmocka_unit_test(test_throughput_roulette_is_a_switch),
+        cmocka_unit_test(test_light_mis_depth_is_parsed_and_range_checked),
         cmocka_unit_test(test_prior_epsilon_is_parsed_and_range_checked),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
         cmocka_unit_test(test_phi_map_is_parsed_and_reaches_the_model),
