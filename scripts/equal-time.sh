@@ -62,7 +62,7 @@ declare -A SIZE=([cornell-box]="--width 256 --height 256"
 
 # The guided tracer as the study runs it: every option of the equal-time configuration
 # (docs/equal-time.md, "The guided configuration"); the tracer's defaults for the rest.
-GUIDED="--guide-prob 0.7 --mis-training --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15 --sh-bands 0 --guide-max-boost 10"
+GUIDED="--guide-prob 0.7 --mis-training --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15 --sh-bands 0 --guide-max-boost 10 --light-mis-depth 2"
 # The ablation: one lever changed at a time from GUIDED, name|options.
 without() { # GUIDED without the option $1 (and its value, if $2 is "value")
     local out="" skip=0 w
@@ -78,7 +78,8 @@ ABLATION=(
     "guided, the study's configuration|$GUIDED"
     "guiding probability 0.5 (the tracer's default)|$(without --guide-prob value)"
     "guiding probability learned per cell, cells switched off by the cost test|$GUIDED --learn-selection --selection-cost 0.2"
-    "light samples weighed against the BSDF's density, not the mixture's|$GUIDED --light-mis-bsdf"
+    "light samples weighed against the BSDF's density at every depth|$GUIDED --light-mis-bsdf"
+    "light samples weighed against the mixture's density at every depth|$(without --light-mis-depth value)"
     "only the first two vertices guided (--guide-depth 2)|$GUIDED --guide-depth 2"
     "normal and outgoing direction in the flow's input (4 SH bands, the model's default)|$(without --sh-bands value)"
     "smooth conductors guided too|$(without --guide-min-roughness value)"
