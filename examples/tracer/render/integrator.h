@@ -40,7 +40,8 @@ typedef struct tracer {
                             * (the scattered direction still weighs by the mixture's): a
                             * light sample never asks the flow                            */
     int light_mis_depth;   /* > 0: light_mis_bsdf's weighting at vertices deeper than this
-                            * many segments, the mixture's up to it; 0: at no depth. Where
+                            * many segments, the mixture's up to it; 0: the mixture's at
+                            * every depth. Where
                             * a vertex's paths carry little of the pixel, the light sample's
                             * flow question costs more than its better weight gains       */
     int no_batching;       /* budget passes trace one path at a time (trace_paths_pay)      */
