@@ -259,24 +259,42 @@ static void test_budget_job_relative_training(void **state)
     check_budget_job(0, 1);
 }
 
-/* Guided vertices of one render of the mixed scene with the cap `max_boost` (0: none). */
-static uint64_t guided_vertices_with_cap(float max_boost)
+/* What one guided render of the mixed scene (8 spp, seed `seed`) counted, with the boost cap
+ * `max_boost` (0: none), roulette from `rr_depth` (0: the scene's) and the roulette rule
+ * `throughput_roulette` (tracer). */
+typedef struct guided_render {
+    float max_boost;
+    int rr_depth, throughput_roulette;
+    uint64_t seed;
+} guided_render;
+
+static path_stats guided_render_stats(guided_render g)
 {
     scene s = load_mixed();
+    if (g.rr_depth)
+        s.rr_depth = g.rr_depth;
     tracer t = {.s = &s};
     nf_model *model = trained_model(&t);
-    t.guide_max_boost = max_boost;
+    t.guide_max_boost = g.max_boost;
+    t.throughput_roulette = g.throughput_roulette;
     tr_error err;
     path_stats st = {0};
     image img;
     assert_true(image_alloc(&img, s.width, s.height, &err));
-    if (!render_image(&t, 8, 11, 0, 2, &img, &st, NULL, &err))
+    if (!render_image(&t, 8, g.seed, 0, 2, &img, &st, NULL, &err))
         fail_msg("%s", err.msg);
     assert_int_equal(st.nf_errors, 0);
     image_free(&img);
     nf_model_destroy(model);
     scene_free(&s);
-    return st.guided_vertices;
+    return st;
+}
+
+/* Guided vertices of one render with the cap `max_boost` (0: none). */
+static uint64_t guided_vertices_with_cap(float max_boost)
+{
+    guided_render g = {.max_boost = max_boost, .seed = 11};
+    return guided_render_stats(g).guided_vertices;
 }
 
 static void test_boost_cap_lowers_guiding(void **state)
@@ -303,26 +321,12 @@ static void test_boost_cap_lowers_guiding(void **state)
     assert_int_equal(first, 0);
 }
 
-/* Rays traced by one guided render of the mixed scene with roulette from the second vertex,
- * on the BSDF sampling throughput (the default) or on the mixture's. */
+/* Rays traced by one guided render with roulette from the second vertex, on the BSDF sampling
+ * throughput (the default) or on the mixture's. */
 static uint64_t rays_with_roulette(int throughput_roulette)
 {
-    scene s = load_mixed();
-    s.rr_depth = 2;
-    tracer t = {.s = &s};
-    nf_model *model = trained_model(&t);
-    t.throughput_roulette = throughput_roulette;
-    tr_error err;
-    path_stats st = {0};
-    image img;
-    assert_true(image_alloc(&img, s.width, s.height, &err));
-    if (!render_image(&t, 8, 12, 0, 2, &img, &st, NULL, &err))
-        fail_msg("%s", err.msg);
-    assert_int_equal(st.nf_errors, 0);
-    image_free(&img);
-    nf_model_destroy(model);
-    scene_free(&s);
-    return st.rays;
+    guided_render g = {.rr_depth = 2, .throughput_roulette = throughput_roulette, .seed = 12};
+    return guided_render_stats(g).rays;
 }
 
 static void test_roulette_sees_the_bsdf_throughput(void **state)
