@@ -41,9 +41,9 @@ typedef struct tracer {
                             * light sample never asks the flow                            */
     int light_mis_depth;   /* > 0: light_mis_bsdf's weighting at vertices deeper than this
                             * many segments, the mixture's up to it; 0: the mixture's at
-                            * every depth. Where
-                            * a vertex's paths carry little of the pixel, the light sample's
-                            * flow question costs more than its better weight gains       */
+                            * every depth. Where a vertex's paths carry little of the
+                            * pixel, the light sample's flow question costs more than its
+                            * better weight gains                                         */
     int no_batching;       /* budget passes trace one path at a time (trace_paths_pay)      */
     int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
                             * (what the scattering estimator needs) instead of all of it   */
@@ -115,7 +115,8 @@ typedef struct path_state {
     int depth;      /* segments traced so far                                       */
     float boost;    /* product over the guided vertices so far of p_bsdf / p_mix (1 / (1 - g)
                      * for a delta lobe): how much the mixture has raised the throughput
-                     * over BSDF sampling's; not tracked under the plain mixture         */
+                     * over BSDF sampling's, read by the boost cap and by the roulette
+                     * (roulette_survival); not tracked under the plain mixture          */
 } path_state;
 
 /* Traces the path through film position (px, py) and returns its radiance estimate.
