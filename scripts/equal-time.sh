@@ -90,7 +90,7 @@ ABLATION=(
     "plain mixture (the flow evaluated only where it samples)|$GUIDED --plain-mixture"
     "passes one path at a time, the flow asked at shading points|$GUIDED --no-batching"
     "the mixture's boost over BSDF sampling not capped|$(without --guide-max-boost value)"
-    "Russian roulette on the throughput as the mixture weighed it, not as BSDF sampling would have|$GUIDED --throughput-roulette"
+    "Russian roulette on the throughput as the mixture weighed it alone, not the larger of it and BSDF sampling's|$GUIDED --throughput-roulette"
 )
 
 start=$(date +%s)

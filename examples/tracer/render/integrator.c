@@ -15,8 +15,9 @@
  *     (1 - g) times its own, so its weight is divided by (1 - g);
  *   - next-event estimation weighs the light sample against p_mix, and an emitter hit by the
  *     scattered ray weighs p_mix against the light density (power heuristic);
- *   - Russian roulette sees the throughput divided by the path's boost, the throughput BSDF
- *     sampling would have given it (roulette_survival in integrator.h says why).
+ *   - Russian roulette sees the larger of the throughput and the throughput divided by the
+ *     path's boost, the one BSDF sampling would have given it (roulette_survival in
+ *     integrator.h says why).
  * The plain mixture (tracer.plain_mixture) is the other one-sample estimator: each technique
  * weighs its direction by its own density, and light-sampling MIS uses p_bsdf on both sides
  * (the weights still sum to one); the flow is then called only where it samples. With
@@ -358,7 +359,8 @@ static int scatter_plan(const tracer *t, vertex_plan *vp, rng *r)
 
 float roulette_survival(rgb throughput, float boost)
 {
-    return fminf(rgb_max(throughput) / boost, 0.95f);
+    float thr = rgb_max(throughput);
+    return fminf(fmaxf(thr, thr / boost), 0.95f);
 }
 
 float guide_capped_prob(float g, float boost, float cap)

@@ -30,8 +30,8 @@ typedef struct tracer {
                             * times 1 / (1 - g), the most this vertex can add, stays within
                             * it; 0: g as given everywhere                                 */
     int throughput_roulette; /* Russian roulette on the throughput as the mixture weighed it;
-                            * 0 (default): on the throughput BSDF sampling would have given
-                            * the same path (roulette_survival)                         */
+                            * 0 (default): on the larger of it and the throughput BSDF
+                            * sampling would have given the same path (roulette_survival) */
     const struct selection_grid *selection; /* learned guiding probability per cell (selection.h);
                             * NULL: guide_prob everywhere                                  */
     int plain_mixture;     /* each technique weighs by its own density, MIS against lights
@@ -94,14 +94,16 @@ _Static_assert(sizeof(path_stats) == 6 * sizeof(uint64_t), "path_stats: uint64_t
  * estimator stays unbiased. */
 float guide_capped_prob(float g, float boost, float cap);
 
-/* The probability that Russian roulette lets a path go on: its throughput's largest channel,
- * at most 0.95, with the throughput divided by the path's boost (path_state) first. That
- * quotient is the throughput BSDF sampling would have given the same path, so a guided path
- * survives as often as plain path tracing would let it. The throughput itself would punish
- * guiding where it works: a direction the flow prefers has p_mix above p_bsdf and a lower
- * throughput, so the paths sent towards the light would die more often than the others, and
- * the few that live would carry 1/q fireflies. Any survival probability that depends only on
- * the path so far keeps the estimator unbiased. boost = 1 (no guided vertex, or the plain
+/* The probability that Russian roulette lets a path go on: the larger of its throughput's
+ * largest channel and that channel divided by the path's boost (path_state), at most 0.95.
+ * The quotient is the throughput BSDF sampling would have given the same path, so a path the
+ * flow sent where it expects light (boost < 1) survives as often as plain path tracing would
+ * let it; roulette on the throughput itself would kill those paths more often than the
+ * others, and the few that live would carry 1/q fireflies. The larger of the two keeps the
+ * throughput after roulette at or below about 1 when the flow sent the path where it expects
+ * little (boost > 1): the quotient alone would let such a path carry its boost (up to the
+ * boost cap) through every later bounce. Any survival probability that depends only on the
+ * path so far keeps the estimator unbiased. boost = 1 (no guided vertex, or the plain
  * mixture, which does not track it) gives plain path tracing's roulette. */
 float roulette_survival(rgb throughput, float boost);
 

@@ -332,17 +332,20 @@ static uint64_t rays_with_roulette(int throughput_roulette)
 static void test_roulette_sees_the_bsdf_throughput(void **state)
 {
     (void)state;
-    /* q = min(max channel / boost, 0.95); the quotients below are exact in float. */
+    /* q = min(max(c, c / boost), 0.95) with c the largest channel; exact in float. */
     rgb thr = {0.25f, 0.125f, 0.0625f};
-    assert_true(roulette_survival(thr, 1.0f) == 0.25f);  /* unguided: plain roulette   */
-    assert_true(roulette_survival(thr, 0.5f) == 0.5f);   /* drawn towards the light    */
-    assert_true(roulette_survival(thr, 4.0f) == 0.0625f); /* drawn where the flow has none */
-    assert_true(roulette_survival(thr, 0.25f) == 0.95f); /* never certain survival      */
+    assert_true(roulette_survival(thr, 1.0f) == 0.25f);  /* unguided: plain roulette      */
+    assert_true(roulette_survival(thr, 0.5f) == 0.5f);   /* drawn towards the light       */
+    assert_true(roulette_survival(thr, 4.0f) == 0.25f);  /* drawn where the flow has none:
+                                                          * never below plain roulette's  */
+    assert_true(roulette_survival(thr, 0.25f) == 0.95f); /* never certain survival        */
 
-    /* Wired into the integrator: under mixture sampling the mean of p_mix / p_bsdf, by which
-     * a vertex divides the boost, is the integral of p_mix^2 / p_bsdf >= 1 (Cauchy-Schwarz),
-     * so dividing by the boost lets guided paths live longer on average and trace more rays
-     * (about 1 % more with this model; equal counts would mean the boost is not used). */
+    /* Wired into the integrator: q is never below the throughput's own, and it is above it
+     * after any vertex where p_mix > p_bsdf (boost < 1), which mixture sampling draws more
+     * often than not (the mean of p_mix / p_bsdf under p_mix is the integral of
+     * p_mix^2 / p_bsdf >= 1, Cauchy-Schwarz). So guided paths live longer and trace more rays
+     * than under roulette on the mixture's throughput; equal counts would mean the boost is
+     * not used. */
     uint64_t bsdf = rays_with_roulette(0), mixture = rays_with_roulette(1);
     printf("  rays: roulette on the BSDF throughput %llu, on the mixture's %llu\n",
            (unsigned long long)bsdf, (unsigned long long)mixture);
