@@ -341,11 +341,11 @@ static void test_roulette_sees_the_bsdf_throughput(void **state)
     assert_true(roulette_survival(thr, 0.25f) == 0.95f); /* never certain survival        */
 
     /* Wired into the integrator: q is never below the throughput's own, and it is above it
-     * after any vertex where p_mix > p_bsdf (boost < 1), which mixture sampling draws more
-     * often than not (the mean of p_mix / p_bsdf under p_mix is the integral of
-     * p_mix^2 / p_bsdf >= 1, Cauchy-Schwarz). So guided paths live longer and trace more rays
-     * than under roulette on the mixture's throughput; equal counts would mean the boost is
-     * not used. */
+     * wherever the boost is below 1, as after a direction the flow prefers (p_mix > p_bsdf;
+     * mixture sampling draws such directions with weight: the mean of p_mix / p_bsdf under
+     * p_mix is the integral of p_mix^2 / p_bsdf >= 1, Cauchy-Schwarz). So guided paths live
+     * longer and trace more rays than under roulette on the mixture's throughput; equal
+     * counts would mean the boost is not used. */
     uint64_t bsdf = rays_with_roulette(0), mixture = rays_with_roulette(1);
     printf("  rays: roulette on the BSDF throughput %llu, on the mixture's %llu\n",
            (unsigned long long)bsdf, (unsigned long long)mixture);
