@@ -142,7 +142,7 @@ static void test_levers_match_unguided(void **state)
         {"boost capped at 3", 0, 0, 0, 0, 0.0f, 0, 3.0f, 0, 0, 0},
         {"boost capped at 3, MIS-aware, light MIS by p_bsdf", 0, 0, 1, 0, 0.0f, 1, 3.0f, 0, 0, 0},
         /* roulette from the second vertex on, so that most vertices play it */
-        {"roulette from depth 2 (BSDF throughput)", 0, 0, 0, 0, 0.0f, 0, 0.0f, 2, 0, 0},
+        {"roulette from depth 2 (the default rule)", 0, 0, 0, 0, 0.0f, 0, 0.0f, 2, 0, 0},
         {"roulette from depth 2 on the mixture's", 0, 0, 0, 0, 0.0f, 0, 0.0f, 2, 1, 0},
         {"roulette from depth 2, boost capped at 3", 0, 0, 1, 0, 0.0f, 0, 3.0f, 2, 0, 0},
         {"light MIS by the mixture's density to depth 1", 0, 0, 0, 0, 0.0f, 0, 0.0f, 0, 0, 1},
