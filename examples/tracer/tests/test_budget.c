@@ -4,13 +4,13 @@
  *   - every lever of the guided vertex (plain mixture, guiding depth, smooth conductors left
  *     unguided, MIS-aware training, a learned guiding probability with cells switched off,
  *     light samples weighed against the BSDF's density, the mixture's boost capped, Russian
- *     roulette on the BSDF sampling throughput or on the mixture's, from an early depth, light
- *     samples weighed against the mixture's density only up to a depth)
+ *     roulette by the default rule or on the mixture's throughput alone, from an early depth,
+ *     light samples weighed against the mixture's density only up to a depth)
  *     renders the mixed scene with the same mean as plain path tracing;
  *   - the boost cap lowers the guiding probability as integrator.h says, and a cap the first
  *     vertex already reaches guides nothing;
- *   - Russian roulette divides the throughput by the boost as integrator.h says, and guided
- *     paths live longer for it;
+ *   - Russian roulette takes the larger of the throughput and the throughput divided by the
+ *     boost, as integrator.h says, and guided paths live longer for it;
  *   - render_with_budget, guided, with its training passes combined into the image, agrees
  *     with plain path tracing too, ends within its budget and reports consistent counts;
  *   - the learned guiding probability moves towards the technique whose density is larger
@@ -321,8 +321,8 @@ static void test_boost_cap_lowers_guiding(void **state)
     assert_int_equal(first, 0);
 }
 
-/* Rays traced by one guided render with roulette from the second vertex, on the BSDF sampling
- * throughput (the default) or on the mixture's. */
+/* Rays traced by one guided render with roulette from the second vertex, by the default rule
+ * (roulette_survival) or on the mixture's throughput alone. */
 static uint64_t rays_with_roulette(int throughput_roulette)
 {
     guided_render g = {.rr_depth = 2, .throughput_roulette = throughput_roulette, .seed = 12};
@@ -346,10 +346,10 @@ static void test_roulette_sees_the_bsdf_throughput(void **state)
      * p_mix is the integral of p_mix^2 / p_bsdf >= 1, Cauchy-Schwarz). So guided paths live
      * longer and trace more rays than under roulette on the mixture's throughput; equal
      * counts would mean the boost is not used. */
-    uint64_t bsdf = rays_with_roulette(0), mixture = rays_with_roulette(1);
-    printf("  rays: roulette on the BSDF throughput %llu, on the mixture's %llu\n",
-           (unsigned long long)bsdf, (unsigned long long)mixture);
-    assert_true(bsdf > mixture);
+    uint64_t rule = rays_with_roulette(0), mixture = rays_with_roulette(1);
+    printf("  rays: roulette by the default rule %llu, on the mixture's throughput %llu\n",
+           (unsigned long long)rule, (unsigned long long)mixture);
+    assert_true(rule > mixture);
 }
 
 /* A scene without light: no training sample, zero variance everywhere; the combination must

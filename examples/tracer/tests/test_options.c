@@ -99,7 +99,7 @@ static void test_throughput_roulette_is_a_switch(void **state)
     options o;
     tr_error err;
     assert_true(parse(&o, NULL, NULL, &err));
-    assert_int_equal(o.throughput_roulette, 0); /* default: roulette on the BSDF throughput */
+    assert_int_equal(o.throughput_roulette, 0); /* default: roulette_survival's rule */
     assert_true(parse(&o, "--throughput-roulette", NULL, &err));
     assert_int_equal(o.throughput_roulette, 1);
 }
