@@ -67,9 +67,11 @@ nf_status nf_model_set_isa(nf_model *m, nf_isa isa)
     const nf_kernels *kernels = nf_select_kernels(isa, "nf_model_set_isa");
     if (!kernels)
         return NF_ERROR_INVALID_ARGUMENT; /* the message says what is missing */
-    if (kernels != m->kernels)
-        m->generation += 1; /* points hold context sums of the old kernels: prepare again */
-    m->kernels = kernels;
+    if (kernels != m->kernels) { /* points hold context sums of the old kernels: prepare again */
+        nf_generation_begin(m);
+        m->kernels = kernels;
+        nf_generation_end(m);
+    }
     m->cfg.isa = isa;
     return NF_OK;
 }

@@ -28,6 +28,7 @@ const char *nf_status_string(nf_status s)
     case NF_ERROR_NUMERIC: return "non-finite numeric result";
     case NF_ERROR_STALE: return "stale shading point";
     case NF_ERROR_CAPACITY: return "output buffer too small";
+    case NF_ERROR_BUSY: return "guide busy";
     }
     return "unknown status";
 }

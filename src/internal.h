@@ -11,6 +11,7 @@
 #ifndef NISFLOW_INTERNAL_H
 #define NISFLOW_INTERNAL_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
@@ -81,7 +82,12 @@ struct nf_model {
     size_t packed_count; /* floats in `packed`                                           */
     uint64_t step;       /* AdamW steps taken                                            */
     uint64_t id;         /* unique among the models of this process (nf_model_allocate)  */
-    uint64_t generation; /* counts changes of params; shading points record it           */
+    /* Counts changes of the packed weights, twice per change: odd while one is being written
+     * (nf_generation_begin .. nf_generation_end), even when they are stable. Shading points
+     * record it; a point or a call that saw an odd value or another value than the model has
+     * after it is stale, so that a call that overlapped a training step on another thread
+     * is refused (NF_ERROR_STALE), never accepted with a mix of two models' weights. */
+    atomic_uint_least64_t generation;
     const nf_kernels *kernels;
     /* [layer][j]: j = 0 input layer, j = hidden_layers output layer */
     nf_linear linear[NF_MAX_COUPLING_LAYERS][NF_MAX_HIDDEN_LAYERS + 1]; /* public layout */
@@ -96,6 +102,35 @@ struct nf_model {
     float *grad;    /* param_count, scratch of nf_train_step                        */
     float *staging; /* 3 * param_count, scratch of nf_apply_gradient (p, m, v)      */
 };
+
+/* The generation as a reader sees it before it reads the packed weights (acquire: the
+ * weights it then reads are at least as new). */
+static inline uint64_t nf_generation_read(const nf_model *m)
+{
+    return (uint64_t)atomic_load_explicit(&((nf_model *)m)->generation, memory_order_acquire);
+}
+
+/* Whether the weights may have changed since a reader saw generation `seen`: called after the
+ * reads, it is 1 when `seen` was odd (a change was running) or a change began since. */
+static inline int nf_generation_moved(const nf_model *m, uint64_t seen)
+{
+    atomic_thread_fence(memory_order_acquire);
+    uint64_t now =
+        (uint64_t)atomic_load_explicit(&((nf_model *)m)->generation, memory_order_relaxed);
+    return (seen & 1u) != 0u || now != seen;
+}
+
+/* A writer's bracket around every change of the packed weights or the kernels. */
+static inline void nf_generation_begin(nf_model *m)
+{
+    atomic_fetch_add_explicit(&m->generation, 1u, memory_order_relaxed);
+    atomic_thread_fence(memory_order_seq_cst); /* the odd value before any weight is written */
+}
+
+static inline void nf_generation_end(nf_model *m)
+{
+    atomic_fetch_add_explicit(&m->generation, 1u, memory_order_release);
+}
 
 /* Size of a coupling layer's parameters for a config (assumed valid). */
 size_t nf_layer_param_count(const nf_config *cfg);

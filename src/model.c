@@ -84,7 +84,7 @@ nf_status nf_model_allocate(const nf_config *cfg, const char *fn, nf_model **out
      * allocated at the same address after the first was destroyed, is refused. */
     static atomic_uint_fast64_t next_id = 1;
     m->id = (uint64_t)atomic_fetch_add(&next_id, 1);
-    m->generation = 0;
+    atomic_init(&m->generation, 0u);
     m->kernels = kernels;
     float *arrays = (float *)(block + nf_header_bytes());
     m->params = arrays;
@@ -99,7 +99,7 @@ nf_status nf_model_allocate(const nf_config *cfg, const char *fn, nf_model **out
 
 void nf_model_pack(nf_model *m)
 {
-    m->generation += 1; /* every prepared shading point is now stale */
+    nf_generation_begin(m); /* every prepared shading point is now stale */
     /* Padding columns stay zero from allocation; only the real columns are copied. */
     for (uint32_t layer = 0; layer < m->cfg.coupling_layers; ++layer) {
         for (uint32_t j = 0; j <= m->cfg.hidden_layers; ++j) {
@@ -110,6 +110,7 @@ void nf_model_pack(nf_model *m)
             memcpy(m->packed + b->bias, m->params + a->bias, a->out * sizeof(float));
         }
     }
+    nf_generation_end(m);
 }
 
 /* splitmix64: a tiny, well-mixed generator; the initialisation only needs reproducibility. */

@@ -29,9 +29,9 @@ static nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_sha
               "nf_point_prepare first";
     } else if (p->model_id_ != m->id) {
         why = "was prepared on another model";
-    } else if (p->generation_ != m->generation) {
-        why = "was prepared before the model's parameters last changed (a training step, "
-              "nf_set_params or nf_apply_gradient): prepare it again";
+    } else if (nf_generation_moved(m, p->generation_)) {
+        why = "was prepared before or while the model's parameters last changed (a training "
+              "step, nf_set_params or nf_apply_gradient): prepare it again";
         st = NF_ERROR_STALE;
     } else {
         return NF_OK;
@@ -39,6 +39,18 @@ static nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_sha
     if (i == SIZE_MAX)
         return nf_fail(st, "%s: the point %s", fn, why);
     return nf_fail(st, "%s: points[%zu] %s", fn, i, why);
+}
+
+/* A call that overlapped a change of the weights on another thread may have read a mix of two
+ * models: its results are refused, not returned as valid. */
+static nf_status nf_point_checked(const char *fn, const nf_model *m, uint64_t seen, nf_status st)
+{
+    if (nf_generation_moved(m, seen))
+        return nf_fail(NF_ERROR_STALE,
+                       "%s: the model's parameters changed during the call (a training step on "
+                       "another thread): the outputs are unspecified; prepare the point again",
+                       fn);
+    return st;
 }
 
 nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
@@ -82,7 +94,8 @@ nf_status nf_point_sample(const nf_model *m, const nf_shading_point *point, size
         return st;
     if (!nf_all_finite(u, 2 * n))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: u contains NaN or Inf", fn);
-    return m->kernels->point_sample(m, point, n, 0, u, dir, pdf);
+    return nf_point_checked(fn, m, point->generation_,
+                            m->kernels->point_sample(m, point, n, 0, u, dir, pdf));
 }
 
 nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n, const float *dir,
@@ -98,7 +111,8 @@ nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t 
         (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK ||
         (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
         return st;
-    return m->kernels->point_pdf(m, point, n, 0, dir, pdf);
+    return nf_point_checked(fn, m, point->generation_,
+                            m->kernels->point_pdf(m, point, n, 0, dir, pdf));
 }
 
 static nf_status nf_points_usable(const char *fn, const nf_model *m, size_t n,
@@ -126,7 +140,8 @@ nf_status nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *
         return st;
     if (!nf_all_finite(u, 2 * n))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: u contains NaN or Inf", fn);
-    return m->kernels->point_sample(m, points, n, 1, u, dir, pdf);
+    return nf_point_checked(fn, m, points[0].generation_,
+                            m->kernels->point_sample(m, points, n, 1, u, dir, pdf));
 }
 
 nf_status nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *points,
@@ -142,5 +157,6 @@ nf_status nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *poi
         (st = nf_points_usable(fn, m, n, points)) != NF_OK ||
         (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
         return st;
-    return m->kernels->point_pdf(m, points, n, 1, dir, pdf);
+    return nf_point_checked(fn, m, points[0].generation_,
+                            m->kernels->point_pdf(m, points, n, 1, dir, pdf));
 }

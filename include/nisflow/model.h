@@ -226,7 +226,10 @@ NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
  * written. The one error that can arise mid-batch is NF_ERROR_NUMERIC from a custom prior
  * callback returning an invalid value; the outputs of earlier groups of 16 samples are then
  * written, those of the failing sample's group and later ones are not.
- * Thread-safe on a const model; never allocates; uses about 56 KiB of the caller's stack. */
+ * Thread-safe on a const model; never allocates; uses about 56 KiB of the caller's stack. A
+ * call that overlaps a change of the model on another thread (a training step: misuse, see
+ * guide.h for training while sampling) is refused with NF_ERROR_STALE, its outputs
+ * unspecified, rather than answered with a mix of two models. */
 NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const float *u,
                            float *dir, float *pdf);
 
@@ -238,7 +241,8 @@ NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, c
  * NF_ERROR_INVALID_ARGUMENT pdf is not written; NF_ERROR_NUMERIC (a custom prior callback
  * returned an invalid value) may come after earlier entries were written. Results are
  * bit-identical however a batch is split into calls, as for nf_sample.
- * Thread-safe on a const model; never allocates; uses about 56 KiB of the caller's stack. */
+ * Thread-safe on a const model; never allocates; uses about 56 KiB of the caller's stack.
+ * Overlapping a change of the model: NF_ERROR_STALE, as nf_sample. */
 NF_API nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                         float *pdf);
 

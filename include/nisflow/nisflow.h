@@ -8,6 +8,7 @@
  *   point.h    shading points: prepare a context once, sample and evaluate many directions
  *   train.h    loss, gradients, AdamW steps, parameter access
  *   path.h     training samples from a traced path (the backward radiance walk)
+ *   guide.h    the guide: sample store, training schedule, sharded steps, path policy
  *   io.h       save / load / serialize
  *   blocks.h   spline, encodings and direction <-> square maps
  */
@@ -20,6 +21,7 @@
 #include "point.h"
 #include "train.h"
 #include "path.h"
+#include "guide.h"
 #include "io.h"
 #include "blocks.h"
 

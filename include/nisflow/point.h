@@ -26,17 +26,21 @@
  *
  * Validity: a prepared point belongs to the model it was prepared on and to that model's
  * current parameters. Any change of the parameters (a training step, nf_set_params,
- * nf_apply_gradient) makes every point prepared before it stale: using it then returns
- * NF_ERROR_STALE and writes nothing; prepare it again. A point used with another model (a
- * clone included) returns NF_ERROR_INVALID_ARGUMENT, and so does a point whose header (the
- * fields before check_) was overwritten: a hash of the header is checked on every call, with
- * the model's id and generation, for about 50 instructions. The cache after the header is not
+ * nf_apply_gradient) makes every point prepared before or during it stale: using it then
+ * returns NF_ERROR_STALE and writes nothing; prepare it again. A sample or pdf call that
+ * overlaps such a change on another thread (misuse: see below) returns NF_ERROR_STALE with its
+ * outputs unspecified; a point prepared while a change runs is never accepted. A point used with
+ * another model (a clone included) returns NF_ERROR_INVALID_ARGUMENT, and so does a point whose
+ * header (the fields before check_) was overwritten: a hash of the header is checked on every call,
+ * with the model's id and generation, for about 50 instructions. The cache after the header is not
  * checked (that would cost a pass over it per call): a point whose cache was overwritten gives
  * wrong but finite results, never a crash. A point may be copied with memcpy or assignment; a
  * copy is as valid as the original.
  *
  * Thread-safety: every function here takes a const model and may run concurrently with the
- * others and with nf_sample / nf_pdf, provided no thread changes the model meanwhile. A point
+ * others and with nf_sample / nf_pdf, provided no thread changes the model meanwhile; a change
+ * that overlaps a call anyway is detected (NF_ERROR_STALE), not answered wrongly. To train
+ * while render threads sample, sample a guide's published models (guide.h). A point
  * is written by nf_point_prepare only; any number of threads may sample one prepared point at
  * once. Nothing here allocates.
  *

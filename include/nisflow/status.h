@@ -22,8 +22,10 @@ typedef enum nf_status {
     NF_ERROR_NUMERIC = 5,          /* a result would be non-finite (the call was refused)    */
     NF_ERROR_STALE = 6,            /* a shading point predates a change of the model's
                                       parameters: prepare it again (nisflow/point.h)       */
-    NF_ERROR_CAPACITY = 7          /* an output buffer is too small; nothing was written and
+    NF_ERROR_CAPACITY = 7,         /* an output buffer is too small; nothing was written and
                                       the call says how much it needs (nisflow/path.h)     */
+    NF_ERROR_BUSY = 8              /* the guide is in use by a call that may not overlap this
+                                      one; nothing changed: retry after it (nisflow/guide.h) */
 } nf_status;
 
 /* A short static description of a status code ("invalid argument", ...); "unknown status" for

@@ -189,7 +189,7 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
     p->context_ = *ctx;
     p->magic_ = NF_POINT_MAGIC;
     p->model_id_ = m->id;
-    p->generation_ = m->generation;
+    p->generation_ = nf_generation_read(m); /* before any weight is read */
     p->prior_ = prior ? *prior : m->cfg.custom_prior;
     for (uint32_t a = 0; a < 3; ++a)
         p->frame_[a] = feat.ctx.normal[a];

@@ -323,18 +323,18 @@ static void test_version_string(void **state)
 static void test_status_strings(void **state)
 {
     (void)state;
-    const nf_status codes[8] = {NF_OK,           NF_ERROR_INVALID_ARGUMENT, NF_ERROR_OUT_OF_MEMORY,
+    const nf_status codes[9] = {NF_OK,           NF_ERROR_INVALID_ARGUMENT, NF_ERROR_OUT_OF_MEMORY,
                                 NF_ERROR_IO,     NF_ERROR_FORMAT,           NF_ERROR_NUMERIC,
-                                NF_ERROR_STALE,  NF_ERROR_CAPACITY};
+                                NF_ERROR_STALE,  NF_ERROR_CAPACITY,         NF_ERROR_BUSY};
     /* The enumerators have fixed ABI values. */
-    for (int i = 0; i < 8; ++i)
+    for (int i = 0; i < 9; ++i)
         assert_int_equal((int)codes[i], i);
-    const char *unknown = nf_status_string((nf_status)8);
+    const char *unknown = nf_status_string((nf_status)9);
     assert_non_null(unknown);
     assert_string_equal(unknown, "unknown status");
     assert_string_equal(nf_status_string((nf_status)1000), "unknown status");
     assert_string_equal(nf_status_string((nf_status)-1), "unknown status");
-    for (int i = 0; i < 8; ++i) {
+    for (int i = 0; i < 9; ++i) {
         const char *s = nf_status_string(codes[i]);
         assert_non_null(s);
         assert_true(strlen(s) > 0);

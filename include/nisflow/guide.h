@@ -1,0 +1,284 @@
+/*
+ * nisflow/guide.h - the guide: what a renderer needs around the flow to win at equal time.
+ *
+ * A model (model.h) samples and evaluates directions; a guide trains one while a renderer
+ * renders with it. It holds:
+ *
+ *   - a store of training samples that the render threads fill without a lock (bounded: the
+ *     newest samples are kept, as a replay buffer);
+ *   - the training schedule that docs/equal-time.md measured: after each training pass, one
+ *     step on the pass's new samples (its loss, before the step, is a held-out loss), then
+ *     steps on samples drawn from the store; the weights clamped at a running quantile;
+ *     training stops when the held-out loss stops improving (patience) or at a share of the
+ *     budget;
+ *   - training steps sharded over the renderer's own threads through a parallel-for that the
+ *     caller supplies (the library starts no threads), summed exactly in fixed point, so that
+ *     the model has the same bits for any number of threads; with a caller-supplied allreduce
+ *     (MPI or any other) the same exact sum spans processes (docs/distributed.md);
+ *   - two published copies of the model that render threads sample while the next step
+ *     trains a private one (double-buffered: training and sampling at the same time is safe,
+ *     or refused with NF_ERROR_BUSY, never silently wrong);
+ *   - the path policy the study measured: the mixture probability and its boost cap, the
+ *     Russian roulette rule, which vertices weigh light samples by the flow.
+ *
+ * The recipe (docs/integration.md has it with a renderer around it):
+ *
+ *     nf_guide_config gc;  nf_guide_config_init(&gc);
+ *     nf_guide_create(model, &gc, &guide);                  once; the model is copied
+ *     while (rendering) {
+ *         const nf_model *m;  nf_guide_acquire(guide, &m);  per pass (any thread)
+ *         ... render; at guided vertices sample m; nf_guide_add_samples(guide, ...) ...
+ *         nf_guide_release(guide, m);
+ *         if (training) {                                    after the pass, threads joined
+ *             nf_guide_train_pass(guide, &parallel, NULL, &report);
+ *             nf_guide_publish(guide);
+ *         }
+ *     }
+ *
+ * Memory: everything is allocated by nf_guide_create (about store_capacity x (64 +
+ * payload_bytes) x 2 bytes plus three copies of the model); nothing later allocates.
+ * Every function returns a status with a message (status.h) or is documented as total.
+ */
+#ifndef NISFLOW_GUIDE_H
+#define NISFLOW_GUIDE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "model.h"
+#include "status.h"
+#include "version.h"
+
+NF_EXTERN_C_BEGIN
+
+/* ---- The path policy --------------------------------------------------------------------- */
+
+/* How a renderer mixes the flow with its BSDF at a guided vertex (docs/integration.md, "The
+ * recipe"). The defaults are what docs/equal-time.md found best; one place holds them. */
+typedef struct nf_guide_policy {
+    float mixture_prob;       /* probability of sampling the flow at a guided vertex, [0, 1);
+                               * default 0.7                                                  */
+    float max_boost;          /* cap on the path's boost (nf_guide_mixture_prob), >= 1 or 0 for
+                               * none; default 10                                             */
+    float max_survival;       /* Russian roulette survives at most with this, (0, 1]; 0.95    */
+    uint32_t light_mis_depth; /* vertices up to this many segments deep weigh a light
+                               * sample against the mixture's density (which asks the flow);
+                               * deeper ones against the BSDF's; 0: every depth asks; default 2 */
+    float min_roughness;      /* a renderer's hint: lobes sharper than this roughness (alpha)
+                               * are better sampled by the BSDF alone; default 0.3            */
+} nf_guide_policy;
+
+/* The defaults above. NULL is ignored. Thread-safe. */
+NF_API void nf_guide_policy_init(nf_guide_policy *p);
+
+/* The probability of sampling the flow at the next guided vertex of a path whose boost is
+ * `boost`. The boost is the product, over the path's guided vertices so far, of p_bsdf / p_mix
+ * (nf_guide_boost): how much the mixture has raised the throughput over BSDF sampling's. A
+ * BSDF sample where the flow has no mass weighs 1 / (1 - g) more than under BSDF sampling, and
+ * along a path these factors multiply; the cap keeps their product within max_boost by
+ * lowering g to 1 - boost / max_boost, and to 0 below 0.05 (a vertex guided that little pays
+ * the flow for nothing). It depends only on the path so far: the estimator stays unbiased.
+ * A NULL policy gives 0. Thread-safe, total. */
+NF_API float nf_guide_mixture_prob(const nf_guide_policy *p, float boost);
+
+/* The boost after a guided vertex: boost x p_bsdf / p_mix for a sampled direction whose BSDF
+ * and mixture densities (per steradian) are given; a delta lobe (p_bsdf = p_mix = 0) that the
+ * mixture chose with probability 1 - g passes g_used and multiplies 1 / (1 - g_used).
+ * Non-finite or non-positive densities leave the boost unchanged. Thread-safe, total. */
+NF_API float nf_guide_boost(float boost, float p_bsdf, float p_mix, float g_used);
+
+/* The probability that Russian roulette lets a path go on: the larger of its throughput's
+ * largest channel and that channel divided by the path's boost, at most max_survival. The
+ * quotient is the throughput BSDF sampling would have given the same path, so a path the flow
+ * sent where it expects light survives as often as plain path tracing would let it; the
+ * larger of the two keeps the throughput after roulette at or below about 1 when the flow sent
+ * it where it expects little. boost = 1 gives plain path tracing's rule. NaN gives 0.
+ * Thread-safe, total. */
+NF_API float nf_guide_roulette_survival(const nf_guide_policy *p, float throughput_max,
+                                        float boost);
+
+/* Whether a light sample at a vertex `depth` segments into the path is weighed against the
+ * mixture's density (1: ask the flow its density) or the BSDF's (0). Both the light sample and
+ * the scattered direction that hits the light must use the same answer, so that the MIS
+ * weights still sum to one. Thread-safe, total. */
+NF_API int nf_guide_light_mis_uses_flow(const nf_guide_policy *p, uint32_t depth);
+
+/* ---- Hooks the renderer supplies --------------------------------------------------------- */
+
+/* A task of a parallel-for: task(task_data, index) for one index. */
+typedef void (*nf_task_fn)(void *task_data, size_t index);
+
+/* The renderer's parallel-for: run(user, count, task, task_data) calls task(task_data, i) for
+ * every i in [0, count), on any of the renderer's threads and in any order, and returns when
+ * all have returned. Each thread that runs a task needs NF_TRAINING_STACK_BYTES (train.h) of
+ * stack. A NULL nf_parallel (or run) runs the tasks on the calling thread. The results are the
+ * same bits whichever threads ran which tasks. */
+typedef struct nf_parallel {
+    void (*run)(void *user, size_t count, nf_task_fn task, void *task_data);
+    void *user;
+} nf_parallel;
+
+/* The renderer's allreduce over processes (MPI_Allreduce, for example), for one model trained
+ * by several processes: each function replaces values[0..n) by the element-wise maximum, or
+ * the exact integer sum, over all processes, and returns NF_OK (any other status aborts the
+ * step on this process, which then leaves the model unchanged; the renderer must make the
+ * other processes fail too). Every process calls the training functions with the same
+ * configuration and the same number of times: they are collective. A NULL nf_reduce is one
+ * process. */
+typedef struct nf_reduce {
+    nf_status (*max_f64)(void *user, double *values, size_t n);
+    nf_status (*sum_i64)(void *user, int64_t *values, size_t n);
+    void *user;
+} nf_reduce;
+
+/* ---- The guide ---------------------------------------------------------------------------- */
+
+typedef struct nf_guide nf_guide;
+
+/* What a guide is made of. Zero is never a valid configuration: call nf_guide_config_init. */
+typedef struct nf_guide_config {
+    uint32_t magic_;         /* set by nf_guide_config_init                                */
+    size_t store_capacity;   /* training samples kept, newest first, and the most one pass
+                              * can add; [1, 2^26]; default 131072                        */
+    size_t payload_bytes;    /* caller bytes kept with each sample (a material for a BSDF
+                              * prior, say), [0, 4096]; default 0                          */
+    uint32_t step_samples;   /* samples per step on this process, [1, 2^20]; default 2048  */
+    uint32_t steps_per_pass; /* steps after each training pass, [1, 4096]; default 64      */
+    uint32_t groups;         /* gradient groups per step (the most threads that help),
+                              * [1, 256]; default 16. The groups are fixed by the step's
+                              * samples alone, so the bits do not depend on the threads   */
+    uint32_t patience;       /* training passes without a 1 % better held-out loss before
+                              * nf_guide_keep_training says stop; 0 never; default 6      */
+    float clamp_quantile;    /* training weights clamped at a running quantile of each
+                              * pass's weights, (0, 1), or 0 for none; default 0.99       */
+    float train_fraction;    /* share of a time budget to train, [0, 1]; default 0.15     */
+    float learning_rate;     /* AdamW rate set on the model; default 5e-3                  */
+    uint64_t seed;           /* the draws from the store; default 1                        */
+    nf_guide_policy policy;  /* nf_guide_policy_init's                                     */
+} nf_guide_config;
+
+/* Fills `gc` with the defaults above. NULL is ignored. Thread-safe. */
+NF_API void nf_guide_config_init(nf_guide_config *gc);
+
+/* Creates a guide around copies of `model` (the caller keeps and frees `model`; it may be
+ * destroyed at once); the guide's memory comes from the model's allocator. gc NULL: the
+ * defaults. The copies' learning rate becomes gc->learning_rate. A model with a custom prior keeps
+ * its callbacks: during training they receive contexts of the guide's step (nf_guide_payload finds
+ * each one's payload). Errors: NF_ERROR_INVALID_ARGUMENT (NULL model or out, a field out of range,
+ * a config not from nf_guide_config_init: the message names the field), NF_ERROR_OUT_OF_MEMORY;
+ * *out is then NULL. Thread-safe; allocates everything the guide will use. */
+NF_API nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_guide **out);
+
+/* Frees the guide. NULL is a no-op. No other call may use the guide meanwhile or after, and
+ * no model it handed out may be used after. */
+NF_API void nf_guide_destroy(nf_guide *g);
+
+/* The configuration the guide was created with, or NULL for NULL. Thread-safe. */
+NF_API const nf_guide_config *nf_guide_get_config(const nf_guide *g);
+
+/* ---- Rendering with the guide ------------------------------------------------------------- */
+
+/* Hands out the newest published model for sampling, and holds it until nf_guide_release:
+ * *out stays valid and unchanged while held (no step or publish writes it), so that a pass
+ * samples one consistent model. Call it once per pass and thread, not per vertex (two atomic
+ * operations). Errors: NF_ERROR_INVALID_ARGUMENT for NULL arguments. Thread-safe with every
+ * call but nf_guide_destroy. */
+NF_API nf_status nf_guide_acquire(nf_guide *g, const nf_model **out);
+
+/* Ends a hold of nf_guide_acquire. A model this guide did not hand out, or one released more
+ * often than acquired, is refused with NF_ERROR_INVALID_ARGUMENT. Thread-safe as acquire. */
+NF_API nf_status nf_guide_release(nf_guide *g, const nf_model *m);
+
+/* Adds n training samples (train.h: context, unit-length-or-not direction, weight f >= 0 as
+ * in nf_train_step). key[i] orders the samples: the store sorts a pass's samples by key (and
+ * equal keys by their bytes) before training, so that training is the same bits however the
+ * threads interleaved their calls; give distinct keys (a pixel and vertex index, say).
+ * key NULL: keys 0 (the bytes decide). payload: n x payload_bytes bytes, or NULL (zeros).
+ * Samples with weight 0 are skipped (they carry nothing for the loss). A pass can hold
+ * store_capacity samples: the rest are dropped and counted (nf_guide_stats). Validated as
+ * nf_train_step; a refused call adds nothing. n = 0 is a no-op.
+ * Thread-safe with other nf_guide_add_samples, acquire, release and sampling, lock-free; not
+ * with the training calls (refused with NF_ERROR_BUSY when it overlaps one). */
+NF_API nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key,
+                                      const nf_context *ctx, const float *dir, const float *weight,
+                                      const void *payload);
+
+/* ---- Training ----------------------------------------------------------------------------- */
+
+/* What one nf_guide_train_pass did. */
+typedef struct nf_guide_pass_report {
+    uint64_t new_samples; /* this process's samples of the pass                          */
+    uint32_t steps;       /* steps taken                                                  */
+    uint32_t refused;     /* steps the model refused (NF_ERROR_NUMERIC); it is unchanged  */
+    float held_out_loss;  /* the loss of the pass's new samples before the first step;
+                           * NaN when no process had new samples                         */
+    float clamp;          /* the running clamp of the weights after this pass (0: none)  */
+    int keep_training;    /* nf_guide_keep_training after this pass                      */
+} nf_guide_pass_report;
+
+/* Trains after a training pass: the pass's samples join the store (sorted by key; the oldest
+ * leave), the running clamp takes in the pass's weights, then steps_per_pass steps of
+ * step_samples samples: the first on the pass's new samples (a held-out loss), the rest drawn
+ * uniformly from the store, each sharded into `groups` gradient groups run through `par` and
+ * summed exactly (through `red` across processes). The held-out loss, averaged over about
+ * three passes, feeds the patience. The training model changes; the published ones do not
+ * (nf_guide_publish). rep may be NULL.
+ * Collective over `red`'s processes. Errors: NF_ERROR_BUSY when nf_guide_add_samples runs
+ * meanwhile, NF_ERROR_INVALID_ARGUMENT, a reduce hook's status; the model is then as before
+ * the failing step. Not thread-safe with other training calls or publish; safe while other
+ * threads sample acquired models. Uses NF_TRAINING_STACK_BYTES of each task's stack. */
+NF_API nf_status nf_guide_train_pass(nf_guide *g, const nf_parallel *par, const nf_reduce *red,
+                                     nf_guide_pass_report *rep);
+
+/* One sharded step on samples the caller holds (no store, no clamp): n samples of ctx / dir /
+ * weight as nf_train_step, cut into groups: group k is [group_end[k-1], group_end[k])
+ * (group_end[-1] = 0) for k < ngroups <= the configured groups, or, with group_end NULL, the
+ * configured number of equal groups. A caller who fixes the groups by its batch (paths per
+ * group, say) gets the same bits on any number of processes. *loss (may be NULL) receives the
+ * batch's loss, NaN when no step was taken. A batch whose weights are all zero on every
+ * process takes no step and returns NF_OK. Errors and collectivity as nf_guide_train_pass. */
+NF_API nf_status nf_guide_train_batch(nf_guide *g, size_t n, const nf_context *ctx,
+                                      const float *dir, const float *weight,
+                                      const size_t *group_end, size_t ngroups,
+                                      const nf_parallel *par, const nf_reduce *red, float *loss);
+
+/* Whether training still pays: 0 once `elapsed` reaches train_fraction of `budget` (both in
+ * the caller's unit, seconds say; budget <= 0: no budget) or the held-out loss has not
+ * improved by 1 % for `patience` passes. Every process gets the same answer for the same
+ * arguments. Thread-safe on a guide no training call changes meanwhile. */
+NF_API int nf_guide_keep_training(const nf_guide *g, double elapsed, double budget);
+
+/* Copies the training model's parameters into the published model that no thread holds, and
+ * makes it the newest: acquire hands it out from now on. NF_ERROR_BUSY when both published
+ * models are still held (release one first); the newest stays as it was. Not thread-safe
+ * with training calls; safe while other threads sample acquired models. */
+NF_API nf_status nf_guide_publish(nf_guide *g);
+
+/* The model that training changes, for saving (nf_model_save), inspection or nf_set_params.
+ * Never sample it while a training call may run. NULL for NULL. */
+NF_API nf_model *nf_guide_training_model(nf_guide *g);
+
+/* The payload of a sample of the step that is being computed, for a custom prior's callbacks:
+ * ctx must be a context pointer the callbacks received during a training call of this guide.
+ * NULL for any other pointer. Thread-safe during the training call's tasks. */
+NF_API const void *nf_guide_payload(const nf_guide *g, const nf_context *ctx);
+
+/* Counters since creation. */
+typedef struct nf_guide_stats {
+    uint64_t samples; /* added and kept                                              */
+    uint64_t dropped; /* added beyond store_capacity in one pass                     */
+    uint64_t stored;  /* in the store now                                            */
+    uint64_t steps, refused;
+    uint32_t passes;       /* nf_guide_train_pass calls                                   */
+    uint32_t stale_passes; /* passes since the held-out loss last improved by 1 %         */
+    float last_loss;       /* the latest held-out loss (NaN: none yet)                    */
+    float clamp;           /* the running clamp (0: none yet)                             */
+} nf_guide_stats;
+
+/* Fills *out. NF_ERROR_INVALID_ARGUMENT for NULL. Thread-safe on a guide no training call
+ * changes meanwhile. */
+NF_API nf_status nf_guide_get_stats(const nf_guide *g, nf_guide_stats *out);
+
+NF_EXTERN_C_END
+
+#endif /* NISFLOW_GUIDE_H */

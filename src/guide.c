@@ -1,0 +1,360 @@
+/*
+ * guide.c - the guide of nisflow/guide.h: its configuration, life cycle, the store that
+ * render threads fill, and the double-buffered publication of the model they sample.
+ * The schedule and the sharded step are in guide_train.c.
+ */
+#include <math.h>
+
+#include "guide_internal.h"
+
+void nf_guide_config_init(nf_guide_config *gc)
+{
+    if (!gc)
+        return;
+    memset(gc, 0, sizeof *gc);
+    gc->magic_ = NF_GUIDE_CONFIG_MAGIC;
+    gc->store_capacity = 131072;
+    gc->payload_bytes = 0;
+    gc->step_samples = 2048;
+    gc->steps_per_pass = 64;
+    gc->groups = 16;
+    gc->patience = 6;
+    gc->clamp_quantile = 0.99f;
+    gc->train_fraction = 0.15f;
+    gc->learning_rate = 5e-3f;
+    gc->seed = 1;
+    nf_guide_policy_init(&gc->policy);
+}
+
+static nf_status nf_guide_config_check(const nf_guide_config *gc, const char *fn)
+{
+#define NF_RANGE(cond, field)                                                                      \
+    if (!(cond))                                                                                   \
+    return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: gc->%s is out of range (guide.h)", fn, field)
+    if (gc->magic_ != NF_GUIDE_CONFIG_MAGIC)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: gc was not filled by nf_guide_config_init (call it, then change "
+                       "the fields you need)",
+                       fn);
+    NF_RANGE(gc->store_capacity >= 1 && gc->store_capacity <= ((size_t)1 << 26), "store_capacity");
+    NF_RANGE(gc->payload_bytes <= 4096, "payload_bytes");
+    NF_RANGE(gc->step_samples >= 1 && gc->step_samples <= (1u << 20), "step_samples");
+    NF_RANGE(gc->steps_per_pass >= 1 && gc->steps_per_pass <= 4096, "steps_per_pass");
+    NF_RANGE(gc->groups >= 1 && gc->groups <= 256, "groups");
+    NF_RANGE(gc->clamp_quantile == 0.0f || (gc->clamp_quantile > 0.0f && gc->clamp_quantile < 1.0f),
+             "clamp_quantile");
+    NF_RANGE(gc->train_fraction >= 0.0f && gc->train_fraction <= 1.0f, "train_fraction");
+    NF_RANGE(gc->policy.mixture_prob >= 0.0f && gc->policy.mixture_prob < 1.0f,
+             "policy.mixture_prob");
+    NF_RANGE(gc->policy.max_boost == 0.0f ||
+                 (gc->policy.max_boost >= 1.0f && isfinite(gc->policy.max_boost)),
+             "policy.max_boost");
+    NF_RANGE(gc->policy.max_survival > 0.0f && gc->policy.max_survival <= 1.0f,
+             "policy.max_survival");
+    NF_RANGE(gc->policy.min_roughness >= 0.0f && gc->policy.min_roughness <= 1.0f,
+             "policy.min_roughness");
+#undef NF_RANGE
+    /* The learning rate is checked by nf_set_learning_rate, against the model's decay. */
+    return NF_OK;
+}
+
+static void *nf_guide_alloc(nf_guide *g, size_t count, size_t size, int *ok)
+{
+    if (count == 0)
+        count = 1;
+    if (size && count > SIZE_MAX / size) {
+        *ok = 0;
+        return NULL;
+    }
+    void *p = g->alloc.alloc(g->alloc.user, count * size);
+    if (!p)
+        *ok = 0;
+    else
+        memset(p, 0, count * size);
+    return p;
+}
+
+static void nf_guide_free_one(nf_guide *g, void *p)
+{
+    if (p)
+        g->alloc.free(g->alloc.user, p);
+}
+
+void nf_guide_destroy(nf_guide *g)
+{
+    if (!g)
+        return;
+    nf_model_destroy(g->train);
+    nf_model_destroy(g->pub[0]);
+    nf_model_destroy(g->pub[1]);
+    void *arrays[] = {g->stage,    g->ring,        g->stage_payload, g->ring_payload,
+                      g->order,    g->order_tmp,   g->quantile_work, g->step_ctx,
+                      g->step_dir, g->step_weight, g->step_slot,     g->grads,
+                      g->F,        g->FL,          g->group_status,  g->group_message,
+                      g->fixed,    g->mean};
+    for (size_t i = 0; i < sizeof arrays / sizeof arrays[0]; ++i)
+        nf_guide_free_one(g, arrays[i]);
+    nf_allocator alloc = g->alloc;
+    alloc.free(alloc.user, g);
+}
+
+nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_guide **out)
+{
+    static const char fn[] = "nf_guide_create";
+    if (!out)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: out is NULL", fn);
+    *out = NULL;
+    if (!model)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: model is NULL", fn);
+    nf_guide_config defaults;
+    if (!gc) {
+        nf_guide_config_init(&defaults);
+        gc = &defaults;
+    }
+    nf_status st = nf_guide_config_check(gc, fn);
+    if (st != NF_OK)
+        return st;
+    nf_allocator alloc = model->cfg.allocator; /* resolved by nf_model_allocate */
+    nf_guide *g = (nf_guide *)alloc.alloc(alloc.user, sizeof *g);
+    if (!g)
+        return nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate the guide", fn);
+    memset(g, 0, sizeof *g);
+    g->cfg = *gc;
+    g->alloc = alloc;
+    atomic_init(&g->newest, 0);
+    atomic_init(&g->holders[0], 0u);
+    atomic_init(&g->holders[1], 0u);
+    atomic_init(&g->adding, 0u);
+    atomic_init(&g->training, 0);
+    atomic_init(&g->staged, (size_t)0);
+    atomic_init(&g->dropped, 0ull);
+    for (int i = 0; i < 3; ++i) {
+        nf_model **slot = i == 0 ? &g->train : &g->pub[i - 1];
+        if ((st = nf_model_clone(model, slot)) != NF_OK ||
+            (st = nf_set_learning_rate(*slot, gc->learning_rate)) != NF_OK) {
+            nf_guide_destroy(g);
+            return st == NF_ERROR_INVALID_ARGUMENT
+                       ? nf_fail(st,
+                                 "%s: gc->learning_rate = %g is out of range for this "
+                                 "model (train.h, nf_set_learning_rate)",
+                                 fn, (double)gc->learning_rate)
+                       : st;
+        }
+    }
+    size_t cap = gc->store_capacity, pb = gc->payload_bytes, step = gc->step_samples;
+    size_t groups = gc->groups;
+    g->params = nf_param_count(model);
+    int ok = 1;
+    g->stage = nf_guide_alloc(g, cap, sizeof *g->stage, &ok);
+    g->ring = nf_guide_alloc(g, cap, sizeof *g->ring, &ok);
+    g->stage_payload = nf_guide_alloc(g, cap, pb, &ok);
+    g->ring_payload = nf_guide_alloc(g, cap, pb, &ok);
+    g->order = nf_guide_alloc(g, cap, sizeof *g->order, &ok);
+    g->order_tmp = nf_guide_alloc(g, cap, sizeof *g->order_tmp, &ok);
+    g->quantile_work = nf_guide_alloc(g, cap, sizeof *g->quantile_work, &ok);
+    g->step_ctx = nf_guide_alloc(g, step, sizeof *g->step_ctx, &ok);
+    g->step_dir = nf_guide_alloc(g, step, 3 * sizeof *g->step_dir, &ok);
+    g->step_weight = nf_guide_alloc(g, step, sizeof *g->step_weight, &ok);
+    g->step_slot = nf_guide_alloc(g, step, sizeof *g->step_slot, &ok);
+    g->grads = nf_guide_alloc(g, groups * g->params, sizeof *g->grads, &ok);
+    g->F = nf_guide_alloc(g, groups, sizeof *g->F, &ok);
+    g->FL = nf_guide_alloc(g, groups, sizeof *g->FL, &ok);
+    g->group_status = nf_guide_alloc(g, groups, sizeof *g->group_status, &ok);
+    g->group_message = nf_guide_alloc(g, groups, sizeof *g->group_message, &ok);
+    g->fixed = nf_guide_alloc(g, g->params + 2, sizeof *g->fixed, &ok);
+    g->mean = nf_guide_alloc(g, g->params, sizeof *g->mean, &ok);
+    if (!ok) {
+        nf_guide_destroy(g);
+        return nf_fail(NF_ERROR_OUT_OF_MEMORY,
+                       "%s: could not allocate the store of %zu samples (%zu payload bytes "
+                       "each) and the step's buffers",
+                       fn, cap, pb);
+    }
+    g->best_loss = INFINITY;
+    g->smooth_loss = NAN;
+    g->last_loss = NAN;
+    g->rng = gc->seed;
+    *out = g;
+    return NF_OK;
+}
+
+const nf_guide_config *nf_guide_get_config(const nf_guide *g) { return g ? &g->cfg : NULL; }
+
+nf_model *nf_guide_training_model(nf_guide *g) { return g ? g->train : NULL; }
+
+/* ---- Publication ----------------------------------------------------------------------------
+ * Two published models and a hold count each. A reader counts itself into the newest, then
+ * checks that it is still the newest; publish writes only the model nobody holds. With
+ * sequentially consistent atomics, a reader that re-reads `newest` unchanged holds a model
+ * that no publish is writing: a publish that began writing it did so after the swap away from
+ * it, and the reader's re-read would then see the other one and retry. */
+
+nf_status nf_guide_acquire(nf_guide *g, const nf_model **out)
+{
+    if (!g || !out)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_guide_acquire: %s is NULL", !g ? "g" : "out");
+    for (;;) {
+        int i = atomic_load(&g->newest);
+        atomic_fetch_add(&g->holders[i], 1u);
+        if (atomic_load(&g->newest) == i) {
+            *out = g->pub[i];
+            return NF_OK;
+        }
+        atomic_fetch_sub(&g->holders[i], 1u);
+    }
+}
+
+nf_status nf_guide_release(nf_guide *g, const nf_model *m)
+{
+    static const char fn[] = "nf_guide_release";
+    if (!g || !m)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn, !g ? "g" : "m");
+    int i = m == g->pub[0] ? 0 : m == g->pub[1] ? 1 : -1;
+    if (i < 0)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: m was not handed out by this guide", fn);
+    unsigned held = atomic_load(&g->holders[i]);
+    do {
+        if (held == 0)
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: m is released more often than it was acquired", fn);
+    } while (!atomic_compare_exchange_weak(&g->holders[i], &held, held - 1u));
+    return NF_OK;
+}
+
+/* Marks a training call in flight; refuses when samples are being added (or another training
+ * call runs). The two flags are set before the other is read (Dekker's pattern, sequentially
+ * consistent), so an add and a training call can never both go ahead. */
+nf_status nf_guide_begin_exclusive(nf_guide *g, const char *fn)
+{
+    int expected = 0;
+    if (!atomic_compare_exchange_strong(&g->training, &expected, 1))
+        return nf_fail(NF_ERROR_BUSY, "%s: another training call or publish is running", fn);
+    if (atomic_load(&g->adding) != 0u) {
+        atomic_store(&g->training, 0);
+        return nf_fail(NF_ERROR_BUSY,
+                       "%s: nf_guide_add_samples is running on another thread: train after "
+                       "the pass's threads have finished",
+                       fn);
+    }
+    return NF_OK;
+}
+
+void nf_guide_end_exclusive(nf_guide *g) { atomic_store(&g->training, 0); }
+
+nf_status nf_guide_publish(nf_guide *g)
+{
+    static const char fn[] = "nf_guide_publish";
+    if (!g)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: g is NULL", fn);
+    nf_status st = nf_guide_begin_exclusive(g, fn);
+    if (st != NF_OK)
+        return st;
+    int back = 1 - atomic_load(&g->newest);
+    if (atomic_load(&g->holders[back]) != 0u) {
+        nf_guide_end_exclusive(g);
+        return nf_fail(NF_ERROR_BUSY,
+                       "%s: both published models are held: release the older one "
+                       "(nf_guide_release) first",
+                       fn);
+    }
+    /* g->mean is the step's scratch, free between training calls. */
+    if ((st = nf_get_params(g->train, g->mean)) == NF_OK)
+        st = nf_set_params(g->pub[back], g->mean);
+    if (st == NF_OK)
+        atomic_store(&g->newest, back);
+    nf_guide_end_exclusive(g);
+    return st;
+}
+
+/* ---- The store ------------------------------------------------------------------------------ */
+
+nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key, const nf_context *ctx,
+                               const float *dir, const float *weight, const void *payload)
+{
+    static const char fn[] = "nf_guide_add_samples";
+    if (!g)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: g is NULL", fn);
+    if (!ctx || !dir || !weight)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn,
+                       !ctx   ? "ctx"
+                       : !dir ? "dir"
+                              : "weight");
+    if (n == 0)
+        return NF_OK;
+    nf_status st;
+    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+        (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
+        (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
+        return st;
+    size_t kept = 0;
+    for (size_t i = 0; i < n; ++i) {
+        if (!(weight[i] >= 0.0f) || !isfinite(weight[i]))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: weight[%zu] = %g is negative or not finite", fn, i,
+                           (double)weight[i]);
+        kept += weight[i] > 0.0f;
+    }
+    atomic_fetch_add(&g->adding, 1u);
+    if (atomic_load(&g->training) != 0) {
+        atomic_fetch_sub(&g->adding, 1u);
+        return nf_fail(NF_ERROR_BUSY,
+                       "%s: a training call is running: add the pass's samples before it", fn);
+    }
+    size_t cap = g->cfg.store_capacity, pb = g->cfg.payload_bytes;
+    size_t slot = atomic_fetch_add(&g->staged, kept);
+    for (size_t i = 0; i < n; ++i) {
+        if (!(weight[i] > 0.0f))
+            continue;
+        if (slot >= cap) {
+            atomic_fetch_add(&g->dropped, 1ull);
+        } else {
+            nf_guide_entry *e = &g->stage[slot];
+            e->ctx = ctx[i];
+            memcpy(e->dir, dir + 3 * i, sizeof e->dir);
+            e->weight = weight[i];
+            e->key = key ? key[i] : 0u;
+            if (pb) {
+                unsigned char *dst = g->stage_payload + slot * pb;
+                if (payload)
+                    memcpy(dst, (const unsigned char *)payload + i * pb, pb);
+                else
+                    memset(dst, 0, pb);
+            }
+        }
+        ++slot;
+    }
+    atomic_fetch_sub(&g->adding, 1u);
+    return NF_OK;
+}
+
+const void *nf_guide_payload(const nf_guide *g, const nf_context *ctx)
+{
+    if (!g || !ctx || !g->step_payload_base || g->cfg.payload_bytes == 0)
+        return NULL;
+    /* Compare addresses as integers: ctx may point anywhere. */
+    uintptr_t p = (uintptr_t)ctx, base = (uintptr_t)g->step_ctx;
+    if (p < base || (p - base) % sizeof *ctx != 0)
+        return NULL;
+    size_t i = (p - base) / sizeof *ctx;
+    if (i >= g->step_n)
+        return NULL;
+    return g->step_payload_base + g->step_slot[i] * g->cfg.payload_bytes;
+}
+
+nf_status nf_guide_get_stats(const nf_guide *g, nf_guide_stats *out)
+{
+    if (!g || !out)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_guide_get_stats: %s is NULL",
+                       !g ? "g" : "out");
+    memset(out, 0, sizeof *out);
+    out->samples = g->samples;
+    out->dropped = atomic_load(&((nf_guide *)g)->dropped);
+    out->stored = g->ring_count;
+    out->steps = g->steps;
+    out->refused = g->refused;
+    out->passes = g->passes;
+    out->stale_passes = g->since_best;
+    out->last_loss = g->last_loss;
+    out->clamp = g->clamp;
+    return NF_OK;
+}

@@ -1,0 +1,75 @@
+/*
+ * guide_internal.h - the guide's memory (nisflow/guide.h), shared by guide.c (life cycle, the
+ * store, publication) and guide_train.c (the schedule and the exact sharded step).
+ */
+#ifndef NISFLOW_GUIDE_INTERNAL_H
+#define NISFLOW_GUIDE_INTERNAL_H
+
+#include <stdatomic.h>
+
+#include "internal.h"
+
+/* One training sample as stored. The first 52 bytes (context, direction, weight) are
+ * contiguous floats, which the sort compares as bytes to order equal keys. */
+typedef struct nf_guide_entry {
+    nf_context ctx;
+    float dir[3];
+    float weight;
+    uint64_t key;
+} nf_guide_entry;
+
+#define NF_GUIDE_ENTRY_BYTES 52u
+#define NF_GUIDE_MESSAGE 160
+
+struct nf_guide {
+    nf_guide_config cfg;
+    nf_allocator alloc;
+    nf_model *train;  /* what steps change; never handed out                               */
+    nf_model *pub[2]; /* published copies; `newest` is what acquire hands out              */
+    atomic_int newest;
+    atomic_uint holders[2];
+    atomic_uint adding;   /* nf_guide_add_samples calls in flight                          */
+    atomic_int training;  /* a training call or publish in flight                          */
+    atomic_size_t staged; /* slots reserved in `stage` this pass (may exceed capacity)     */
+    atomic_ullong dropped;
+
+    nf_guide_entry *stage, *ring; /* capacity each                                           */
+    unsigned char *stage_payload, *ring_payload;
+    size_t ring_next, ring_count;
+    uint32_t *order, *order_tmp; /* capacity each: the sort and the held-out shuffle          */
+    float *quantile_work;        /* capacity                                                  */
+
+    /* The step being computed: samples from ring slots step_slot[i]. */
+    nf_context *step_ctx;
+    float *step_dir, *step_weight;
+    size_t *step_slot;
+    size_t step_n;
+    const unsigned char *step_payload_base; /* ring_payload while a store step runs, else NULL */
+
+    /* One gradient per group, and the exact sums. */
+    size_t params;
+    float *grads;
+    double *F, *FL;
+    nf_status *group_status;
+    char (*group_message)[NF_GUIDE_MESSAGE];
+    int64_t *fixed; /* params + 2 */
+    float *mean;    /* params     */
+
+    /* The schedule. */
+    float clamp;
+    double best_loss, smooth_loss;
+    uint32_t since_best, passes;
+    float last_loss;
+    uint64_t samples, steps, refused;
+    uint64_t rng;
+};
+
+/* Marks the start and end of a training call or publish (guide.c): NF_ERROR_BUSY while
+ * nf_guide_add_samples or another such call runs. */
+nf_status nf_guide_begin_exclusive(nf_guide *g, const char *fn);
+void nf_guide_end_exclusive(nf_guide *g);
+
+/* Marks a guide config as initialized. */
+#define NF_GUIDE_CONFIG_MAGIC 0x4e464743u /* "NFGC" */
+
+#endif /* NISFLOW_GUIDE_INTERNAL_H */

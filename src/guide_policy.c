@@ -1,0 +1,65 @@
+/*
+ * guide_policy.c - the path policy of nisflow/guide.h: how a guided path mixes the flow with
+ * the BSDF, when Russian roulette lets it go on, and which vertices ask the flow for a light
+ * sample's density. The rules and their measurements are in docs/integration.md and
+ * docs/equal-time.md.
+ */
+#include <math.h>
+
+#include "internal.h"
+
+void nf_guide_policy_init(nf_guide_policy *p)
+{
+    if (!p)
+        return;
+    p->mixture_prob = 0.7f;
+    p->max_boost = 10.0f;
+    p->max_survival = 0.95f;
+    p->light_mis_depth = 2;
+    p->min_roughness = 0.3f;
+}
+
+float nf_guide_mixture_prob(const nf_guide_policy *p, float boost)
+{
+    if (!p || !(p->mixture_prob > 0.0f))
+        return 0.0f;
+    float g = p->mixture_prob;
+    if (!(p->max_boost > 0.0f))
+        return g;
+    /* A vertex multiplies the boost by at most 1 / (1 - g): keep boost / (1 - g) within the
+     * cap. */
+    float most = 1.0f - boost / p->max_boost;
+    if (g <= most)
+        return g;
+    return most >= 0.05f ? most : 0.0f; /* NaN gives 0 */
+}
+
+float nf_guide_boost(float boost, float p_bsdf, float p_mix, float g_used)
+{
+    if (p_bsdf == 0.0f && p_mix == 0.0f) { /* a delta lobe, chosen with probability 1 - g */
+        if (g_used > 0.0f && g_used < 1.0f)
+            return boost / (1.0f - g_used);
+        return boost;
+    }
+    if (!(p_bsdf > 0.0f) || !(p_mix > 0.0f) || !isfinite(p_bsdf) || !isfinite(p_mix))
+        return boost;
+    return boost * (p_bsdf / p_mix);
+}
+
+float nf_guide_roulette_survival(const nf_guide_policy *p, float throughput_max, float boost)
+{
+    float top = p ? p->max_survival : 0.95f;
+    float c = throughput_max;
+    if (boost > 0.0f && isfinite(boost))
+        c = fmaxf(c, throughput_max / boost);
+    if (!(c >= 0.0f)) /* NaN or negative */
+        return 0.0f;
+    return fminf(c, top);
+}
+
+int nf_guide_light_mis_uses_flow(const nf_guide_policy *p, uint32_t depth)
+{
+    if (!p)
+        return 0;
+    return p->light_mis_depth == 0 || depth <= p->light_mis_depth;
+}

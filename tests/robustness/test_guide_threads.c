@@ -1,0 +1,288 @@
+/*
+ * test_guide_threads.c - training while other threads sample is either safe or refused, never
+ * silently wrong (nisflow/guide.h, nisflow/point.h):
+ *
+ *   1. through a guide: render threads sample the published models while a trainer thread
+ *      adds samples, trains and publishes; every answer must be the model's own (a shading
+ *      point's density equals nf_pdf's on the same model, to the bit), and overlapping calls
+ *      that may not overlap are refused with NF_ERROR_BUSY. .ci/robustness runs this under
+ *      ThreadSanitizer too: it has no data race.
+ *   2. misuse of a bare model: a thread prepares shading points while another takes
+ *      nf_train_step on the same model. No point prepared during a step may be accepted
+ *      afterwards; every point still accepted must agree with the final model to the bit.
+ *      This one races by design, so it is left out under ThreadSanitizer.
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <math.h>
+#include <pthread.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include <cmocka.h>
+
+#include "nf_test_support.h"
+
+#if defined(__SANITIZE_THREAD__)
+#define NF_UNDER_TSAN 1
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+#define NF_UNDER_TSAN 1
+#endif
+#endif
+#ifndef NF_UNDER_TSAN
+#define NF_UNDER_TSAN 0
+#endif
+
+#define SAMPLES 512
+
+typedef struct shared {
+    nf_guide *g;
+    nf_context ctx[SAMPLES];
+    float dir[3 * SAMPLES], weight[SAMPLES];
+    atomic_int stop;
+    atomic_ulong checked, mismatched, refused_adds, publishes, models_seen;
+} shared;
+
+static void fill(shared *s, uint64_t seed)
+{
+    nft_rng r;
+    nft_rng_seed(&r, seed, 3);
+    const double mu[3] = {0.3, 0.0, 0.95};
+    for (int i = 0; i < SAMPLES; ++i) {
+        nft_random_context(&r, &s->ctx[i]);
+        nft_vmf_sample(&r, mu, 30.0, s->dir + 3 * i);
+        s->weight[i] = 0.5f + nft_rng_float(&r);
+    }
+}
+
+static void *render_thread(void *arg)
+{
+    shared *s = arg;
+    nft_rng r;
+    nft_rng_seed(&r, (uint64_t)(uintptr_t)arg, 5);
+    const nf_model *last = NULL;
+    while (!atomic_load(&s->stop)) {
+        const nf_model *m = NULL;
+        if (nf_guide_acquire(s->g, &m) != NF_OK)
+            break;
+        if (m != last)
+            atomic_fetch_add(&s->models_seen, 1ul);
+        last = m;
+        for (int k = 0; k < 20; ++k) {
+            const nf_context *ctx = &s->ctx[nft_rng_u32(&r) % SAMPLES];
+            nf_shading_point sp;
+            float u[2] = {nft_rng_float(&r), nft_rng_float(&r)}, dir[3], pdf, dir2[3], pdf2;
+            float other, other_batch;
+            const float *probe = s->dir + 3 * (nft_rng_u32(&r) % SAMPLES);
+            int ok = nf_point_prepare(m, ctx, NULL, &sp) == NF_OK &&
+                     nf_point_sample(m, &sp, 1, u, dir, &pdf) == NF_OK &&
+                     nf_sample(m, 1, ctx, u, dir2, &pdf2) == NF_OK &&
+                     nf_point_pdf(m, &sp, 1, probe, &other) == NF_OK &&
+                     nf_pdf(m, 1, ctx, probe, &other_batch) == NF_OK;
+            /* A held model is stable: every call succeeds, and a point answers as the batch
+             * calls do on the same model (point.h: the same bits). */
+            if (!ok || memcmp(dir, dir2, sizeof dir) != 0 || memcmp(&pdf, &pdf2, sizeof pdf) != 0 ||
+                memcmp(&other, &other_batch, sizeof other) != 0)
+                atomic_fetch_add(&s->mismatched, 1ul);
+            atomic_fetch_add(&s->checked, 1ul);
+        }
+        nf_guide_release(s->g, m);
+    }
+    return NULL;
+}
+
+static void *adder_thread(void *arg)
+{
+    shared *s = arg;
+    uint64_t key[16];
+    for (int i = 0; i < 16; ++i)
+        key[i] = (uint64_t)i;
+    while (!atomic_load(&s->stop)) {
+        nf_status st = nf_guide_add_samples(s->g, 16, key, s->ctx, s->dir, s->weight, NULL);
+        if (st == NF_ERROR_BUSY)
+            atomic_fetch_add(&s->refused_adds, 1ul);
+        else if (st != NF_OK)
+            atomic_fetch_add(&s->mismatched, 1ul);
+        nanosleep(&(struct timespec){0, 10000}, NULL); /* let training in between adds */
+    }
+    return NULL;
+}
+
+static void test_guide_train_while_sampling(void **state)
+{
+    (void)state;
+    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    shared *s = calloc(1, sizeof *s);
+    assert_non_null(s);
+    fill(s, 9);
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.store_capacity = 4096;
+    gc.step_samples = 128;
+    gc.steps_per_pass = 2;
+    gc.learning_rate = 2e-2f;
+    assert_int_equal(nf_guide_create(m, &gc, &s->g), NF_OK);
+
+    pthread_t render[2], adder;
+    for (int i = 0; i < 2; ++i)
+        assert_int_equal(pthread_create(&render[i], NULL, render_thread, s), 0);
+    assert_int_equal(pthread_create(&adder, NULL, adder_thread, s), 0);
+    int busy = 0, busy_publish = 0, trained = 0;
+    /* Until 20 publications and 1,000 checked answers (on a loaded machine any thread may
+     * wait long for a core), or a bound on the passes. */
+    for (int pass = 0; pass < 20000 && (atomic_load(&s->publishes) < 20 ||
+                                         atomic_load(&s->checked) < 1000);
+         ++pass) {
+        nf_status st = nf_guide_train_pass(s->g, NULL, NULL, NULL);
+        if (st == NF_ERROR_BUSY) { /* the adder was inside add_samples: refused, retried */
+            busy++;
+            nanosleep(&(struct timespec){0, 20000}, NULL);
+            continue;
+        }
+        assert_int_equal(st, NF_OK);
+        trained++;
+        /* Refused while both published models are held: the render threads release theirs
+         * within a few microseconds. */
+        for (int tries = 0; tries < 1000; ++tries) {
+            st = nf_guide_publish(s->g);
+            assert_true(st == NF_OK || st == NF_ERROR_BUSY);
+            if (st == NF_OK) {
+                atomic_fetch_add(&s->publishes, 1ul);
+                break;
+            }
+            busy_publish++;
+            nanosleep(&(struct timespec){0, 20000}, NULL);
+        }
+    }
+    atomic_store(&s->stop, 1);
+    for (int i = 0; i < 2; ++i)
+        pthread_join(render[i], NULL);
+    pthread_join(adder, NULL);
+    print_message("guide: %lu answers checked, %lu wrong; %d passes trained, %d refused busy; "
+                  "%lu publications, %d refused busy; adds refused %lu; models seen %lu\n",
+                  atomic_load(&s->checked), atomic_load(&s->mismatched), trained, busy,
+                  atomic_load(&s->publishes), busy_publish, atomic_load(&s->refused_adds),
+                  atomic_load(&s->models_seen));
+    assert_int_equal(atomic_load(&s->mismatched), 0);
+    assert_true(atomic_load(&s->checked) > 0);
+    assert_true(trained > 0);
+    assert_true(atomic_load(&s->publishes) > 0);
+    nf_guide_destroy(s->g);
+    free(s);
+    nf_model_destroy(m);
+}
+
+/* ---- 2. A bare model trained while points are prepared ------------------------------------ */
+
+#define POINTS 4000
+
+typedef struct bare {
+    nf_model *m;
+    nf_context ctx[SAMPLES];
+    float dir[3 * SAMPLES], weight[SAMPLES];
+    nf_shading_point *points;
+    int *which;
+    atomic_int stop;
+    size_t prepared;
+} bare;
+
+static void *bare_trainer(void *arg)
+{
+    bare *b = arg;
+    for (int i = 0; i < 300; ++i)
+        nf_train_step(b->m, 64, b->ctx + (i % 8) * 64, b->dir + 3 * (i % 8) * 64,
+                      b->weight + (i % 8) * 64, NULL);
+    atomic_store(&b->stop, 1);
+    return NULL;
+}
+
+/* Prepares points until training has ended, keeping the last POINTS (a ring), so that the
+ * points prepared during the last steps are among those checked. */
+static void *bare_preparer(void *arg)
+{
+    bare *b = arg;
+    size_t n = 0, after = 0;
+    while (after < 16) {
+        if (atomic_load(&b->stop))
+            after++;
+        int k = (int)(n % SAMPLES);
+        if (nf_point_prepare(b->m, &b->ctx[k], NULL, &b->points[n % POINTS]) == NF_OK) {
+            b->which[n % POINTS] = k;
+            n++;
+        }
+    }
+    b->prepared = n < POINTS ? n : POINTS;
+    return NULL;
+}
+
+static void test_bare_model_misuse_detected(void **state)
+{
+    (void)state;
+    if (NF_UNDER_TSAN) {
+        print_message("skipped under ThreadSanitizer: this test races on purpose\n");
+        skip();
+    }
+    bare *b = calloc(1, sizeof *b);
+    assert_non_null(b);
+    b->points = malloc(POINTS * sizeof *b->points);
+    b->which = malloc(POINTS * sizeof *b->which);
+    assert_non_null(b->points);
+    assert_non_null(b->which);
+    b->m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    assert_int_equal(nf_set_learning_rate(b->m, 2e-2f), NF_OK);
+    shared tmp;
+    fill(&tmp, 17);
+    memcpy(b->ctx, tmp.ctx, sizeof b->ctx);
+    memcpy(b->dir, tmp.dir, sizeof b->dir);
+    memcpy(b->weight, tmp.weight, sizeof b->weight);
+
+    pthread_t t1, t2;
+    assert_int_equal(pthread_create(&t2, NULL, bare_preparer, b), 0);
+    assert_int_equal(pthread_create(&t1, NULL, bare_trainer, b), 0);
+    pthread_join(t1, NULL);
+    pthread_join(t2, NULL);
+    assert_int_equal(nf_model_step_count(b->m), 300);
+
+    /* The points prepared after the last step (up to 16) are accepted; every other one is
+     * stale. */
+    size_t accepted = 0, stale = 0, wrong = 0;
+    for (size_t i = 0; i < b->prepared; ++i) {
+        const float *d = b->dir + 3 * (size_t)b->which[i];
+        float p_point, p_batch;
+        nf_status st = nf_point_pdf(b->m, &b->points[i], 1, d, &p_point);
+        if (st == NF_ERROR_STALE) {
+            stale++;
+            continue;
+        }
+        assert_int_equal(st, NF_OK);
+        accepted++;
+        assert_int_equal(nf_pdf(b->m, 1, &b->ctx[b->which[i]], d, &p_batch), NF_OK);
+        wrong += memcmp(&p_point, &p_batch, sizeof p_point) != 0;
+    }
+    print_message("bare model: %zu points prepared, %zu stale after training, %zu accepted, "
+                  "%zu of those wrong\n",
+                  b->prepared, stale, accepted, wrong);
+    assert_true(stale > 0); /* the test saw training happen under it */
+    assert_true(accepted > 0); /* those prepared after the last step */
+    assert_int_equal(wrong, 0);
+    nf_model_destroy(b->m);
+    free(b->points);
+    free(b->which);
+    free(b);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_guide_train_while_sampling),
+        cmocka_unit_test(test_bare_model_misuse_detected),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
