@@ -60,37 +60,25 @@ declare -A SIZE=([cornell-box]="--width 256 --height 256"
                  [veach-bidir]="--width 256 --height 256"
                  [statue]="--width 256 --height 256")
 
-# The guided tracer as the study runs it: every option of the equal-time configuration
-# (docs/equal-time.md, "The guided configuration"); the tracer's defaults for the rest.
-GUIDED="--guide-prob 0.7 --mis-training --guide-min-roughness 0.3 --clamp-quantile 0.99 --train-fraction 0.15 --sh-bands 0 --guide-max-boost 10 --light-mis-depth 2"
-# The ablation: one lever changed at a time from GUIDED, name|options.
-without() { # GUIDED without the option $1 (and its value, if $2 is "value")
-    local out="" skip=0 w
-    for w in $GUIDED; do
-        if [ "$skip" = 1 ]; then skip=0; continue; fi
-        if [ "$w" = "$1" ]; then [ "${2:-}" = value ] && skip=1; continue; fi
-        out="$out $w"
-    done
-    echo "${out# }"
-}
+# The guided tracer as the study runs it: the tracer's defaults, which are the library's guide
+# defaults (nisflow/guide.h) and the best configuration this study found.
+GUIDED=""
+# The ablation: one lever changed at a time from the defaults (nf_tracer --variant list),
+# name|options.
 ABLATION=(
     "plain path tracing|--no-guiding"
-    "guided, the study's configuration|$GUIDED"
-    "guiding probability 0.5 (the tracer's default)|$(without --guide-prob value)"
-    "guiding probability learned per cell, cells switched off by the cost test|$GUIDED --learn-selection --selection-cost 0.2"
-    "light samples weighed against the BSDF's density at every depth|$GUIDED --light-mis-bsdf"
-    "light samples weighed against the mixture's density at every depth|$(without --light-mis-depth value)"
-    "only the first two vertices guided (--guide-depth 2)|$GUIDED --guide-depth 2"
-    "normal and outgoing direction in the flow's input (4 SH bands, the model's default)|$(without --sh-bands value)"
-    "smooth conductors guided too|$(without --guide-min-roughness value)"
-    "training weights not clamped|$(without --clamp-quantile value)"
-    "training passes dropped, not combined|$GUIDED --no-combine"
-    "train up to 30 % of the budget|$(without --train-fraction value) --train-fraction 0.3"
-    "trained on all the emission found, not its MIS-weighted part|$(without --mis-training)"
-    "plain mixture (the flow evaluated only where it samples)|$GUIDED --plain-mixture"
-    "passes one path at a time, the flow asked at shading points|$GUIDED --no-batching"
-    "the mixture's boost over BSDF sampling not capped|$(without --guide-max-boost value)"
-    "Russian roulette on the throughput as the mixture weighed it alone, not the larger of it and BSDF sampling's|$GUIDED --throughput-roulette"
+    "guided, the defaults|"
+    "guiding probability 0.5|--variant guide-prob=0.5"
+    "light samples weighed against the BSDF's density at every depth|--variant light-mis-bsdf"
+    "light samples weighed against the mixture's density at every depth|--variant light-mis-depth=0"
+    "only the first two vertices guided|--variant guide-depth=2"
+    "normal and outgoing direction in the flow's input (4 SH bands)|--variant sh-bands=4"
+    "smooth conductors guided too|--variant guide-min-roughness=0"
+    "training weights not clamped|--variant clamp-quantile=0"
+    "train up to 30 % of the budget|--variant train-fraction=0.3"
+    "trained on all the emission found, not its MIS-weighted part|--variant all-emission"
+    "passes one path at a time, the flow asked at shading points|--variant no-batching"
+    "the mixture's boost over BSDF sampling not capped|--variant guide-max-boost=0"
 )
 
 start=$(date +%s)

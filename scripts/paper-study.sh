@@ -67,13 +67,16 @@ if [ "${NF_STUDY_ONLY_AGGREGATE:-0}" != 1 ]; then
     : >"$joblist"
     # (xargs -L joins a line that ends in a blank with the next one: none may.)
     add() { local line="$*"; echo "${line%"${line##*[! ]}"}" >>"$joblist"; }
+    # Every guided run follows the paper's protocol (nf_tracer --variant paper), not the
+    # equal-time defaults; extra arguments may name their own --variant list including it.
     guided() { # scene prior seed name-suffix extra-args...
-        local scene=$1 prior=$2 seed=$3 suffix=$4
+        local scene=$1 prior=$2 seed=$3 suffix=$4 variant="--variant paper"
         shift 4
+        case "$*" in *--variant*) variant="" ;; esac
         add "$scene-$prior$suffix-s$seed --scene ${SCENE[$scene]} ${SIZE[$scene]}" \
             "--reference ${REF[$scene]} --prior $prior --lr ${LR[$scene]}" \
             "--iterations ${ITER[$scene]} --eval-every 50 --eval-spp 4 --spp 32" \
-            "--seed $seed $*"
+            "--seed $seed $variant $*"
     }
     for seed in $SEEDS; do
         # Longest first, so that the pool drains evenly.
@@ -85,14 +88,14 @@ if [ "${NF_STUDY_ONLY_AGGREGATE:-0}" != 1 ]; then
                 guided "$scene" "$prior" "$seed" ""
             done
             for eps in 0.001 0.1 0.25; do                             # the epsilon sweep
-                guided "$scene" cosine "$seed" "-eps$eps" --prior-epsilon "$eps"
+                guided "$scene" cosine "$seed" "-eps$eps" --variant "paper,prior-epsilon=$eps"
             done
         done
         guided veach-ajar bsdf "$seed" ""                               # the BSDF prior
         for prior in uniform-direction cosine; do                       # Figure 3, early
             add "statue-$prior-i500-s$seed --scene ${SCENE[statue]} ${SIZE[statue]}" \
                 "--reference ${REF[statue]} --prior $prior --lr ${LR[statue]}" \
-                "--iterations 500 --eval-every 0 --spp 32 --seed $seed"
+                "--iterations 500 --eval-every 0 --spp 32 --seed $seed --variant paper"
         done
         for scene in cornell-box veach-ajar statue; do                  # unguided, equal time
             for spp in 8 32 128 512; do

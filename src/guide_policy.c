@@ -48,7 +48,8 @@ float nf_guide_boost(float boost, float p_bsdf, float p_mix, float g_used)
 
 float nf_guide_roulette_survival(const nf_guide_policy *p, float throughput_max, float boost)
 {
-    float top = p ? p->max_survival : 0.95f;
+    /* A policy without a valid cap (zeroed, say) plays plain path tracing's 0.95. */
+    float top = p && p->max_survival > 0.0f && p->max_survival <= 1.0f ? p->max_survival : 0.95f;
     float c = throughput_max;
     if (boost > 0.0f && isfinite(boost))
         c = fmaxf(c, throughput_max / boost);

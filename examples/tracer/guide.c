@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "parallel.h"
 #include "ranks.h"
 
 /* The batch being trained on: the contexts the library passes to the callbacks and their
@@ -39,8 +40,14 @@ unsigned long long guide_lookup_failures(void)
     return atomic_load(&lookup_failures);
 }
 
+/* The guide whose step the callbacks are computing (guide_hooks_init), if any. */
+static const nf_guide *training_guide;
+
 static const guide_point *find_point(const nf_context *ctx)
 {
+    const guide_point *stored = nf_guide_payload(training_guide, ctx);
+    if (stored)
+        return stored;
     /* Compare addresses as integers: relational operators between pointers into different
      * objects are undefined. */
     uintptr_t p = (uintptr_t)ctx, base = (uintptr_t)batch_ctx;
@@ -49,6 +56,64 @@ static const guide_point *find_point(const nf_context *ctx)
         return &batch_points[(p - base) / sizeof *ctx];
     atomic_fetch_add(&lookup_failures, 1);
     return NULL;
+}
+
+/* ---- The library's hooks -------------------------------------------------------------------- */
+
+typedef struct task_call {
+    nf_task_fn task;
+    void *data;
+} task_call;
+
+static void run_task(void *user, size_t item, int thread)
+{
+    (void)thread;
+    const task_call *c = user;
+    c->task(c->data, item);
+}
+
+static void run_parallel(void *user, size_t count, nf_task_fn task, void *data)
+{
+    const guide_hooks *h = user;
+    task_call c = {task, data};
+    tr_error err;
+    /* parallel_for fails only before any item ran (no memory for its threads): then the
+     * items run here. */
+    if (!parallel_for(count, h->threads, run_task, &c, NULL, &err))
+        for (size_t i = 0; i < count; ++i)
+            task(data, i);
+}
+
+static nf_status reduce_max(void *user, double *v, size_t n)
+{
+    (void)user;
+    tr_error err;
+    return ranks_max_f64(v, n, &err) ? NF_OK : NF_ERROR_IO;
+}
+
+static nf_status reduce_sum(void *user, int64_t *v, size_t n)
+{
+    (void)user;
+    tr_error err;
+    return ranks_sum_i64(v, n, &err) ? NF_OK : NF_ERROR_IO;
+}
+
+void guide_hooks_init(guide_hooks *h, const nf_guide *g, int threads)
+{
+    h->threads = threads < 1 ? 1 : threads;
+    h->parallel.run = run_parallel;
+    h->parallel.user = h;
+    h->reduce_storage.max_f64 = reduce_max;
+    h->reduce_storage.sum_i64 = reduce_sum;
+    h->reduce_storage.user = NULL;
+    h->reduce = ranks_size() > 1 ? &h->reduce_storage : NULL;
+    training_guide = g;
+}
+
+void guide_hooks_end(guide_hooks *h)
+{
+    (void)h;
+    training_guide = NULL;
 }
 
 /* ---- The BSDF prior ------------------------------------------------------------------------ */
@@ -124,7 +189,7 @@ guide_settings guide_default_settings(guide_prior prior)
     g.phi_interval = 0;
     g.learning_rate = 5e-3f;
     g.prior_epsilon = -1.0f;
-    g.sh_bands = -1;
+    g.sh_bands = 0; /* the position alone: 4 bands cost more than they gained (equal-time.md) */
     g.seed = 1;
     return g;
 }

@@ -8,10 +8,10 @@
  *
  * While training, the model's nf_prior_callbacks receive an nf_context and one model-wide
  * user pointer, and the BSDF prior needs the material at that context. The library hands the
- * callbacks the caller's own nf_context pointers (nisflow/model.h), so the callbacks find the
- * material by the context's index in the batch: the training code publishes the batch's
- * contexts and their points (guide_begin_batch) before the training calls, which may run on
- * several threads (sharded gradients); they only read the table.
+ * callbacks the contexts of the step it computes: a guide's store keeps each sample's
+ * material as its payload (nf_guide_payload finds it), and a batch the caller holds is found
+ * by the context's index in it (guide_begin_batch). The training calls may run on several
+ * threads (sharded gradients); they only read.
  *
  * A context outside the published batch (which no caller here allows to happen) falls back
  * to a cosine lobe, counted by guide_lookup_failures: the callbacks never fail.
@@ -63,7 +63,7 @@ typedef struct guide_settings {
 } guide_settings;
 
 /* The defaults for `prior` (the command line's too): small model, rate 5e-3, the library's
- * prior_epsilon and sh_bands, seed 1. */
+ * prior_epsilon, 0 SH bands (the position alone: docs/equal-time.md), seed 1. */
 guide_settings guide_default_settings(guide_prior prior);
 
 /* Creates a model for the scene: positions are normalized by the scene's bounds (padded a
@@ -84,6 +84,21 @@ void guide_begin_batch(const nf_context *ctx, const guide_point *points, size_t 
 void guide_end(void);
 
 const char *guide_prior_name(guide_prior p);
+
+/* What the library's training calls need from the tracer: its threads (parallel.h) as an
+ * nf_parallel, and with several ranks the ranks' reductions (ranks.h) as an nf_reduce. */
+typedef struct guide_hooks {
+    nf_parallel parallel;
+    const nf_reduce *reduce; /* NULL with one rank */
+    nf_reduce reduce_storage;
+    int threads;
+} guide_hooks;
+
+/* Fills the hooks for `threads` threads, and, for the BSDF prior's callbacks, publishes `g`
+ * (may be NULL) as the guide whose step they look up. Not thread-safe: call it before the
+ * training call, and guide_hooks_end after it. */
+void guide_hooks_init(guide_hooks *h, const nf_guide *g, int threads);
+void guide_hooks_end(guide_hooks *h);
 
 /* Collective (ranks.h): whether every rank's model has rank 0's parameters and step count,
  * bit for bit. Returns 1 if so; else 0 with a message naming the ranks that differ, as seen

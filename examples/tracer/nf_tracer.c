@@ -184,36 +184,41 @@ static int read_reference(const options *o, const scene *s, image *reference, tr
 
 /* ---- The time-budgeted job ------------------------------------------------------------------ */
 
-/* --time-budget: the whole job in render_with_budget (budget.h), and its report. */
-static int render_in_budget(const options *o, tracer *t, nf_model *model, double t_job,
+/* --time-budget: the whole job in render_with_budget (budget.h), and its report. A guided job
+ * trains a guide made from `*model` and, for --save-model, hands back its training model in
+ * *model. */
+static int render_in_budget(const options *o, tracer *t, nf_model **model, double t_job,
                             image *img, path_stats *stats, tr_error *err)
 {
-    budget_settings bs = budget_default_settings();
+    budget_settings bs;
     budget_report br;
+    nf_guide *guide = NULL;
     bs.seconds = o->time_budget;
     bs.start = t_job;
-    bs.train_fraction = o->train_fraction;
-    bs.step_samples = o->step_samples;
-    bs.steps_per_pass = o->steps_per_pass;
-    bs.patience = o->patience;
-    bs.combine = o->combine;
-    bs.clamp_quantile = o->clamp_quantile;
-    bs.learn_selection = o->learn_selection;
-    bs.relative_training = o->relative_training;
-    bs.selection_cost = o->selection_cost;
     bs.threads = o->threads;
     bs.seed = o->seed;
-    if (!render_with_budget(t, model, &bs, img, &br, err))
+    if (*model && nf_guide_create(*model, &o->guide, &guide) != NF_OK)
+        return tr_fail(err, "%s", nf_last_error_message());
+    int ok = render_with_budget(t, guide, &bs, img, &br, err);
+    if (ok && guide) { /* the trained model replaces the starting one */
+        nf_model *trained = NULL;
+        ok = nf_model_clone(nf_guide_training_model(guide), &trained) == NF_OK ||
+             tr_fail(err, "%s", nf_last_error_message());
+        if (ok) {
+            nf_model_destroy(*model);
+            *model = trained;
+        }
+    }
+    nf_guide_destroy(guide);
+    if (!ok)
         return 0;
     *stats = br.stats;
-    if (model)
+    if (*model)
         printf("trained    %d passes, %d steps on %llu samples in %.2f s (steps %.2f s), last "
                "loss %.4f%s\n",
                br.train_passes, br.steps, (unsigned long long)br.samples, br.train_seconds,
                br.step_seconds, (double)br.last_loss,
                br.stopped_early ? ", stopped: the loss stopped improving" : "");
-    if (o->learn_selection && model)
-        printf("selection  guiding off in %.0f%% of the visited cells\n", 100.0 * br.selection_off);
     printf("budget     %.2f s of %.2f: %d training passes, %d render passes in %.2f s; the "
            "training passes weigh %.2f of the image\n",
            br.seconds, (double)o->time_budget, br.train_passes, br.render_passes,
@@ -277,6 +282,10 @@ static int run(int argc, char **argv)
         options_print_help(argv[0]);
         return 0;
     }
+    if (o.list_variants) {
+        options_print_variants();
+        return 0;
+    }
     /* The ranks of one job must have been asked for the same job. */
     if (!ranks_all_equal(options_job_hash(argc, argv), "the ranks were started with different "
                          "options (all but --threads, --scene, --out, --reference, "
@@ -334,19 +343,16 @@ static int run(int argc, char **argv)
     tracer t;
     memset(&t, 0, sizeof t);
     t.s = &s;
-    t.guide_depth = o.guide_depth;
-    t.guide_min_roughness = o.guide_min_roughness;
-    t.guide_max_boost = o.guide_max_boost;
-    t.throughput_roulette = o.throughput_roulette;
+    t.policy = o.guide.policy;
+    if (!o.guiding)
+        t.policy.mixture_prob = 0.0f;
     t.mis_training = o.mis_training;
-    t.plain_mixture = o.plain_mixture;
+    t.guide_depth = o.guide_depth;
     t.no_batching = o.no_batching;
     t.light_mis_bsdf = o.light_mis_bsdf;
-    t.light_mis_depth = o.light_mis_depth;
     t.rank = ranks_rank();
     t.ranks = ranks_size();
     t.model = NULL;
-    t.guide_prob = o.guiding ? o.guide_prob : 0.0f;
     t.bsdf_prior = 0;
     if (o.guiding) {
         guide_settings gs = guide_default_settings(o.prior);
@@ -382,11 +388,13 @@ static int run(int argc, char **argv)
                 fprintf(stderr, "nf_tracer: note: the loaded model's prior (%s) replaces --prior "
                         "%s\n", kinds[cfg.prior], guide_prior_name(o.prior));
         }
-        printf("guiding    prior %s, %s model (%zu parameters), lr %g, guide probability %g\n",
+        printf("guiding    prior %s, %s model (%zu parameters), lr %g, guide probability %g%s%s\n",
                t.bsdf_prior ? "bsdf" : guide_prior_name((guide_prior)cfg.prior),
                cfg.coupling_layers > 2 ? "large" : "small", nf_param_count(model),
-               (double)cfg.learning_rate, (double)o.guide_prob);
+               (double)cfg.learning_rate, (double)t.policy.mixture_prob,
+               o.variants ? ", variant " : "", o.variants ? o.variants : "");
         t.model = model;
+        o.guide.learning_rate = cfg.learning_rate; /* --lr, or a loaded model's own rate */
     } else {
         printf("guiding    off%s\n", o.reference_mode ? " (reference mode)" : "");
     }
@@ -394,7 +402,7 @@ static int run(int argc, char **argv)
     path_stats stats;
     memset(&stats, 0, sizeof stats);
     if (o.time_budget > 0.0f) {
-        if (!render_in_budget(&o, &t, model, t_job, &img, &stats, &err)) {
+        if (!render_in_budget(&o, &t, &model, t_job, &img, &stats, &err)) {
             fail("render", &err);
             goto done;
         }
@@ -422,7 +430,8 @@ static int run(int argc, char **argv)
         ts.reference = reference.data ? &reference : NULL; /* rank 0's */
         ts.csv = csv;
         printf("training   %d iterations of %d paths\n", o.iterations, o.batch);
-        if (!train_guide(&t, model, &ts, &rep, &err)) {
+        ts.guide = &o.guide;
+        if (!train_guide(&t, &model, &ts, &rep, &err)) {
             fail("training", &err);
             goto done;
         }
@@ -452,6 +461,7 @@ static int run(int argc, char **argv)
     }
 
     /* The final image: every rank renders its tiles, rank 0 receives them all. */
+    t.model = model; /* the trained one */
     double t0 = now_seconds(), c0 = cpu_seconds();
     int rendered = image_alloc(&img, s.width, s.height, &err) &&
                    render_image(&t, o.spp, o.seed, 0u, o.threads, &img, &stats, "render", &err);

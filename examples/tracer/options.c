@@ -1,6 +1,8 @@
 /*
  * options.c - parsing and help text of the command line. Every number is range-checked
- * here, so the rest of the program can trust the options.
+ * here, so the rest of the program can trust the options. The defaults are the library's
+ * (nf_guide_config_init) and the best configuration of docs/equal-time.md; what experiments
+ * change is one table of --variant settings.
  */
 #include "options.h"
 
@@ -19,10 +21,12 @@ void options_print_help(const char *program)
         "Usage: %s --scene FILE [options]\n"
         "\n"
         "Renders a Mitsuba 3 scene with a path tracer guided by a normalizing flow (libnisflow),\n"
-        "trained online: each iteration traces a batch of paths with the current model and\n"
-        "takes one training step on the samples they recorded. Then it renders the final\n"
-        "image and writes PREFIX.exr (float RGB), PREFIX.png (sRGB preview) and, when it\n"
-        "trained, PREFIX.csv (iteration, training samples, seconds, MAPE).\n"
+        "trained online while it renders. With --time-budget S: training passes, then render\n"
+        "passes, all in S seconds, combined by inverse variance (the best configuration we\n"
+        "know is the default). Without it, the paper's protocol: --iterations training\n"
+        "iterations of --batch paths, then --spp samples per pixel. It writes PREFIX.exr\n"
+        "(float RGB), PREFIX.png (sRGB preview) and, when it trained by iterations,\n"
+        "PREFIX.csv (iteration, training samples, seconds, MAPE).\n"
         "\n"
         "Scene and output:\n"
         "  --scene FILE          the scene (Mitsuba 3 XML subset, see docs/tracer.md)\n"
@@ -31,90 +35,31 @@ void options_print_help(const char *program)
         "  --width N, --height N film size (default: the scene's film)\n"
         "  --max-depth N         longest path in segments, -1 unlimited (default: the scene's)\n"
         "  --exposure X          PNG preview brightness in stops (default 0)\n"
+        "  --reference FILE      reference EXR for MAPE and relMSE (same size as the render,\n"
+        "                        or an integer multiple of it: then it is box-downsampled)\n"
         "\n"
-        "Guiding and training:\n"
+        "Guiding:\n"
+        "  --time-budget S       the whole job in S seconds of wall time from after the scene\n"
+        "                        is loaded; replaces --iterations, --batch and --spp\n"
         "  --prior NAME          uniform-direction, uniform-angle, cosine (default) or bsdf\n"
         "  --model NAME          small (default, the paper's) or large\n"
-        "  --phi-map NAME        circular (default: the seam phi = 0 is no boundary) or\n"
-        "                        interval (phi's splines fix phi = 0, as libnisflow 0.1)\n"
-        "  --lr X                AdamW learning rate (default 5e-3)\n"
+        "  --lr X                AdamW learning rate (default: the library's guide, 5e-3)\n"
+        "  --no-guiding          plain path tracing (BSDF sampling and next-event estimation)\n"
+        "  --save-model FILE     save the trained model\n"
+        "  --load-model FILE     start from a saved model (its prior and architecture replace\n"
+        "                        --prior and --model; --lr, if given, replaces its rate)\n"
+        "  --variant V[,V...]    experiments' settings, NAME or NAME=VALUE from the table of\n"
+        "                        --variant list (the paper's protocol, ablations)\n"
+        "\n"
+        "The paper's protocol (without --time-budget):\n"
         "  --iterations N        training iterations (default 200)\n"
         "  --batch N             training paths per iteration, each through a random film\n"
         "                        position (default 4096)\n"
-        "  --guide-prob P        probability of sampling the flow at a guided vertex (default 0.5)\n"
-        "  --prior-epsilon E     weight of the uniform density mixed into the cosine and bsdf\n"
-        "                        priors, in (0, 1] (default: the library's, 0.01)\n"
-        "  --sh-bands N          spherical-harmonic bands of the normal and of the\n"
-        "                        outgoing direction in the flow's input, 0-6; 0: the\n"
-        "                        position alone (default: the model's, 4)\n"
-        "  --no-guiding          plain path tracing (BSDF sampling and next-event estimation)\n"
-        "  --save-model FILE     save the trained model\n"
-        "  --load-model FILE     start from a saved model (its prior, epsilon and architecture\n"
-        "                        replace --prior, --prior-epsilon, --sh-bands and --model;\n"
-        "                        --lr, if given, replaces its rate)\n"
-        "\n"
-        "Rendering and evaluation:\n"
         "  --spp N               samples per pixel of the final image (default 32)\n"
         "  --eval-every N        evaluate every N iterations, 0 never (default 50)\n"
         "  --eval-spp N          samples per pixel of evaluation renders (default 4)\n"
-        "  --reference FILE      reference EXR for MAPE and relMSE (same size as the render,\n"
-        "                        or an integer multiple of it: then it is box-downsampled)\n"
         "  --reference-mode      render an unguided reference: no training, --spp default 1024,\n"
         "                        default output out/<scene name>-reference\n"
-        "\n"
-        , program);
-    printf(
-        "Time budget (the equal-time job, docs/equal-time.md):\n"
-        "  --time-budget S       the whole job, training and rendering, in S seconds of wall\n"
-        "                        time from after the scene is loaded: training passes of one\n"
-        "                        path per pixel (their radiance kept), then render passes with\n"
-        "                        the model frozen; the passes are combined by inverse variance.\n"
-        "                        Replaces --iterations, --batch and --spp\n"
-        "  --train-fraction F    at most this share of the budget trains (default 0.3)\n"
-        "  --patience N          stop training after N passes in which the held-out loss\n"
-        "                        (averaged over ~3 passes) did not get 1%% better than its\n"
-        "                        best (default 6, 0 never)\n"
-        "  --step-samples N      training samples per optimizer step (default 2048)\n"
-        "  --steps-per-pass N    optimizer steps after each training pass, on samples drawn\n"
-        "                        from the latest passes (default 64)\n"
-        "  --clamp-quantile Q    clamp training weights at a running Q-quantile (default 0,\n"
-        "                        off; for example 0.99)\n"
-        "  --no-combine          leave the training passes out of the image\n"
-        "  --learn-selection     learn the guiding probability per cell of a grid (position\n"
-        "                        and normal); where it falls below 0.1, or where the mixture\n"
-        "                        does not cut the estimate's second moment by 1 + C, the\n"
-        "                        flow is not used\n"
-        "  --selection-cost C    a guided vertex's relative extra cost (default 1)\n"
-        "  --relative-training   divide each training weight by its pixel's estimated\n"
-        "                        value (blurred training passes), so that the flow learns\n"
-        "                        where the relative error is, not only where it is bright\n"
-        "  --plain-mixture       weigh a flow sample by the flow's density and a BSDF sample\n"
-        "                        by the BSDF's (instead of both by the mixture's): the flow\n"
-        "                        is evaluated only at vertices where it samples\n"
-        "  --light-mis-bsdf      weigh light samples against scattering by the BSDF's\n"
-        "                        density, not the mixture's: the flow is not asked the\n"
-        "                        density of a light sample's direction (the scattered\n"
-        "                        direction still weighs by the mixture)\n"
-        "  --light-mis-depth N   --light-mis-bsdf at vertices deeper than N segments, the\n"
-        "                        mixture's density up to N (default 0: at every depth)\n"
-        );
-    printf(
-        "  --no-batching         passes trace one path at a time and ask the flow at\n"
-        "                        shading points, instead of advancing 256 paths together\n"
-        "                        and batching their questions (the same image, slower)\n"
-        "  --mis-training        train the flow on the MIS-weighted emission its directions\n"
-        "                        find (the part next-event estimation leaves to scattering)\n"
-        "  --guide-min-roughness A  rough conductors with alpha below A are not guided\n"
-        "                        (default 0)\n"
-        "  --guide-depth N       guide vertices up to N segments deep, 0 all (default 0)\n"
-        "  --guide-max-boost B   lower the guiding probability along a path so that the\n"
-        "                        mixture raises its throughput over BSDF sampling's at\n"
-        "                        most B-fold (default 0: no cap)\n"
-        "  --throughput-roulette  Russian roulette on the guided path's throughput as the\n"
-        "                        mixture weighed it, instead of the larger of it and the\n"
-        "                        throughput BSDF sampling would have given the same path\n"
-        "                        (the default, which lets a guided path live as plain path\n"
-        "                        tracing would)\n"
         "\n"
         "Execution:\n"
         "  --threads N           worker threads (default: the number of processors); under\n"
@@ -125,7 +70,8 @@ void options_print_help(const char *program)
         "\n"
         "Several processes or machines (docs/distributed.md): mpirun -n N %s ... splits each\n"
         "training batch and the film's tiles between N ranks, which train one model; rank 0\n"
-        "writes the outputs.\n", program);
+        "writes the outputs.\n",
+        program, program);
 }
 
 static int parse_int(const char *name, const char *text, long lo, long hi, int *out,
@@ -152,13 +98,157 @@ static int parse_float(const char *name, const char *text, double lo, double hi,
     return 1;
 }
 
+/* ---- The variant table ----------------------------------------------------------------- */
+
+/* One --variant setting: a name, its value's range (no value when lo > hi), what it does. */
+typedef struct variant {
+    const char *name;
+    double lo, hi; /* lo > hi: a switch without a value */
+    int integer;
+    void (*apply)(options *o, double v);
+    const char *help;
+} variant;
+
+static void v_paper(options *o, double v)
+{
+    (void)v;
+    /* libnisflow 0.1's protocol, the one docs/results.md measured (sections 1 to 7). */
+    o->guide.policy.mixture_prob = 0.5f;
+    o->guide.policy.max_boost = 0.0f;
+    o->guide.policy.light_mis_depth = 0;
+    o->guide.policy.min_roughness = 0.0f;
+    o->sh_bands = -1;
+    o->mis_training = 0;
+}
+static void v_guide_prob(options *o, double v) { o->guide.policy.mixture_prob = (float)v; }
+static void v_max_boost(options *o, double v) { o->guide.policy.max_boost = (float)v; }
+static void v_light_depth(options *o, double v) { o->guide.policy.light_mis_depth = (uint32_t)v; }
+static void v_min_rough(options *o, double v) { o->guide.policy.min_roughness = (float)v; }
+static void v_train_fraction(options *o, double v) { o->guide.train_fraction = (float)v; }
+static void v_patience(options *o, double v) { o->guide.patience = (uint32_t)v; }
+static void v_step_samples(options *o, double v) { o->guide.step_samples = (uint32_t)v; }
+static void v_steps_per_pass(options *o, double v) { o->guide.steps_per_pass = (uint32_t)v; }
+static void v_clamp(options *o, double v) { o->guide.clamp_quantile = (float)v; }
+static void v_sh_bands(options *o, double v) { o->sh_bands = (int)v; }
+static void v_epsilon(options *o, double v) { o->prior_epsilon = (float)v; }
+static void v_interval(options *o, double v)
+{
+    (void)v;
+    o->phi_interval = 1;
+}
+static void v_all_emission(options *o, double v)
+{
+    (void)v;
+    o->mis_training = 0;
+}
+static void v_no_batching(options *o, double v)
+{
+    (void)v;
+    o->no_batching = 1;
+}
+static void v_light_bsdf(options *o, double v)
+{
+    (void)v;
+    o->light_mis_bsdf = 1;
+}
+static void v_guide_depth(options *o, double v) { o->guide_depth = (int)v; }
+
+#define SWITCH 1.0, 0.0, 0
+static const variant variants[] = {
+    {"paper", SWITCH, v_paper,
+     "the paper's protocol as libnisflow 0.1 ran it: guide-prob=0.5, 4 SH bands, training on "
+     "all the emission, no boost cap, light MIS by the flow at every depth, smooth conductors "
+     "guided"},
+    {"guide-prob", 0.0, 0.99, 0, v_guide_prob, "probability of sampling the flow (0.7)"},
+    {"guide-max-boost", 0.0, 1e6, 0, v_max_boost,
+     "cap on the mixture's boost over BSDF sampling, 0 none (10)"},
+    {"light-mis-depth", 0.0, 1e5, 1, v_light_depth,
+     "vertices up to this depth weigh light samples by the flow, 0 all (2)"},
+    {"light-mis-bsdf", SWITCH, v_light_bsdf, "light samples weighed by the BSDF at every depth"},
+    {"guide-min-roughness", 0.0, 1.0, 0, v_min_rough,
+     "rough conductors smoother than this are not guided (0.3)"},
+    {"guide-depth", 0.0, 1e5, 1, v_guide_depth, "guide vertices up to this depth, 0 all (0)"},
+    {"train-fraction", 0.0, 0.95, 0, v_train_fraction, "share of the budget that trains (0.15)"},
+    {"patience", 0.0, 1e6, 1, v_patience,
+     "training passes without a 1 % better held-out loss before training stops, 0 never (6)"},
+    {"step-samples", 16.0, 1048576.0, 1, v_step_samples, "samples per optimizer step (2048)"},
+    {"steps-per-pass", 1.0, 4096.0, 1, v_steps_per_pass,
+     "optimizer steps after a training pass (64)"},
+    {"clamp-quantile", 0.0, 0.999, 0, v_clamp,
+     "training weights clamped at this running quantile, 0 none (0.99)"},
+    {"sh-bands", 0.0, (double)NF_MAX_SH_BANDS, 1, v_sh_bands,
+     "spherical-harmonic bands of the normal and wo in the flow's input (0)"},
+    {"prior-epsilon", 1e-6, 1.0, 0, v_epsilon,
+     "uniform weight mixed into the cosine and bsdf priors (the library's, 0.01)"},
+    {"phi-interval", SWITCH, v_interval, "phi's splines fix phi = 0, as libnisflow 0.1"},
+    {"all-emission", SWITCH, v_all_emission,
+     "train on all the emission found, not its MIS-weighted part"},
+    {"no-batching", SWITCH, v_no_batching,
+     "passes trace one path at a time and ask the flow at shading points"},
+};
+#undef SWITCH
+
+void options_print_variants(void)
+{
+    printf("--variant settings (NAME or NAME=VALUE, comma-separated; defaults in brackets):\n");
+    for (size_t i = 0; i < sizeof variants / sizeof variants[0]; ++i) {
+        const variant *v = &variants[i];
+        char label[64];
+        snprintf(label, sizeof label, "%s%s", v->name,
+                 v->lo > v->hi ? "" : v->integer ? "=N" : "=X");
+        printf("  %-24s %s\n", label, v->help);
+    }
+}
+
+/* Applies one comma-separated list of settings. */
+static int apply_variants(options *o, const char *list, tr_error *err)
+{
+    char buf[512];
+    if (strlen(list) >= sizeof buf)
+        return tr_fail(err, "--variant: the list is too long");
+    strcpy(buf, list);
+    for (char *item = strtok(buf, ","); item; item = strtok(NULL, ",")) {
+        char *eq = strchr(item, '=');
+        if (eq)
+            *eq = '\0';
+        const variant *v = NULL;
+        for (size_t i = 0; i < sizeof variants / sizeof variants[0]; ++i)
+            if (!strcmp(item, variants[i].name))
+                v = &variants[i];
+        if (!v)
+            return tr_fail(err, "--variant: unknown setting '%s' (--variant list shows them)",
+                           item);
+        double value = 0.0;
+        if (v->lo > v->hi) {
+            if (eq)
+                return tr_fail(err, "--variant: %s takes no value", v->name);
+        } else {
+            if (!eq)
+                return tr_fail(err, "--variant: %s needs a value (%s=...)", v->name, v->name);
+            float f = 0.0f;
+            int n = 0;
+            int ok = v->integer ? parse_int(v->name, eq + 1, (long)v->lo, (long)v->hi, &n, err)
+                                : parse_float(v->name, eq + 1, v->lo, v->hi, &f, err);
+            if (!ok) {
+                char why[sizeof err->msg];
+                snprintf(why, sizeof why, "%s", err->msg);
+                return tr_fail(err, "--variant: %s", why);
+            }
+            value = v->integer ? (double)n : (double)f;
+        }
+        v->apply(o, value);
+    }
+    return 1;
+}
+
 int options_parse(int argc, char **argv, options *o, tr_error *err)
 {
     memset(o, 0, sizeof *o);
+    nf_guide_config_init(&o->guide);
     /* The model's defaults have one home: guide_default_settings. */
     guide_settings model = guide_default_settings(GUIDE_PRIOR_COSINE);
     o->prior = model.prior;
-    o->learning_rate = model.learning_rate;
+    o->learning_rate = o->guide.learning_rate;
     o->prior_epsilon = model.prior_epsilon;
     o->sh_bands = model.sh_bands;
     o->seed = model.seed;
@@ -169,14 +259,8 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->spp = 32;
     o->max_depth = -2;
     o->threads = processor_count();
-    o->guide_prob = 0.5f;
     o->guiding = 1;
-    o->train_fraction = 0.3f;
-    o->step_samples = 2048;
-    o->steps_per_pass = 64;
-    o->patience = 6;
-    o->combine = 1;
-    o->selection_cost = -1.0f;
+    o->mis_training = 1;
 
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -187,38 +271,6 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
         }
         if (!strcmp(a, "--no-guiding")) {
             o->guiding = 0;
-            continue;
-        }
-        if (!strcmp(a, "--learn-selection")) {
-            o->learn_selection = 1;
-            continue;
-        }
-        if (!strcmp(a, "--relative-training")) {
-            o->relative_training = 1;
-            continue;
-        }
-        if (!strcmp(a, "--plain-mixture")) {
-            o->plain_mixture = 1;
-            continue;
-        }
-        if (!strcmp(a, "--no-batching")) {
-            o->no_batching = 1;
-            continue;
-        }
-        if (!strcmp(a, "--light-mis-bsdf")) {
-            o->light_mis_bsdf = 1;
-            continue;
-        }
-        if (!strcmp(a, "--throughput-roulette")) {
-            o->throughput_roulette = 1;
-            continue;
-        }
-        if (!strcmp(a, "--mis-training")) {
-            o->mis_training = 1;
-            continue;
-        }
-        if (!strcmp(a, "--no-combine")) {
-            o->combine = 0;
             continue;
         }
         if (!strcmp(a, "--reference-mode")) {
@@ -253,10 +305,6 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
                                "uniform-angle, cosine, bsdf", v);
             o->prior = (guide_prior)found;
             o->prior_given = 1;
-        } else if (!strcmp(a, "--phi-map")) {
-            if (strcmp(v, "circular") && strcmp(v, "interval"))
-                return tr_fail(err, "--phi-map: '%s' is not circular or interval", v);
-            o->phi_interval = !strcmp(v, "interval");
         } else if (!strcmp(a, "--model")) {
             if (strcmp(v, "small") && strcmp(v, "large"))
                 return tr_fail(err, "--model: '%s' is not small or large", v);
@@ -291,42 +339,22 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             if (errno || end == v || *end || v[0] == '-')
                 return tr_fail(err, "--seed: '%s' is not a non-negative integer", v);
             o->seed = (uint64_t)s;
-        } else if (!strcmp(a, "--guide-prob"))
-            ok = parse_float(a, v, 0.0, 0.99, &o->guide_prob, err);
-        else if (!strcmp(a, "--prior-epsilon"))
-            ok = parse_float(a, v, 1e-6, 1.0, &o->prior_epsilon, err);
-        else if (!strcmp(a, "--sh-bands"))
-            ok = parse_int(a, v, 0, NF_MAX_SH_BANDS, &o->sh_bands, err);
-        else if (!strcmp(a, "--time-budget"))
+        } else if (!strcmp(a, "--time-budget"))
             ok = parse_float(a, v, 0.01, 1e6, &o->time_budget, err);
-        else if (!strcmp(a, "--train-fraction"))
-            ok = parse_float(a, v, 0.0, 0.95, &o->train_fraction, err);
-        else if (!strcmp(a, "--step-samples"))
-            ok = parse_int(a, v, 16, 1 << 24, &o->step_samples, err);
-        else if (!strcmp(a, "--steps-per-pass"))
-            ok = parse_int(a, v, 1, 1000000, &o->steps_per_pass, err);
-        else if (!strcmp(a, "--patience"))
-            ok = parse_int(a, v, 0, 1000000, &o->patience, err);
-        else if (!strcmp(a, "--clamp-quantile"))
-            ok = parse_float(a, v, 0.0, 1.0, &o->clamp_quantile, err);
-        else if (!strcmp(a, "--selection-cost"))
-            ok = parse_float(a, v, 0.0, 1000.0, &o->selection_cost, err);
-        else if (!strcmp(a, "--guide-min-roughness"))
-            ok = parse_float(a, v, 0.0, 1.0, &o->guide_min_roughness, err);
-        else if (!strcmp(a, "--guide-max-boost"))
-            ok = parse_float(a, v, 0.0, 1e6, &o->guide_max_boost, err);
-        else if (!strcmp(a, "--light-mis-depth"))
-            ok = parse_int(a, v, 0, 100000, &o->light_mis_depth, err);
-        else if (!strcmp(a, "--guide-depth"))
-            ok = parse_int(a, v, 0, 100000, &o->guide_depth, err);
         else if (!strcmp(a, "--exposure"))
             ok = parse_float(a, v, -64.0, 64.0, &o->exposure, err);
-        else
+        else if (!strcmp(a, "--variant")) {
+            if (!strcmp(v, "list"))
+                o->list_variants = 1;
+            else
+                ok = apply_variants(o, v, err);
+            o->variants = v;
+        } else
             return tr_fail(err, "unknown option '%s'", a);
         if (!ok)
             return 0;
     }
-    if (o->help)
+    if (o->help || o->list_variants)
         return 1;
     if (!o->scene)
         return tr_fail(err, "--scene is required");
@@ -335,8 +363,10 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
         if (!o->spp_given)
             o->spp = 1024;
     }
-    if (o->guide_prob == 0.0f)
+    if (o->guide.policy.mixture_prob == 0.0f)
         o->guiding = 0;
+    o->guide.learning_rate = o->learning_rate;
+    o->guide.seed = o->seed;
     if (!o->guiding && (o->load_model || o->save_model))
         return tr_fail(err, "--save-model and --load-model need guiding (drop --no-guiding)");
     return 1;

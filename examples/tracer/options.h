@@ -17,7 +17,6 @@ typedef struct options {
     guide_prior prior;
     int prior_given;
     int large_model;
-    int phi_interval;         /* --phi-map interval: NF_PHI_INTERVAL instead of the default  */
     float learning_rate;
     int learning_rate_given;
     int iterations;
@@ -27,38 +26,31 @@ typedef struct options {
     int max_depth;            /* -2: the scene's                                              */
     int threads;
     uint64_t seed;
-    float guide_prob;
-    float prior_epsilon;      /* cosine/bsdf defensive mixture weight; < 0: the library's     */
-    int sh_bands;             /* the context's normal/wo encoding bands; < 0: the preset's    */
     int guiding;
     int reference_mode;
     float exposure;
-    /* The time-budgeted job (budget.h); time_budget 0: iterations, then spp.              */
-    float time_budget;        /* seconds, from after the scene is loaded                      */
-    float train_fraction;     /* at most this share of the budget trains                      */
-    int step_samples;         /* training samples per optimizer step                          */
-    int steps_per_pass;       /* optimizer steps after each training pass                     */
-    int patience;             /* passes without a better loss before training stops, 0 never  */
-    int combine;              /* 0: --no-combine, training passes left out of the image       */
-    float clamp_quantile;     /* 0: training weights unclamped                                */
-    int learn_selection;      /* --learn-selection                                            */
-    int relative_training;    /* --relative-training                                          */
-    float selection_cost;     /* --selection-cost; < 0: the default                          */
-    int mis_training;         /* --mis-training                                               */
-    int plain_mixture;        /* --plain-mixture                                              */
-    int no_batching;          /* --no-batching                                                */
-    int light_mis_bsdf;       /* --light-mis-bsdf                                             */
-    float guide_min_roughness; /* --guide-min-roughness                                      */
-    float guide_max_boost;     /* --guide-max-boost; 0: none                                 */
-    int throughput_roulette;   /* --throughput-roulette                                      */
-    int guide_depth;          /* guide vertices up to this depth (segments), 0: all           */
-    int light_mis_depth;      /* --light-mis-depth; 0: the mixture's weighting at every depth */
-    int help;
+    float time_budget;        /* seconds, from after the scene is loaded; 0: iterations, then
+                               * spp (the paper's protocol)                                  */
+    /* The guide: the library's defaults (nf_guide_config_init), which --variant changes. */
+    nf_guide_config guide;
+    /* The model and the integrator, also changed by --variant only: */
+    int phi_interval;         /* NF_PHI_INTERVAL instead of the library's NF_PHI_CIRCULAR    */
+    float prior_epsilon;      /* cosine/bsdf defensive mixture weight; < 0: the library's     */
+    int sh_bands;             /* the context's normal/wo encoding bands (default 0)           */
+    int mis_training;         /* 1 (default): train on the MIS-weighted emission              */
+    int no_batching, light_mis_bsdf, guide_depth; /* ablation switches (integrator.h)       */
+    const char *variants;     /* --variant as given, for the report; NULL: none              */
+    int help, list_variants;
 } options;
 
-/* Fills the defaults, then parses argv. Returns 0 with a message on a bad command line. */
+/* Fills the defaults, then parses argv. Returns 0 with a message on a bad command line.
+ * The defaults are the best configuration docs/equal-time.md measured: the library's guide
+ * defaults, a position-only model input (0 SH bands), training on the MIS-weighted emission.
+ * Everything else an experiment may want is a --variant (options_print_variants). */
 int options_parse(int argc, char **argv, options *o, tr_error *err);
 void options_print_help(const char *program);
+/* The table of --variant settings, one per line (nf_tracer --variant list). */
+void options_print_variants(void);
 
 /* A hash of the command line less the options that may differ between the machines of one
  * distributed job (--threads, --scene, --out, --reference, --save-model, --load-model,

@@ -92,7 +92,8 @@ NF_API float nf_guide_boost(float boost, float p_bsdf, float p_mix, float g_used
  * quotient is the throughput BSDF sampling would have given the same path, so a path the flow
  * sent where it expects light survives as often as plain path tracing would let it; the
  * larger of the two keeps the throughput after roulette at or below about 1 when the flow sent
- * it where it expects little. boost = 1 gives plain path tracing's rule. NaN gives 0.
+ * it where it expects little. boost = 1 gives plain path tracing's rule. NaN gives 0. A NULL
+ * policy, or one whose max_survival is outside (0, 1] (a zeroed one), caps at 0.95.
  * Thread-safe, total. */
 NF_API float nf_guide_roulette_survival(const nf_guide_policy *p, float throughput_max,
                                         float boost);

@@ -15,17 +15,15 @@
  *     (1 - g) times its own, so its weight is divided by (1 - g);
  *   - next-event estimation weighs the light sample against p_mix, and an emitter hit by the
  *     scattered ray weighs p_mix against the light density (power heuristic);
- *   - Russian roulette sees the larger of the throughput and the throughput divided by the
- *     path's boost, the one BSDF sampling would have given it (roulette_survival in
- *     integrator.h says why).
- * The plain mixture (tracer.plain_mixture) is the other one-sample estimator: each technique
- * weighs its direction by its own density, and light-sampling MIS uses p_bsdf on both sides
- * (the weights still sum to one); the flow is then called only where it samples. With
- * tracer.light_mis_bsdf only light-sampling MIS uses p_bsdf on both sides, and the light
- * sample asks the flow nothing; the scattered direction still weighs by p_mix. With
- * tracer.light_mis_depth the same holds for the vertices deeper than it. Which
- * vertices are guided: non-delta ones up to guide_depth, not smooth rough conductors
- * (guide_min_roughness), and where a learned selection grid gives g = 0 none at all.
+ *   - the guide's path policy (nisflow/guide.h) decides the rest: g itself, lowered so that
+ *     the path's boost stays within the cap (nf_guide_mixture_prob); Russian roulette on the
+ *     larger of the throughput and the throughput divided by the boost
+ *     (nf_guide_roulette_survival); light-sampling MIS by p_mix only at the first vertices
+ *     (nf_guide_light_mis_uses_flow), by p_bsdf on both sides deeper down, where the light
+ *     sample then asks the flow nothing.
+ * Which vertices are guided: non-delta ones, not rough conductors smoother than the policy's
+ * min_roughness (their lobe is sharper than the flow learns). The ablation switches of
+ * tracer.h (guide_depth, light_mis_bsdf) restrict that further.
  *
  * A vertex runs in three steps: vertex_plan_next traces the segment to it and draws every
  * random number the vertex needs (light sample, roulette, technique, BSDF direction), stating
@@ -39,7 +37,6 @@
 #include <string.h>
 
 #include "guide.h"
-#include "selection.h"
 
 #define MAX_RECORDED_VERTICES 256
 
@@ -110,12 +107,9 @@ static vec3 offset_origin(vec3 p, vec3 ng, vec3 dir)
 }
 
 /* What a recorded vertex keeps beside the library's nf_path_vertex (nisflow/path.h, which
- * does the backward walk): the material for the BSDF prior, and the mixture at the sampled
- * direction for the learned guiding probability. */
+ * does the backward walk): the material, for the BSDF prior. */
 typedef struct vertex_extra {
     bsdf_point bp;
-    float p_flow, p_bsdf, alpha;
-    uint32_t cell;
 } vertex_extra;
 
 static void put_rgb(float out[3], rgb c)
@@ -157,10 +151,6 @@ static int record_path(const tracer *t, nf_path_vertex *pv, const vertex_extra *
         memcpy(rec->dir, dir + 3 * i, sizeof rec->dir);
         rec->weight = weight[i];
         rec->bp = x->bp;
-        rec->p_flow = x->p_flow;
-        rec->p_bsdf = x->p_bsdf;
-        rec->alpha = x->alpha;
-        rec->cell = x->cell;
         rec->pixel = pixel;
     }
     return 1;
@@ -271,7 +261,6 @@ typedef struct vertex_plan {
     vec3 p;
     guide_point gp; /* the BSDF prior's material, read by the point's callbacks */
     float g;        /* the vertex's guiding probability; 0: not guided          */
-    size_t cell;
     /* next-event estimation: an unoccluded light sample waiting for its MIS weight */
     int nee;
     rgb nee_value; /* f Le */
@@ -287,13 +276,11 @@ typedef struct vertex_plan {
 } vertex_plan;
 
 /* Whether light-sampling MIS at a vertex `depth` segments deep weighs with the mixture's
- * density, which asks the flow; the plain mixture, light_mis_bsdf and vertices deeper than
- * light_mis_depth weigh both sides with p_bsdf instead. Both sides of one vertex ask this with
- * the same depth, so the two weights still sum to one. */
+ * density, which asks the flow (the policy's light_mis_depth; light_mis_bsdf: never). Both
+ * sides of one vertex ask this with the same depth, so the two weights still sum to one. */
 static int light_mis_uses_flow(const tracer *t, int depth)
 {
-    return !t->plain_mixture && !t->light_mis_bsdf &&
-           (t->light_mis_depth == 0 || depth <= t->light_mis_depth);
+    return !t->light_mis_bsdf && nf_guide_light_mis_uses_flow(&t->policy, (uint32_t)depth);
 }
 
 /* One light sample towards an unoccluded light, weighed later against the scattering
@@ -329,7 +316,7 @@ static int nee_plan(const tracer *t, vertex_plan *vp, rng *r, path_stats *st)
 
 /* Chooses the scattering technique: the flow with probability g, the BSDF otherwise (whose
  * direction is drawn now). Returns 0 when the path ends here. */
-static int scatter_plan(const tracer *t, vertex_plan *vp, rng *r)
+static int scatter_plan(vertex_plan *vp, rng *r)
 {
     const float g = vp->g;
     float u_sel = rng_next(r), u_lobe = rng_next(r), u0 = rng_next(r), u1 = rng_next(r);
@@ -353,22 +340,8 @@ static int scatter_plan(const tracer *t, vertex_plan *vp, rng *r)
         return 1;
     }
     vp->p_bsdf = bs.pdf;
-    vp->q.pdf = g > 0.0f && !t->plain_mixture;
+    vp->q.pdf = g > 0.0f;
     return 1;
-}
-
-float roulette_survival(rgb throughput, float boost)
-{
-    float thr = rgb_max(throughput);
-    return fminf(fmaxf(thr, thr / boost), 0.95f);
-}
-
-float guide_capped_prob(float g, float boost, float cap)
-{
-    float most = 1.0f - boost / cap; /* boost / (1 - g) <= cap */
-    if (g <= most)
-        return g;
-    return most >= 0.05f ? most : 0.0f;
 }
 
 /* Traces the path's next segment and plans the vertex it finds: emission found there is
@@ -423,7 +396,6 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     /* Field by field rather than a memset of the whole plan, which cost plain path tracing
      * 7% in Veach Ajar. */
     vp->g = 0.0f;
-    vp->cell = 0;
     vp->nee = vp->scatters = vp->flow_chosen = vp->delta = 0;
     vp->p_bsdf = 0.0f;
     vp->q.light = vp->q.sample = vp->q.pdf = vp->q.failed = 0;
@@ -434,9 +406,9 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     }
     const bsdf *b = vp->sh.bp.b;
     const int smooth = bsdf_has_smooth_part(b);
-    const float g = t->model ? t->guide_prob : 0.0f;
+    const float g = t->model ? t->policy.mixture_prob : 0.0f;
     const int guided = smooth && g > 0.0f && (t->guide_depth == 0 || depth <= t->guide_depth) &&
-                       !(b->type == BSDF_ROUGHCONDUCTOR && b->alpha < t->guide_min_roughness);
+                       !(b->type == BSDF_ROUGHCONDUCTOR && b->alpha < t->policy.min_roughness);
     vp->p = sf.p;
     vec3 n = vp->sh.fr.n;
     nf_context *ctx = &vp->q.ctx;
@@ -451,13 +423,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     ctx->wo[2] = wo.z;
     vp->gp.bp = vp->sh.bp;
     if (guided) {
-        vp->g = g;
-        if (t->selection) { /* learned per cell; 0 there: not guided at all */
-            vp->cell = selection_cell(t->selection, sf.p, n);
-            vp->g = selection_prob(t->selection, vp->cell);
-        }
-        if (t->guide_max_boost > 0.0f)
-            vp->g = guide_capped_prob(vp->g, ps->boost, t->guide_max_boost);
+        vp->g = nf_guide_mixture_prob(&t->policy, ps->boost);
         st->guided_vertices += vp->g > 0.0f;
     }
 
@@ -472,12 +438,12 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
      * all (a recorded direction always gets its radiance). */
     vp->rr = 1.0f;
     if (depth >= s->rr_depth) {
-        float q = roulette_survival(ps->throughput, t->throughput_roulette ? 1.0f : ps->boost);
+        float q = nf_guide_roulette_survival(&t->policy, rgb_max(ps->throughput), ps->boost);
         if (!(rng_next(r) < q))
             return 1; /* scatters = 0: the light sample still counts */
         vp->rr = 1.0f / q;
     }
-    vp->scatters = scatter_plan(t, vp, r);
+    vp->scatters = scatter_plan(vp, r);
     if (!vp->scatters)
         vp->q.sample = vp->q.pdf = 0;
     return 1;
@@ -536,33 +502,28 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
     if (!vp->scatters)
         return 0;
 
-    /* The scattered direction's weight: the mixture density p_mix = g p_flow + (1 - g) p_bsdf
-     * in balance mode, each technique's own density in plain mode. */
+    /* The scattered direction's weight: the mixture density p_mix = g p_flow + (1 - g) p_bsdf. */
     vec3 wi = q->wi;
     rgb weight;
     /* p_flow stays 0 where the flow was not asked (the plan zeroes it) */
     float pdf = 0.0f, p_flow = q->p_flow, p_bsdf = vp->p_bsdf;
     if (vp->delta) {
         weight = vp->delta_weight;
-        if (g > 0.0f && !t->plain_mixture)
-            ps->boost /= 1.0f - g; /* the BSDF technique ran with probability 1 - g */
+        if (g > 0.0f) /* the BSDF technique ran with probability 1 - g */
+            ps->boost = nf_guide_boost(ps->boost, 0.0f, 0.0f, g);
     } else {
         if (vp->flow_chosen)
             p_bsdf = bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, frame_to_local(&vp->sh.fr, wi));
         vec3 wi_l;
         rgb f = shading_eval(&vp->sh, wi, &wi_l);
-        float p_weight; /* the density the throughput divides by */
-        if (t->plain_mixture)
-            p_weight = vp->flow_chosen ? p_flow : p_bsdf;
-        else
-            p_weight = g * p_flow + (1.0f - g) * p_bsdf;
+        float p_weight = g * p_flow + (1.0f - g) * p_bsdf; /* what the throughput divides by */
         /* the density light MIS weighs with, as the light sample's side above */
         pdf = light_mis_uses_flow(t, ps->depth) ? p_weight : p_bsdf;
         if (!(p_weight > 0.0f) || rgb_is_black(f))
             return 0;
         weight = rgb_scale(f, 1.0f / p_weight);
-        if (g > 0.0f && !t->plain_mixture)
-            ps->boost *= p_bsdf / p_weight;
+        if (g > 0.0f)
+            ps->boost = nf_guide_boost(ps->boost, p_bsdf, p_weight, g);
     }
     if (!rgb_is_finite(weight) || rgb_is_black(weight))
         return 0;
@@ -575,10 +536,6 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
             v->ctx = q->ctx;
             put_vec3(v->dir, wi);
             vx->bp = vp->sh.bp;
-            vx->p_flow = p_flow;
-            vx->p_bsdf = p_bsdf;
-            vx->alpha = g;
-            vx->cell = (uint32_t)vp->cell;
         }
     }
     ps->prev_pdf = pdf;
@@ -681,7 +638,7 @@ int trace_paths_pay(const tracer *t)
 {
     /* Models with the BSDF prior answer at shading points: the batch calls would hand its
      * callbacks contexts they cannot find the material of (guide.h). */
-    return t->model && t->guide_prob > 0.0f && !t->bsdf_prior && !t->no_batching;
+    return t->model && t->policy.mixture_prob > 0.0f && !t->bsdf_prior && !t->no_batching;
 }
 
 /* Takes a path to its next vertex that asks the flow something (returns 1, the questions in

@@ -21,32 +21,18 @@
 typedef struct tracer {
     const scene *s;
     const nf_model *model; /* NULL: no guiding (pure BSDF sampling + NEE)                  */
-    float guide_prob;      /* probability of sampling the flow at a guided vertex, [0, 1)  */
+    nf_guide_policy policy; /* how guided vertices mix the flow with the BSDF, when roulette
+                            * lets a path go on, which vertices weigh light samples by the
+                            * flow (nisflow/guide.h; nf_guide_policy_init's defaults)      */
     int bsdf_prior;        /* the model uses the BSDF prior: publish shading points        */
-    int guide_depth;       /* guide only vertices up to this many segments deep; 0: all    */
-    float guide_min_roughness; /* rough conductors smoother than this are not guided: their
-                            * lobe is sharper than the flow learns, BSDF sampling wins     */
-    float guide_max_boost; /* > 0: a vertex's g is lowered so that the path's boost (path_state)
-                            * times 1 / (1 - g), the most this vertex can add, stays within
-                            * it; 0: g as given everywhere                                 */
-    int throughput_roulette; /* Russian roulette on the throughput as the mixture weighed it;
-                            * 0 (default): on the larger of it and the throughput BSDF
-                            * sampling would have given the same path (roulette_survival) */
-    const struct selection_grid *selection; /* learned guiding probability per cell (selection.h);
-                            * NULL: guide_prob everywhere                                  */
-    int plain_mixture;     /* each technique weighs by its own density, MIS against lights
-                            * by the BSDF's: the flow is evaluated only where it samples   */
-    int light_mis_bsdf;    /* MIS between light sampling and scattering by the BSDF's density
-                            * (the scattered direction still weighs by the mixture's): a
-                            * light sample never asks the flow                            */
-    int light_mis_depth;   /* > 0: light_mis_bsdf's weighting at vertices deeper than this
-                            * many segments, the mixture's up to it; 0: the mixture's at
-                            * every depth. Where a vertex's paths carry little of the
-                            * pixel, the light sample's flow question costs more than its
-                            * better weight gains                                         */
-    int no_batching;       /* budget passes trace one path at a time (trace_paths_pay)      */
     int mis_training;      /* train on the MIS-weighted emission the scattered ray finds
-                            * (what the scattering estimator needs) instead of all of it   */
+                            * (what the scattering estimator needs; the default) instead of
+                            * all of it                                                    */
+    /* Ablation switches (options.h, --variant), all 0 by default: */
+    int guide_depth;       /* guide only vertices up to this many segments deep; 0: all    */
+    int light_mis_bsdf;    /* MIS between light sampling and scattering by the BSDF's density
+                            * at every depth: a light sample never asks the flow           */
+    int no_batching;       /* budget passes trace one path at a time (trace_paths_pay)      */
     int rank, ranks;       /* render_image renders this rank's share of the film's tiles;
                             * ranks 0 or 1: all of them (ranks.h)                          */
 } tracer;
@@ -59,9 +45,7 @@ typedef struct train_record {
     float dir[3];
     float weight;
     bsdf_point bp;
-    float p_flow, p_bsdf, alpha; /* the mixture at dir, for the learned guiding probability */
-    uint32_t cell;               /* the selection grid's cell (0 without a grid)            */
-    uint32_t pixel;              /* the film pixel the path went through, y * width + x     */
+    uint32_t pixel; /* the film pixel the path went through, y * width + x */
 } train_record;
 
 typedef struct record_buffer {
@@ -85,28 +69,6 @@ typedef struct path_stats {
 } path_stats;
 _Static_assert(sizeof(path_stats) == 6 * sizeof(uint64_t), "path_stats: uint64_t counters only");
 
-/* The guiding probability of a vertex under tracer.guide_max_boost = cap (> 0), for a path
- * whose boost (path_state) is `boost`: g itself, or 1 - boost / cap where that is smaller, or
- * 0 below 0.05 (a vertex guided that little would pay the flow's evaluation for nothing).
- * A BSDF sample where the flow has no mass weighs 1 / (1 - g) times what BSDF sampling alone
- * would give it, and along a path these factors multiply (four guided vertices at g = 0.7:
- * 120-fold); the cap bounds their product. It depends only on the path so far, so the
- * estimator stays unbiased. */
-float guide_capped_prob(float g, float boost, float cap);
-
-/* The probability that Russian roulette lets a path go on: the larger of its throughput's
- * largest channel and that channel divided by the path's boost (path_state), at most 0.95.
- * The quotient is the throughput BSDF sampling would have given the same path, so a path the
- * flow sent where it expects light (boost < 1) survives as often as plain path tracing would
- * let it; roulette on the throughput itself would kill those paths more often than the
- * others, and the few that live would carry 1/q fireflies. The larger of the two keeps the
- * throughput after roulette at or below about 1 when the flow sent the path where it expects
- * little (boost > 1): the quotient alone would let such a path carry its boost (up to the
- * boost cap) through every later bounce. Any survival probability that depends only on the
- * path so far keeps the estimator unbiased. boost = 1 (no guided vertex, or the plain
- * mixture, which does not track it) gives plain path tracing's roulette. */
-float roulette_survival(rgb throughput, float boost);
-
 void path_stats_add(path_stats *a, const path_stats *b);
 
 /* A path between two vertices: what it has gathered and the ray it follows next. */
@@ -116,9 +78,9 @@ typedef struct path_state {
     float prev_pdf; /* density of the last scattered direction (0: delta or camera) */
     int depth;      /* segments traced so far                                       */
     float boost;    /* product over the guided vertices so far of p_bsdf / p_mix (1 / (1 - g)
-                     * for a delta lobe): how much the mixture has raised the throughput
-                     * over BSDF sampling's, read by the boost cap and by the roulette
-                     * (roulette_survival); not tracked under the plain mixture          */
+                     * for a delta lobe, nf_guide_boost): how much the mixture has raised the
+                     * throughput over BSDF sampling's, read by the policy's boost cap and
+                     * roulette (nf_guide_mixture_prob, nf_guide_roulette_survival)       */
 } path_state;
 
 /* Traces the path through film position (px, py) and returns its radiance estimate.

@@ -2,10 +2,10 @@
  * training.c - the loop of training.h.
  *
  * Each iteration's batch of paths is cut into groups of GROUP_PATHS paths, fixed by the batch
- * alone. The ranks (ranks.h) split the groups, each traces its groups' paths, and
- * gradient_sum_step computes every group's gradient on the threads and sums them exactly over
- * all ranks: the model is the same to the bit for any number of ranks and threads
- * (docs/distributed.md). The CSV's "seconds" column counts the time spent in training
+ * alone. The ranks (ranks.h) split the groups, each traces its groups' paths, and the
+ * library's guide (nf_guide_train_batch) computes every group's gradient on the threads and
+ * sums them exactly over all ranks: the model is the same to the bit for any number of ranks
+ * and threads (docs/distributed.md). The CSV's "seconds" column counts the time spent in training
  * iterations (tracing and stepping), not the evaluation renders that measure them.
  */
 #include "training.h"
@@ -14,7 +14,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "gradient_sum.h"
 #include "guide.h"
 #include "metrics.h"
 #include "progress.h"
@@ -105,32 +104,108 @@ static void rank_groups(size_t total, size_t *g0, size_t *g1)
     *g1 = total * (r + 1) / n;
 }
 
-int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
+/* Paths per gradient group for a batch: GROUP_PATHS, or a larger multiple of it when the batch
+ * has more groups than a guide takes (nisflow/guide.h: at most 256). */
+static size_t group_paths(size_t paths)
+{
+    size_t groups = (paths + GROUP_PATHS - 1) / GROUP_PATHS;
+    return GROUP_PATHS * ((groups + 255) / 256);
+}
+
+/* Trains with `guide` on the iteration's batch (this rank's groups of it): one step of the
+ * guide's training model, summed exactly over the groups, threads and ranks. */
+static int step_on_batch(nf_guide *guide, const tracer *t, const batch_arrays *batch, size_t n,
+                         const size_t *group_end, size_t groups, int threads, int it,
+                         training_report *rep, float *loss, tr_error *err)
+{
+    guide_hooks hooks;
+    guide_hooks_init(&hooks, NULL, threads);
+    if (t->bsdf_prior) /* the BSDF prior's callbacks look the materials up here */
+        guide_begin_batch(batch->ctx, batch->points, n);
+    nf_status st = nf_guide_train_batch(guide, n, batch->ctx, batch->dir, batch->weight,
+                                        groups ? group_end : NULL, groups, &hooks.parallel,
+                                        hooks.reduce, loss);
+    guide_end();
+    guide_hooks_end(&hooks);
+    if (st == NF_ERROR_NUMERIC) {
+        /* A refused batch leaves the model unchanged (on every rank): report it, go on. */
+        if (rep->refused++ < 5 && ranks_rank() == 0)
+            fprintf(stderr, "\nnf_tracer: iteration %d: batch refused: %s\n", it,
+                    nf_last_error_message());
+        return 1;
+    }
+    if (st != NF_OK)
+        return tr_fail(err, "iteration %d: %s", it, nf_last_error_message());
+    if (isfinite(*loss))
+        rep->last_loss = *loss;
+    st = nf_guide_publish(guide); /* no thread holds a model between iterations */
+    return st == NF_OK || tr_fail(err, "iteration %d: %s", it, nf_last_error_message());
+}
+
+/* Points t at the guide's newest model for a render (tracing or evaluation). */
+static int use_published(tracer *t, nf_guide *guide, tr_error *err)
+{
+    const nf_model *m = NULL;
+    if (nf_guide_acquire(guide, &m) != NF_OK)
+        return tr_fail(err, "%s", nf_last_error_message());
+    t->model = m;
+    return 1;
+}
+
+static void end_use(tracer *t, nf_guide *guide)
+{
+    nf_guide_release(guide, t->model);
+    t->model = NULL;
+}
+
+int train_guide(tracer *t, nf_model **model, const training_settings *ts,
                 training_report *rep, tr_error *err)
 {
     record_buffer records = {0};
     batch_arrays batch = {0};
-    gradient_sum sum = {0};
     progress bar;
-    const size_t paths = (size_t)ts->batch, groups = (paths + GROUP_PATHS - 1) / GROUP_PATHS;
+    nf_guide *guide = NULL;
+    const size_t paths = (size_t)ts->batch, per_group = group_paths(paths),
+                 groups = (paths + per_group - 1) / per_group;
     size_t g0, g1;
     rank_groups(groups, &g0, &g1);
-    const size_t first = g0 * GROUP_PATHS, mine = (g1 * GROUP_PATHS < paths ? g1 * GROUP_PATHS
-                                                                             : paths) - first;
+    const size_t first = g0 * per_group,
+                 mine = (g1 * per_group < paths ? g1 * per_group : paths) - first;
     size_t *path_end = malloc((mine ? mine : 1) * sizeof *path_end);
     size_t *group_end = malloc((g1 > g0 ? g1 - g0 : 1) * sizeof *group_end);
-    int ok = ranks_agree(path_end && group_end ? 1 : tr_fail(err, "out of memory"), err);
+    /* The guide's store is not used here: the iteration's batch is the step. */
+    nf_guide_config gc;
+    if (ts->guide)
+        gc = *ts->guide;
+    else { /* the library's defaults, at the model's own learning rate */
+        nf_config cfg;
+        nf_guide_config_init(&gc);
+        if (nf_model_config(*model, &cfg) == NF_OK)
+            gc.learning_rate = cfg.learning_rate;
+    }
+    gc.store_capacity = 1;
+    gc.groups = groups < 1 ? 1 : (uint32_t)groups;
+    int ok = path_end && group_end ? 1 : tr_fail(err, "out of memory");
+    if (ok && nf_guide_create(*model, &gc, &guide) != NF_OK)
+        ok = tr_fail(err, "%s", nf_last_error_message());
+    ok = ranks_agree(ok, err);
     memset(rep, 0, sizeof *rep);
     if (ts->csv)
         fprintf(ts->csv, "iteration,training_samples,seconds,mape\n");
-    if (ok && ts->eval_every > 0)
+    if (ok && ts->eval_every > 0 && (ok = use_published(t, guide, err))) {
         ok = evaluate(t, ts, 0, 0, 0.0, err);
+        end_use(t, guide);
+    }
 
     progress_start(&bar, "training", (size_t)ts->iterations);
     for (int it = 1; it <= ts->iterations && ok; ++it) {
         double t0 = now_seconds(), c0 = cpu_seconds();
-        ok = trace_training_batch(t, first, mine, ts->seed, (uint32_t)it, ts->threads, &records,
-                                  path_end, &rep->stats, err);
+        ok = use_published(t, guide, err);
+        if (ok) {
+            ok = trace_training_batch(t, first, mine, ts->seed, (uint32_t)it, ts->threads,
+                                      &records, path_end, &rep->stats, err);
+            end_use(t, guide);
+        }
         double t1 = now_seconds(), c1 = cpu_seconds();
         size_t n = records.count;
         if (ok && !batch_reserve(&batch, n))
@@ -148,30 +223,18 @@ int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
             batch.points[i].bp = r->bp;
         }
         for (size_t g = g0; g < g1; ++g) {
-            size_t last = (g + 1) * GROUP_PATHS < paths ? (g + 1) * GROUP_PATHS : paths;
+            size_t last = (g + 1) * per_group < paths ? (g + 1) * per_group : paths;
             group_end[g - g0] = path_end[last - 1 - first];
         }
-        if (t->bsdf_prior) /* the BSDF prior's callbacks look the materials up here */
-            guide_begin_batch(batch.ctx, batch.points, n);
-        float loss = 0.0f;
-        gradient_step step;
-        nf_status refusal;
-        ok = gradient_sum_step(&sum, model, batch.ctx, batch.dir, batch.weight, group_end,
-                               g1 - g0, groups, ts->threads, &loss, &step, &refusal, err);
-        guide_end();
+        float loss = NAN;
+        ok = step_on_batch(guide, t, &batch, n, group_end, g1 - g0, ts->threads, it, rep, &loss,
+                           err);
         double t2 = now_seconds();
         rep->step_cpu_seconds += cpu_seconds() - c1;
         if (!ok)
             break;
-        if (step == GRADIENT_STEP_REFUSED) {
-            /* A refused batch leaves the model unchanged (on every rank): report it, go on. */
-            if (rep->refused++ < 5 && ranks_rank() == 0)
-                fprintf(stderr, "\nnf_tracer: iteration %d: batch refused: %s%s%s\n", it,
-                        nf_status_string(refusal), sum.message[0] ? ": " : "", sum.message);
-        } else if (step == GRADIENT_STEP_TAKEN) {
-            rep->last_loss = loss;
-        }
-        if (ranks_size() > 1 && !(ok = guide_models_agree(model, it, err)))
+        if (ranks_size() > 1 &&
+            !(ok = guide_models_agree(nf_guide_training_model(guide), it, err)))
             break;
         rep->samples += n;
         rep->paths += (uint64_t)paths;
@@ -182,18 +245,29 @@ int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
         char extra[96];
         snprintf(extra, sizeof extra, "loss %.4f, %zu samples/it", (double)loss, n);
         progress_update(&bar, (size_t)it, extra);
-        if (ts->eval_every > 0 && (it % ts->eval_every == 0 || it == ts->iterations)) {
+        if (ts->eval_every > 0 && (it % ts->eval_every == 0 || it == ts->iterations) &&
+            (ok = use_published(t, guide, err))) {
             progress_finish(&bar);
             ok = evaluate(t, ts, it, rep->samples, rep->trace_seconds + rep->step_seconds, err);
+            end_use(t, guide);
         }
     }
     progress_finish(&bar);
     /* The report counts every rank's samples (its times are this rank's). */
     if (ok)
         ok = ranks_sum_u64(&rep->samples, 1, err);
+    if (ok) { /* the trained model replaces the starting one */
+        nf_model *trained = NULL;
+        ok = nf_model_clone(nf_guide_training_model(guide), &trained) == NF_OK ||
+             tr_fail(err, "%s", nf_last_error_message());
+        if (ok) {
+            nf_model_destroy(*model);
+            *model = trained;
+        }
+    }
+    nf_guide_destroy(guide);
     record_buffer_free(&records);
     batch_free(&batch);
-    gradient_sum_free(&sum);
     free(path_end);
     free(group_end);
     return ok;

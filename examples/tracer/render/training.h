@@ -24,6 +24,7 @@ typedef struct training_settings {
     int threads;
     uint64_t seed;
     const image *reference;   /* NULL: the MAPE column stays empty                  */
+    const nf_guide_config *guide; /* the step's settings; NULL: the library's defaults  */
     FILE *csv;                /* NULL: no CSV                                       */
 } training_settings;
 
@@ -39,10 +40,11 @@ typedef struct training_report {
     path_stats stats;
 } training_report;
 
-/* Trains `model` (which `t` must use) in place. Collective (ranks.h): every rank traces its
- * share of each batch and all take the same steps; rank 0 alone passes a reference and a
- * CSV. The report's samples are all ranks'; its times are this rank's. */
-int train_guide(const tracer *t, nf_model *model, const training_settings *ts,
+/* Trains a guide made from *model and replaces *model by the trained model; t->model is the
+ * guide's published model while it renders (NULL on return). Collective (ranks.h): every rank
+ * traces its share of each batch and all take the same steps; rank 0 alone passes a
+ * reference and a CSV. The report's samples are all ranks'; its times are this rank's. */
+int train_guide(tracer *t, nf_model **model, const training_settings *ts,
                 training_report *report, tr_error *err);
 
 #endif /* TRACER_TRAINING_H */

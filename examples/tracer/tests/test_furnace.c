@@ -30,6 +30,7 @@
 #include "training.h"
 
 #include "mixed_scene.h"
+#include "test_policy.h"
 
 /* 24 x 24 pixels at 16 paths each: a standard error of about 0.4% for the cosine prior, so
  * that a 5% bias is caught. Small enough to run in seconds under the sanitizers too. */
@@ -83,15 +84,15 @@ static void furnace(const char *environment, int guided, guide_prior prior, int 
         gs.seed = 7;
         if (!guide_create(&s, &gs, &model, &err))
             fail_msg("%s", err.msg);
-        t.model = model;
-        t.guide_prob = 0.5f;
+        t.policy = test_policy(0.5f);
         t.bsdf_prior = prior == GUIDE_PRIOR_BSDF;
         /* A few training steps, so that the flow is no longer its prior: the estimator must
          * stay unbiased for any model. */
-        training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL};
+        training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL, NULL};
         training_report rep;
-        if (!train_guide(&t, model, &ts, &rep, &err))
+        if (!train_guide(&t, &model, &ts, &rep, &err))
             fail_msg("%s", err.msg);
+        t.model = model;
         assert_true(rep.samples > 0);
         assert_int_equal(rep.refused, 0);
         assert_int_equal(nf_model_step_count(model), 4);
@@ -254,12 +255,12 @@ static void test_guided_matches_unguided(void **state)
             gs.seed = 7;
             if (!guide_create(&s, &gs, &model, &err))
                 fail_msg("%s", err.msg);
-            t.model = model;
-            t.guide_prob = 0.5f;
-            training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL};
+            t.policy = test_policy(0.5f);
+            training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL, NULL};
             training_report rep;
-            if (!train_guide(&t, model, &ts, &rep, &err))
+            if (!train_guide(&t, &model, &ts, &rep, &err))
                 fail_msg("%s", err.msg);
+            t.model = model;
         }
         assert_true(image_alloc(&img[guided], s.width, s.height, &err));
         if (!render_image(&t, 4 * SPP, 100 + (uint64_t)guided, 0, 2, &img[guided], NULL, NULL, &err))

@@ -31,6 +31,7 @@
 #include "rng.h"
 #include "scene.h"
 #include "scene_errors.h"
+#include "test_policy.h"
 
 /* ---- Helpers ---------------------------------------------------------------------------- */
 
@@ -455,7 +456,7 @@ static void render_edge(int guided)
         if (!guide_create(&s, &gs, &model, &err))
             fail_msg("%s", err.msg);
         t.model = model;
-        t.guide_prob = 0.5f;
+        t.policy = test_policy(0.5f);
     }
     image img;
     assert_true(image_alloc(&img, s.width, s.height, &err));

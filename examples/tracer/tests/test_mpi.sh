@@ -107,7 +107,7 @@ check "rank 1 killed: the job ends with a failure, no hang (status $status)" \
 # and 4 s. The bound 0.005 leaves a slow machine's fewer passes room and still catches a
 # missing or doubled share of the tiles (relMSE about 0.3).
 BUDGET=(--scene "$SCENES/cornell-box/scene.xml" --width 32 --height 32 --time-budget 3
-        --learn-selection --clamp-quantile 0.99 --guide-depth 2 --mis-training --relative-training)
+        --variant guide-depth=2)
 "$TRACER" "${BUDGET[@]}" --threads 2 --out budget-one > budget-one.out 2> budget-one.err
 timeout "$LIMIT" "${MPIRUN[@]}" -n 2 "$TRACER" "${BUDGET[@]}" --threads 1 --out budget \
     > budget.out 2> budget.err

@@ -1,9 +1,8 @@
 /*
- * test_options.c - the command line reaches the model: --prior-epsilon (used by the paper
- * study's sweep) is parsed, range-checked, and ends up in the created model's config, and
- * leaving it out keeps the library's default; --phi-map (the seam study's) and --sh-bands
- * (the equal-time study's) likewise; --guide-max-boost is parsed and range-checked, and
- * --throughput-roulette switches the roulette; --light-mis-depth is parsed and range-checked.
+ * test_options.c - the command line: the defaults are the library's guide defaults and the
+ * best configuration of docs/equal-time.md; --variant settings (the studies' and the
+ * ablations') are parsed, range-checked, and reach the options; the model settings among
+ * them (prior epsilon, phi map, SH bands) reach the created model's config.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -64,74 +63,85 @@ static nf_config created_config(const scene *s, const guide_settings *gs, nf_mod
     return cfg;
 }
 
-static void test_prior_epsilon_is_parsed_and_range_checked(void **state)
+/* --variant VALUE, parsed into o. */
+static int variant(options *o, const char *value, tr_error *err)
+{
+    return parse(o, "--variant", value, err);
+}
+
+/* Each of `bad` given as --variant is refused, with a message that names `name`. */
+static void assert_variant_refused(const char *name, const char *const *bad, size_t count)
+{
+    options o;
+    tr_error err;
+    for (size_t i = 0; i < count; ++i) {
+        err.msg[0] = '\0';
+        assert_false(variant(&o, bad[i], &err));
+        assert_non_null(strstr(err.msg, name));
+    }
+}
+
+static void test_defaults_are_the_best_configuration(void **state)
 {
     (void)state;
     options o;
     tr_error err;
     assert_true(parse(&o, NULL, NULL, &err));
-    assert_true(o.prior_epsilon < 0.0f); /* not given: the library's default */
-    assert_true(parse(&o, "--prior-epsilon", "0.25", &err));
+    /* The library's guide defaults, one home for them: */
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    assert_true(o.guide.policy.mixture_prob == gc.policy.mixture_prob);
+    assert_true(o.guide.policy.max_boost == gc.policy.max_boost);
+    assert_int_equal(o.guide.policy.light_mis_depth, gc.policy.light_mis_depth);
+    assert_true(o.guide.policy.min_roughness == gc.policy.min_roughness);
+    assert_true(o.guide.clamp_quantile == gc.clamp_quantile);
+    assert_true(o.guide.train_fraction == gc.train_fraction);
+    /* and the tracer's own: a position-only model trained on the MIS-weighted emission. */
+    assert_int_equal(o.sh_bands, 0);
+    assert_int_equal(o.mis_training, 1);
+    assert_int_equal(o.no_batching, 0);
+    assert_int_equal(o.light_mis_bsdf, 0);
+    assert_int_equal(o.phi_interval, 0);
+    assert_true(o.prior_epsilon < 0.0f); /* the library's */
+}
+
+static void test_variants_are_parsed_and_range_checked(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(variant(&o, "prior-epsilon=0.25", &err));
     assert_true(o.prior_epsilon == 0.25f);
-    assert_true(parse(&o, "--prior-epsilon", "1", &err));
-    const char *const bad[] = {"0", "-0.1", "1.5", "nan", "abc", ""};
-    assert_refused("--prior-epsilon", bad, sizeof bad / sizeof bad[0]);
-}
-
-static void test_guide_max_boost_is_parsed_and_range_checked(void **state)
-{
-    (void)state;
-    options o;
-    tr_error err;
-    assert_true(parse(&o, NULL, NULL, &err));
-    assert_true(o.guide_max_boost == 0.0f); /* not given: no cap */
-    assert_true(parse(&o, "--guide-max-boost", "10", &err));
-    assert_true(o.guide_max_boost == 10.0f);
-    assert_true(parse(&o, "--guide-max-boost", "0", &err));
-    assert_true(o.guide_max_boost == 0.0f);
-    const char *const bad[] = {"-1", "1e7", "nan", "abc", ""};
-    assert_refused("--guide-max-boost", bad, sizeof bad / sizeof bad[0]);
-}
-
-static void test_throughput_roulette_is_a_switch(void **state)
-{
-    (void)state;
-    options o;
-    tr_error err;
-    assert_true(parse(&o, NULL, NULL, &err));
-    assert_int_equal(o.throughput_roulette, 0); /* default: roulette_survival's rule */
-    assert_true(parse(&o, "--throughput-roulette", NULL, &err));
-    assert_int_equal(o.throughput_roulette, 1);
-}
-
-static void test_light_mis_depth_is_parsed_and_range_checked(void **state)
-{
-    (void)state;
-    options o;
-    tr_error err;
-    assert_true(parse(&o, NULL, NULL, &err));
-    assert_int_equal(o.light_mis_depth, 0); /* not given: the mixture's weighting everywhere */
-    assert_true(parse(&o, "--light-mis-depth", "2", &err));
-    assert_int_equal(o.light_mis_depth, 2);
-    const char *const bad[] = {"-1", "1.5", "abc", ""};
-    assert_refused("--light-mis-depth", bad, sizeof bad / sizeof bad[0]);
-}
-
-static void test_phi_map_is_parsed_and_reaches_the_model(void **state)
-{
-    (void)state;
-    options o;
-    tr_error err;
-    assert_true(parse(&o, NULL, NULL, &err));
-    assert_int_equal(o.phi_interval, 0);
-    assert_true(parse(&o, "--phi-map", "interval", &err));
+    assert_true(variant(&o, "guide-max-boost=0,light-mis-depth=5,guide-prob=0.5", &err));
+    assert_true(o.guide.policy.max_boost == 0.0f);
+    assert_int_equal(o.guide.policy.light_mis_depth, 5);
+    assert_true(o.guide.policy.mixture_prob == 0.5f);
+    assert_true(variant(&o, "sh-bands=6,phi-interval,no-batching,all-emission", &err));
+    assert_int_equal(o.sh_bands, 6);
     assert_int_equal(o.phi_interval, 1);
-    assert_true(parse(&o, "--phi-map", "circular", &err));
-    assert_int_equal(o.phi_interval, 0);
-    err.msg[0] = '\0';
-    assert_false(parse(&o, "--phi-map", "torus", &err));
-    assert_non_null(strstr(err.msg, "--phi-map"));
+    assert_int_equal(o.no_batching, 1);
+    assert_int_equal(o.mis_training, 0);
+    assert_true(variant(&o, "paper", &err));
+    assert_true(o.guide.policy.mixture_prob == 0.5f && o.guide.policy.max_boost == 0.0f);
+    assert_true(o.sh_bands < 0 && o.mis_training == 0);
+    const char *const eps[] = {"prior-epsilon=0", "prior-epsilon=1.5", "prior-epsilon=nan",
+                               "prior-epsilon", "prior-epsilon="};
+    assert_variant_refused("prior-epsilon", eps, sizeof eps / sizeof eps[0]);
+    const char *const depth[] = {"light-mis-depth=-1", "light-mis-depth=1.5"};
+    assert_variant_refused("light-mis-depth", depth, sizeof depth / sizeof depth[0]);
+    const char *const sh[] = {"sh-bands=7", "sh-bands=two"};
+    assert_variant_refused("sh-bands", sh, sizeof sh / sizeof sh[0]);
+    const char *const other[] = {"no-batching=1", "plain-mixture"};
+    assert_variant_refused("--variant", other, sizeof other / sizeof other[0]);
+    /* Options that became variants or were deleted are refused by name. */
+    const char *const none[] = {"0.5"};
+    assert_refused("--guide-prob", none, 1);
+    assert_refused("--throughput-roulette", none, 1);
+}
 
+static void test_phi_map_reaches_the_model(void **state)
+{
+    (void)state;
     scene s;
     load_cornell(&s);
     for (int interval = 0; interval < 2; ++interval) {
@@ -160,20 +170,9 @@ static void test_created_model_carries_the_epsilon(void **state)
     scene_free(&s);
 }
 
-static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
+static void test_sh_bands_reach_the_model(void **state)
 {
     (void)state;
-    options o;
-    tr_error err;
-    assert_true(parse(&o, NULL, NULL, &err));
-    assert_true(o.sh_bands < 0); /* not given: the preset's */
-    assert_true(parse(&o, "--sh-bands", "0", &err));
-    assert_int_equal(o.sh_bands, 0);
-    assert_true(parse(&o, "--sh-bands", "6", &err));
-    assert_int_equal(o.sh_bands, 6);
-    const char *const bad[] = {"-1", "7", "2.5", "two", ""};
-    assert_refused("--sh-bands", bad, sizeof bad / sizeof bad[0]);
-
     scene s;
     load_cornell(&s);
     nf_config defaults;
@@ -201,13 +200,11 @@ static void test_sh_bands_are_parsed_and_reach_the_model(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_guide_max_boost_is_parsed_and_range_checked),
-        cmocka_unit_test(test_throughput_roulette_is_a_switch),
-        cmocka_unit_test(test_light_mis_depth_is_parsed_and_range_checked),
-        cmocka_unit_test(test_prior_epsilon_is_parsed_and_range_checked),
+        cmocka_unit_test(test_defaults_are_the_best_configuration),
+        cmocka_unit_test(test_variants_are_parsed_and_range_checked),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
-        cmocka_unit_test(test_phi_map_is_parsed_and_reaches_the_model),
-        cmocka_unit_test(test_sh_bands_are_parsed_and_reach_the_model),
+        cmocka_unit_test(test_phi_map_reaches_the_model),
+        cmocka_unit_test(test_sh_bands_reach_the_model),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
