@@ -15,10 +15,14 @@ function(nf_install_pkgconfig template name library_type)
             set(NF_PC_${_dir} "\${prefix}/${CMAKE_INSTALL_${_dir}}")
         endif()
     endforeach()
+    # A static libnisflow needs libm at the consumer's link; `pkg-config --libs` (without
+    # --static, as most build systems call it) must say so too.
     if(library_type STREQUAL "STATIC_LIBRARY")
         set(NF_PC_CFLAGS " -DNISFLOW_STATIC")
+        set(NF_PC_LIBS_STATIC " -lm")
     else()
         set(NF_PC_CFLAGS "")
+        set(NF_PC_LIBS_STATIC "")
     endif()
     # First pass: everything but the prefix, which survives as @NF_PC_PREFIX@.
     set(NF_PC_PREFIX "@NF_PC_PREFIX@")

@@ -65,6 +65,13 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn)
 {
     if (!cfg)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: config is NULL", fn);
+    /* A config nobody filled (zeroed, say) fails on its first field: say what to do. */
+    if (cfg->coupling_layers == 0 && cfg->spline_bins == 0 && cfg->hidden_width == 0)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: config.coupling_layers, spline_bins and hidden_width are 0: fill the "
+                       "config with nf_config_init(&cfg, NF_PRESET_SMALL) first, then change the "
+                       "fields you need",
+                       fn);
     nf_status st;
     if ((st = nf_check_range(fn, "coupling_layers", cfg->coupling_layers, 1,
                              NF_MAX_COUPLING_LAYERS)) ||

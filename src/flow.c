@@ -20,12 +20,14 @@ nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const fl
                     float *pdf)
 {
     static const char fn[] = "nf_sample";
+    nf_status st;
+    /* The model is checked even for n = 0 (the arrays may then be NULL). */
+    if ((st = nf_check_pointers(fn, "m", m, NULL, NULL, NULL, NULL, NULL, NULL)) != NF_OK)
+        return st;
     if (n == 0)
         return NF_OK;
-    if (!m || !ctx || !u || !dir)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, ctx, u or dir", fn);
-    nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+    if ((st = nf_check_pointers(fn, "ctx", ctx, "u", u, "dir", dir, NULL, NULL)) != NF_OK ||
+        (st = nf_validate_batch_size(fn, n)) != NF_OK ||
         (st = nf_validate_contexts(fn, n, ctx)) != NF_OK)
         return st;
     if (!nf_all_finite(u, 2 * n))
@@ -40,12 +42,13 @@ nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, const fl
 nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir, float *pdf)
 {
     static const char fn[] = "nf_pdf";
+    nf_status st;
+    if ((st = nf_check_pointers(fn, "m", m, NULL, NULL, NULL, NULL, NULL, NULL)) != NF_OK)
+        return st;
     if (n == 0)
         return NF_OK;
-    if (!m || !ctx || !dir || !pdf)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, ctx, dir or pdf", fn);
-    nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+    if ((st = nf_check_pointers(fn, "ctx", ctx, "dir", dir, "pdf", pdf, NULL, NULL)) != NF_OK ||
+        (st = nf_validate_batch_size(fn, n)) != NF_OK ||
         (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
         (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
         return st;

@@ -157,6 +157,12 @@ nf_status nf_fail(nf_status status, const char *fmt, ...)
 
 /* ---- validation of batch inputs (validate.c) --------------------------------------------- */
 
+/* Refuses the first NULL among up to four named pointers (a NULL name ends the list) with a
+ * message that names it: "nf_sample: dir is NULL". NF_OK when none is NULL. */
+nf_status nf_check_pointers(const char *fn, const char *name0, const void *p0, const char *name1,
+                            const void *p1, const char *name2, const void *p2, const char *name3,
+                            const void *p3);
+
 int nf_all_finite(const float *v, size_t n);
 
 /* nf_all_finite's test, inline for the kernels (which compile it per instruction set). A float

@@ -57,10 +57,9 @@ nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
                            const nf_prior_callbacks *prior, nf_shading_point *point)
 {
     static const char fn[] = "nf_point_prepare";
-    if (!m || !ctx || !point)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, ctx or point", fn);
-    nf_status st = nf_validate_contexts(fn, 1, ctx);
-    if (st != NF_OK)
+    nf_status st;
+    if ((st = nf_check_pointers(fn, "m", m, "ctx", ctx, "point", point, NULL, NULL)) != NF_OK ||
+        (st = nf_validate_contexts(fn, 1, ctx)) != NF_OK)
         return st;
     if (prior) {
         if (m->cfg.prior != NF_PRIOR_CUSTOM)
@@ -84,13 +83,13 @@ nf_status nf_point_sample(const nf_model *m, const nf_shading_point *point, size
                           const float *u, float *dir, float *pdf)
 {
     static const char fn[] = "nf_point_sample";
-    if (n == 0)
-        return NF_OK;
-    if (!m || !point || !u || !dir)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, point, u or dir", fn);
     nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
-        (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK)
+    /* The model and the point are checked even for n = 0 (the arrays may then be NULL). */
+    if ((st = nf_check_pointers(fn, "m", m, "point", point, NULL, NULL, NULL, NULL)) != NF_OK ||
+        (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK || n == 0)
+        return st;
+    if ((st = nf_check_pointers(fn, "u", u, "dir", dir, NULL, NULL, NULL, NULL)) != NF_OK ||
+        (st = nf_validate_batch_size(fn, n)) != NF_OK)
         return st;
     if (!nf_all_finite(u, 2 * n))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: u contains NaN or Inf", fn);
@@ -102,13 +101,12 @@ nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t 
                        float *pdf)
 {
     static const char fn[] = "nf_point_pdf";
-    if (n == 0)
-        return NF_OK;
-    if (!m || !point || !dir || !pdf)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, point, dir or pdf", fn);
     nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
-        (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK ||
+    if ((st = nf_check_pointers(fn, "m", m, "point", point, NULL, NULL, NULL, NULL)) != NF_OK ||
+        (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK || n == 0)
+        return st;
+    if ((st = nf_check_pointers(fn, "dir", dir, "pdf", pdf, NULL, NULL, NULL, NULL)) != NF_OK ||
+        (st = nf_validate_batch_size(fn, n)) != NF_OK ||
         (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
         return st;
     return nf_point_checked(fn, m, point->generation_,
@@ -130,12 +128,11 @@ nf_status nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *
                            const float *u, float *dir, float *pdf)
 {
     static const char fn[] = "nf_points_sample";
-    if (n == 0)
-        return NF_OK;
-    if (!m || !points || !u || !dir)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, points, u or dir", fn);
     nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+    if ((st = nf_check_pointers(fn, "m", m, NULL, NULL, NULL, NULL, NULL, NULL)) != NF_OK || n == 0)
+        return st;
+    if ((st = nf_check_pointers(fn, "points", points, "u", u, "dir", dir, NULL, NULL)) != NF_OK ||
+        (st = nf_validate_batch_size(fn, n)) != NF_OK ||
         (st = nf_points_usable(fn, m, n, points)) != NF_OK)
         return st;
     if (!nf_all_finite(u, 2 * n))
@@ -148,12 +145,12 @@ nf_status nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *poi
                         const float *dir, float *pdf)
 {
     static const char fn[] = "nf_points_pdf";
-    if (n == 0)
-        return NF_OK;
-    if (!m || !points || !dir || !pdf)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model, points, dir or pdf", fn);
     nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+    if ((st = nf_check_pointers(fn, "m", m, NULL, NULL, NULL, NULL, NULL, NULL)) != NF_OK || n == 0)
+        return st;
+    if ((st = nf_check_pointers(fn, "points", points, "dir", dir, "pdf", pdf, NULL, NULL)) !=
+            NF_OK ||
+        (st = nf_validate_batch_size(fn, n)) != NF_OK ||
         (st = nf_points_usable(fn, m, n, points)) != NF_OK ||
         (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
         return st;

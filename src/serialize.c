@@ -88,7 +88,8 @@ static size_t nf_serialized_size(size_t header_bytes, size_t param_count)
 nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity, size_t *size)
 {
     if (!m || !size)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_serialize: NULL model or size");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_serialize: %s is NULL",
+                       !m ? "m" : "size");
     size_t need = nf_serialized_size(NF_HEADER_BYTES, m->param_count);
     *size = need;
     if (!buf)
@@ -267,7 +268,7 @@ nf_status nf_model_save(const nf_model *m, const char *path)
 {
     static const char fn[] = "nf_model_save";
     if (!m || !path)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model or path", fn);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn, !m ? "m" : "path");
     size_t size;
     nf_model_serialize(m, NULL, 0, &size);
     const nf_allocator *a = &m->cfg.allocator;

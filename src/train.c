@@ -19,10 +19,10 @@ static nf_status nf_validate_training(const char *fn, const nf_model *m, size_t 
     *total = 0.0;
     if (n == 0)
         return NF_OK;
-    if (!ctx || !dir || !weight)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL ctx, dir or weight", fn);
     nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
+    if ((st = nf_check_pointers(fn, "ctx", ctx, "dir", dir, "weight", weight, NULL, NULL)) !=
+            NF_OK ||
+        (st = nf_validate_batch_size(fn, n)) != NF_OK ||
         (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
         (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
         return st;
@@ -144,7 +144,7 @@ nf_status nf_apply_gradient(nf_model *m, const float *grad)
 {
     static const char fn[] = "nf_apply_gradient";
     if (!m || !grad)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: NULL model or gradient", fn);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn, !m ? "m" : "grad");
     if (!nf_all_finite(grad, m->param_count))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: gradient contains NaN or Inf", fn);
     return nf_adamw_commit(m, grad, fn);
@@ -176,7 +176,7 @@ size_t nf_param_count(const nf_model *m) { return m ? m->param_count : 0; }
 nf_status nf_get_params(const nf_model *m, float *params)
 {
     if (!m || !params)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_get_params: NULL model or params");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_get_params: %s is NULL", !m ? "m" : "params");
     memcpy(params, m->params, m->param_count * sizeof(float));
     return NF_OK;
 }
@@ -184,7 +184,7 @@ nf_status nf_get_params(const nf_model *m, float *params)
 nf_status nf_set_params(nf_model *m, const float *params)
 {
     if (!m || !params)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: NULL model or params");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: %s is NULL", !m ? "m" : "params");
     if (!nf_all_finite(params, m->param_count))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: params contain NaN or Inf");
     memcpy(m->params, params, m->param_count * sizeof(float));

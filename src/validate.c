@@ -51,3 +51,15 @@ nf_status nf_validate_directions(const char *fn, const char *name, size_t n, con
                            fn, name, i);
     return NF_OK;
 }
+
+nf_status nf_check_pointers(const char *fn, const char *name0, const void *p0, const char *name1,
+                            const void *p1, const char *name2, const void *p2, const char *name3,
+                            const void *p3)
+{
+    const char *names[4] = {name0, name1, name2, name3};
+    const void *ptrs[4] = {p0, p1, p2, p3};
+    for (int i = 0; i < 4 && names[i]; ++i)
+        if (!ptrs[i])
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn, names[i]);
+    return NF_OK;
+}

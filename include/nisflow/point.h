@@ -93,8 +93,8 @@ typedef struct nf_shading_point {
  *        callbacks. A non-NULL prior on a model with another prior kind is refused.
  *
  * On any error (NF_ERROR_INVALID_ARGUMENT: NULL pointers, a bad context, a bad prior) the
- * point is not written, so a point that was valid stays valid. Cost: 169 ns for the small
- * preset, 233 ns for the large one (docs/performance.md, one thread).
+ * point is not written, so a point that was valid stays valid. Its cost is in
+ * docs/performance.md.
  * Thread-safe on a const model; writes only *point; never allocates. */
 NF_API nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
                                   const nf_prior_callbacks *prior, nf_shading_point *point);
