@@ -91,7 +91,7 @@ void nf_guide_destroy(nf_guide *g)
                       g->order,    g->order_tmp,   g->quantile_work, g->step_ctx,
                       g->step_dir, g->step_weight, g->step_slot,     g->grads,
                       g->F,        g->FL,          g->group_status,  g->group_message,
-                      g->fixed,    g->mean};
+                      g->fixed,    g->mean,        g->group_top};
     for (size_t i = 0; i < sizeof arrays / sizeof arrays[0]; ++i)
         nf_guide_free_one(g, arrays[i]);
     nf_allocator alloc = g->alloc;
@@ -159,6 +159,7 @@ nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_g
     g->grads = nf_guide_alloc(g, groups * g->params, sizeof *g->grads, &ok);
     g->F = nf_guide_alloc(g, groups, sizeof *g->F, &ok);
     g->FL = nf_guide_alloc(g, groups, sizeof *g->FL, &ok);
+    g->group_top = nf_guide_alloc(g, groups, sizeof *g->group_top, &ok);
     g->group_status = nf_guide_alloc(g, groups, sizeof *g->group_status, &ok);
     g->group_message = nf_guide_alloc(g, groups, sizeof *g->group_message, &ok);
     g->fixed = nf_guide_alloc(g, g->params + 2, sizeof *g->fixed, &ok);

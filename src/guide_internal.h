@@ -50,6 +50,7 @@ struct nf_guide {
     size_t params;
     float *grads;
     double *F, *FL;
+    double *group_top; /* per group: the largest |F grad| of its gradient                  */
     nf_status *group_status;
     char (*group_message)[NF_GUIDE_MESSAGE];
     int64_t *fixed; /* params + 2 */

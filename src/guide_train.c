@@ -85,13 +85,19 @@ static void nf_group_task(void *data, size_t k)
     for (size_t i = b; i < e; ++i)
         F += j->weight[i];
     float loss = 0.0f;
-    nf_status st = nf_loss_gradient(g->train, e - b, j->ctx + b, j->dir + 3 * b, j->weight + b,
-                                    &loss, g->grads + k * g->params);
+    float *grad = g->grads + k * g->params;
+    nf_status st =
+        nf_loss_gradient(g->train, e - b, j->ctx + b, j->dir + 3 * b, j->weight + b, &loss, grad);
     g->group_status[k] = st;
     if (st != NF_OK) /* the message is this thread's: keep it with the group */
         snprintf(g->group_message[k], NF_GUIDE_MESSAGE, "%s", nf_last_error_message());
     g->F[k] = F;
     g->FL[k] = F * (double)loss;
+    /* The group's largest term, for the fixed point's scale: max is exact in any order. */
+    double top = 0.0;
+    for (size_t p = 0; st == NF_OK && p < g->params; ++p)
+        top = fmax(top, fabs(F * (double)grad[p]));
+    g->group_top[k] = top;
 }
 
 static void nf_run_tasks(const nf_parallel *par, size_t count, nf_task_fn task, void *data)
@@ -114,7 +120,29 @@ static int nf_fixed_scale(double largest, double groups)
     return NF_FIXED_BITS - e;
 }
 
-static int64_t nf_to_fixed(double x, int scale) { return (int64_t)llrint(ldexp(x, scale)); }
+/* x 2^s rounded to an integer; `scale` is 2^s, so the product is exact (ldexp's result). */
+static int64_t nf_to_fixed(double x, double scale) { return (int64_t)llrint(x * scale); }
+
+/* The fixed-point sum of the groups' terms for a range of parameters: a second parallel phase
+ * (integer sums: the same bits however the ranges are run). */
+typedef struct nf_sum_job {
+    nf_guide *g;
+    size_t groups, chunks;
+    double scale;
+} nf_sum_job;
+
+static void nf_sum_task(void *data, size_t c)
+{
+    const nf_sum_job *j = (const nf_sum_job *)data;
+    nf_guide *g = j->g;
+    const size_t P = g->params, p0 = P * c / j->chunks, p1 = P * (c + 1) / j->chunks;
+    for (size_t k = 0; k < j->groups; ++k) {
+        const float *gr = g->grads + k * P;
+        const double F = g->F[k];
+        for (size_t p = p0; p < p1; ++p)
+            g->fixed[p] += nf_to_fixed(F * (double)gr[p], j->scale);
+    }
+}
 
 /* What one step did. */
 typedef enum { NF_STEP_TAKEN, NF_STEP_EMPTY, NF_STEP_REFUSED } nf_step_result;
@@ -140,7 +168,7 @@ static nf_status nf_sharded_step(nf_guide *g, nf_group_job *j, const nf_parallel
         }
     /* The largest terms and the worst refusal over all processes: max is exact in any order.
      * The group count is summed first, so that every process scales by the same total. */
-    double top[5] = {0.0, 0.0, 0.0, 0.0, 0.0}; /* |F grad|, F, |F loss|, status, groups */
+    double top[4] = {0.0, 0.0, 0.0, 0.0}; /* |F grad|, F, |F loss|, status */
     size_t failed = G;
     for (size_t k = 0; k < G; ++k) {
         if (g->group_status[k] != NF_OK) {
@@ -149,10 +177,8 @@ static nf_status nf_sharded_step(nf_guide *g, nf_group_job *j, const nf_parallel
             top[3] = fmax(top[3], (double)g->group_status[k]);
             continue;
         }
-        const float *gr = g->grads + k * P;
         if (j->n > 0)
-            for (size_t p = 0; p < P; ++p)
-                top[0] = fmax(top[0], fabs(g->F[k] * (double)gr[p]));
+            top[0] = fmax(top[0], g->group_top[k]);
         top[1] = fmax(top[1], g->F[k]);
         top[2] = fmax(top[2], fabs(g->FL[k]));
     }
@@ -173,12 +199,13 @@ static nf_status nf_sharded_step(nf_guide *g, nf_group_job *j, const nf_parallel
     int s_grad = nf_fixed_scale(top[0], groups), s_F = nf_fixed_scale(top[1], groups),
         s_FL = nf_fixed_scale(top[2], groups);
     memset(g->fixed, 0, (P + 2) * sizeof *g->fixed);
-    for (size_t k = 0; k < G && j->n > 0; ++k) {
-        const float *gr = g->grads + k * P;
-        for (size_t p = 0; p < P; ++p)
-            g->fixed[p] += nf_to_fixed(g->F[k] * (double)gr[p], s_grad);
-        g->fixed[P] += nf_to_fixed(g->F[k], s_F);
-        g->fixed[P + 1] += nf_to_fixed(g->FL[k], s_FL);
+    if (j->n > 0) {
+        nf_sum_job sum = {g, G, G, ldexp(1.0, s_grad)};
+        nf_run_tasks(par, G, nf_sum_task, &sum);
+        for (size_t k = 0; k < G; ++k) {
+            g->fixed[P] += nf_to_fixed(g->F[k], ldexp(1.0, s_F));
+            g->fixed[P + 1] += nf_to_fixed(g->FL[k], ldexp(1.0, s_FL));
+        }
     }
     if ((st = nf_reduce_sum(red, g->fixed, P + 2, fn)) != NF_OK)
         return st;
@@ -187,8 +214,9 @@ static nf_status nf_sharded_step(nf_guide *g, nf_group_job *j, const nf_parallel
         *result = NF_STEP_EMPTY;
         return NF_OK;
     }
+    const double unscale = ldexp(1.0, -s_grad);
     for (size_t p = 0; p < P; ++p)
-        g->mean[p] = (float)(ldexp((double)g->fixed[p], -s_grad) / F);
+        g->mean[p] = (float)((double)g->fixed[p] * unscale / F);
     st = nf_apply_gradient(g->train, g->mean);
     if (st != NF_OK) { /* the same on every process: the same model and gradient */
         *refusal = st;

@@ -88,8 +88,9 @@ NF_EXTERN_C_BEGIN
  * Sample fields (read only where learn != 0: a vertex that learns nothing, such as a
  * specular one, may leave them zero):
  *   learn        non-zero: this vertex gives a training sample (a non-delta direction the
- *                mixture of flow and BSDF drew); 0: it does not (delta bounce, no guiding,
- *                the path ended here).
+ *                mixture of flow and BSDF drew). 0: it gives none (delta bounce, no guiding,
+ *                the path ended here), yet its radiance fields above still carry the light
+ *                it passes back to the vertices before it.
  *   ctx          the vertex's context, as passed to nf_point_prepare / nf_sample: finite,
  *                normal and wo of squared length > 1e-30.
  *   dir          the sampled direction w_j, finite with squared length > 1e-30 (any length).
