@@ -197,7 +197,11 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
     bs.start = t_job;
     bs.threads = o->threads;
     bs.seed = o->seed;
-    if (*model && nf_guide_create(*model, &o->guide, &guide) != NF_OK)
+    /* The ranks share each step's samples: each draws its part from its own store. */
+    nf_guide_config gc = o->guide;
+    uint32_t ranks = (uint32_t)ranks_size();
+    gc.step_samples = (gc.step_samples + ranks - 1) / ranks;
+    if (*model && nf_guide_create(*model, &gc, &guide) != NF_OK)
         return tr_fail(err, "%s", nf_last_error_message());
     int ok = render_with_budget(t, guide, &bs, img, &br, err);
     if (ok && guide) { /* the trained model replaces the starting one */

@@ -197,7 +197,7 @@ unset multiplot
             mape = [r["mape"] for r in rs]
             opts = abl[key]["opts"]
             ablation.append(
-                f"| {abl[key]['label']} (`{opts}`) | {cell(rel)} | "
+                f"| {abl[key]['label']}{f' (`{opts}`)' if opts else ''} | {cell(rel)} | "
                 f"{statistics.mean(rel) / base_rel:.2f} | {cell(mape)} | "
                 f"{statistics.mean(mape) / base_mape:.2f} | "
                 f"{statistics.mean([r.get('render_passes', 0) for r in rs]):.0f} | "
@@ -252,7 +252,7 @@ unset multiplot
         "@COMMIT@": commit,
         "@RUNS_COMMIT@": runs_commit,
         "@MINUTES@": str(round(total / 60)),
-        "@GUIDED@": a.guided,
+        "@GUIDED@": " " + a.guided if a.guided else "",
         "@THREADS@": a.threads,
         "@SEEDS@": ", ".join(seeds),
         "@BUDGETS@": ", ".join(budgets),
