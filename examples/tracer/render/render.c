@@ -1,5 +1,8 @@
 /*
- * render.c - tiles, chunks and per-thread statistics around trace_path.
+ * render.c - the tracer's one parallel engine (run_job: items on the threads, per-thread
+ * counters and trace scratch, per-item training records joined in item order) and its three
+ * kinds of item: an image's tile of spp paths per pixel, a pass's tile of one path per pixel,
+ * and a chunk of training paths through random film positions.
  */
 #include "render.h"
 
@@ -10,15 +13,6 @@
 
 #define TILE 16
 #define TRAIN_CHUNK 64
-
-typedef struct image_job {
-    const tracer *t;
-    image *img;
-    int spp, tiles_x;
-    uint64_t seed;
-    uint32_t pass;
-    path_stats *stats; /* one per thread */
-} image_job;
 
 /* The k-th of this rank's tiles: tiles are dealt to the ranks in turn, so that every rank gets
  * tiles from every part of the film (costs differ across it). */
@@ -52,12 +46,84 @@ static void clear_for_ranks(const tracer *t, image *img)
         memset(img->data, 0, 3 * (size_t)img->width * (size_t)img->height * sizeof *img->data);
 }
 
+/* ---- The engine ----------------------------------------------------------------------------- */
+
+/* What every job's items share: the tracer, per-thread counters and trace scratch, and with
+ * records one buffer per item, joined in item order when the job ends. Jobs embed it first. */
+typedef struct job_common {
+    const tracer *t;
+    path_stats *stats;      /* one per thread                 */
+    trace_scratch *scratch; /* one per thread: trace_paths'   */
+    record_buffer *parts;   /* one per item; NULL: no records */
+} job_common;
+
+/* Runs fn over `items` on `threads` threads with c's buffers, then appends the items' records
+ * to *records in item order (replacing its contents; `joined`, if given, learns where each
+ * item's records start) and adds the threads' counters to *stats. Deterministic whatever the
+ * number of threads: items own their records and counters are sums. */
+static int run_job(job_common *c, const tracer *t, size_t items, int threads, parallel_fn fn,
+                   void *job, record_buffer *records, void (*joined)(void *, size_t, size_t),
+                   path_stats *stats, const char *label, tr_error *err)
+{
+    int nthreads = threads > 0 ? threads : 1;
+    c->t = t;
+    c->stats = calloc((size_t)nthreads, sizeof *c->stats);
+    c->scratch = calloc((size_t)nthreads, sizeof *c->scratch);
+    c->parts = records ? calloc(items ? items : 1, sizeof *c->parts) : NULL;
+    int ok = (c->stats && c->scratch && (!records || c->parts)) || tr_fail(err, "out of memory");
+    if (ok)
+        ok = parallel_for(items, threads, fn, job, label, err);
+    if (records && c->parts) {
+        records->count = 0;
+        for (size_t i = 0; i < items; ++i) {
+            size_t before = records->count;
+            if (c->parts[i].out_of_memory || !record_buffer_append(records, &c->parts[i]))
+                ok = ok && tr_fail(err, "out of memory for training records");
+            else if (joined)
+                joined(job, i, before);
+            record_buffer_free(&c->parts[i]);
+        }
+    }
+    for (int i = 0; stats && c->stats && i < nthreads; ++i)
+        path_stats_add(stats, &c->stats[i]);
+    for (int i = 0; c->scratch && i < nthreads; ++i)
+        trace_scratch_free(&c->scratch[i]);
+    free(c->stats);
+    free(c->scratch);
+    free(c->parts);
+    return ok;
+}
+
+/* The pixels of this rank's k-th tile. */
+static void tile_bounds(const tracer *t, size_t k, int *x0, int *y0)
+{
+    size_t tiles_x = (size_t)((t->s->width + TILE - 1) / TILE), item = rank_tile(t, k);
+    *x0 = (int)(item % tiles_x) * TILE;
+    *y0 = (int)(item / tiles_x) * TILE;
+}
+
+static size_t tile_count(const tracer *t)
+{
+    size_t tiles_x = (size_t)((t->s->width + TILE - 1) / TILE);
+    return rank_tile_count(t, tiles_x * (size_t)((t->s->height + TILE - 1) / TILE));
+}
+
+/* ---- An image: spp paths per pixel ------------------------------------------------------------ */
+
+typedef struct image_job {
+    job_common c;
+    image *img;
+    int spp;
+    uint64_t seed;
+    uint32_t pass;
+} image_job;
+
 static void render_tile(void *user, size_t k, int thread)
 {
     image_job *job = user;
-    const scene *s = job->t->s;
-    size_t item = rank_tile(job->t, k);
-    int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
+    const scene *s = job->c.t->s;
+    int x0, y0;
+    tile_bounds(job->c.t, k, &x0, &y0);
     for (int y = y0; y < y0 + TILE && y < s->height; ++y)
         for (int x = x0; x < x0 + TILE && x < s->width; ++x) {
             uint64_t pixel = (uint64_t)y * (uint64_t)s->width + (uint64_t)x;
@@ -65,8 +131,8 @@ static void render_tile(void *user, size_t k, int thread)
             rgb sum = rgb_gray(0.0f);
             for (int i = 0; i < job->spp; ++i) {
                 float jx = rng_next(&r), jy = rng_next(&r);
-                rgb c = trace_path(job->t, &r, (float)x + jx, (float)y + jy, NULL,
-                                   &job->stats[thread]);
+                rgb c = trace_path(job->c.t, &r, (float)x + jx, (float)y + jy, NULL,
+                                   &job->c.stats[thread]);
                 /* One bad sample (a NaN from a numerical corner case) must not poison the
                  * pixel; such samples are dropped and would show up as darkening. */
                 if (rgb_is_finite(c))
@@ -82,37 +148,21 @@ static void render_tile(void *user, size_t k, int thread)
 int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int threads,
                  image *img, path_stats *stats, const char *progress_label, tr_error *err)
 {
-    image_job job;
-    job.t = t;
-    job.img = img;
-    job.spp = spp;
-    job.seed = seed;
-    job.pass = pass;
-    job.tiles_x = (t->s->width + TILE - 1) / TILE;
-    int tiles_y = (t->s->height + TILE - 1) / TILE;
-    job.stats = calloc((size_t)(threads > 0 ? threads : 1), sizeof *job.stats);
-    if (!job.stats)
-        return tr_fail(err, "out of memory");
+    image_job job = {{0}, img, spp, seed, pass};
     clear_for_ranks(t, img);
-    size_t tiles = rank_tile_count(t, (size_t)job.tiles_x * (size_t)tiles_y);
-    int ok = parallel_for(tiles, threads, render_tile, &job, progress_label, err);
-    for (int i = 0; stats && i < (threads > 0 ? threads : 1); ++i)
-        path_stats_add(stats, &job.stats[i]);
-    free(job.stats);
-    return ok;
+    return run_job(&job.c, t, tile_count(t), threads, render_tile, &job, NULL, NULL, stats,
+                   progress_label, err);
 }
+
+/* ---- A pass: one path per pixel --------------------------------------------------------------- */
 
 /* One sample per pixel whose training records are kept per tile, then concatenated in tile
  * order: the same records whatever the number of threads. */
 typedef struct pass_job {
-    const tracer *t;
+    job_common c;
     image *img;
-    int tiles_x;
     uint64_t seed;
     uint32_t pass;
-    record_buffer *tiles; /* one per tile; NULL: no records */
-    path_stats *stats;
-    trace_scratch *scratch; /* one per thread: trace_paths' records */
 } pass_job;
 
 /* One pixel's sample of a pass, written into the pass image. */
@@ -131,7 +181,7 @@ static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float 
                        const float *py, int (*at)[2], record_buffer *out)
 {
     rgb c[TRACE_BATCH];
-    trace_paths(job->t, n, r, px, py, c, out, &job->scratch[thread], &job->stats[thread]);
+    trace_paths(job->c.t, n, r, px, py, c, out, &job->c.scratch[thread], &job->c.stats[thread]);
     for (size_t i = 0; i < n; ++i)
         pass_pixel(job->img, at[i][0], at[i][1], c[i]);
 }
@@ -141,12 +191,12 @@ static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float 
 static void pass_tile(void *user, size_t k, int thread)
 {
     pass_job *job = user;
-    const scene *s = job->t->s;
-    record_buffer *out = job->tiles ? &job->tiles[k] : NULL;
-    size_t item = rank_tile(job->t, k);
-    int x0 = (int)(item % (size_t)job->tiles_x) * TILE, y0 = (int)(item / (size_t)job->tiles_x) * TILE;
+    const scene *s = job->c.t->s;
+    record_buffer *out = job->c.parts ? &job->c.parts[k] : NULL;
+    int x0, y0;
+    tile_bounds(job->c.t, k, &x0, &y0);
     /* Unguided paths ask nothing: advancing them together would only cost locality. */
-    const int batched = trace_paths_pay(job->t);
+    const int batched = trace_paths_pay(job->c.t);
     rng r[TRACE_BATCH];
     float px[TRACE_BATCH], py[TRACE_BATCH];
     int at[TRACE_BATCH][2];
@@ -158,8 +208,8 @@ static void pass_tile(void *user, size_t k, int thread)
             float jx = rng_next(&pr), jy = rng_next(&pr);
             if (!batched) {
                 pass_pixel(job->img, x, y,
-                           trace_path(job->t, &pr, (float)x + jx, (float)y + jy, out,
-                                      &job->stats[thread]));
+                           trace_path(job->c.t, &pr, (float)x + jx, (float)y + jy, out,
+                                      &job->c.stats[thread]));
                 continue;
             }
             r[n] = pr;
@@ -179,101 +229,53 @@ static void pass_tile(void *user, size_t k, int thread)
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
                 record_buffer *records, path_stats *stats, tr_error *err)
 {
-    pass_job job;
-    job.t = t;
-    job.img = img;
-    job.seed = seed;
-    job.pass = pass;
-    job.tiles_x = (t->s->width + TILE - 1) / TILE;
-    size_t ntiles = rank_tile_count(t, (size_t)job.tiles_x *
-                                           (size_t)((t->s->height + TILE - 1) / TILE));
-    int nthreads = threads > 0 ? threads : 1;
-    job.tiles = records ? calloc(ntiles, sizeof *job.tiles) : NULL;
-    job.stats = calloc((size_t)nthreads, sizeof *job.stats);
-    job.scratch = calloc((size_t)nthreads, sizeof *job.scratch);
-    if ((records && !job.tiles) || !job.stats || !job.scratch) {
-        free(job.tiles);
-        free(job.stats);
-        free(job.scratch);
-        return tr_fail(err, "out of memory");
-    }
+    pass_job job = {{0}, img, seed, pass};
     clear_for_ranks(t, img);
-    int ok = parallel_for(ntiles, threads, pass_tile, &job, NULL, err);
-    if (records) {
-        records->count = 0;
-        for (size_t i = 0; i < ntiles; ++i) {
-            if (job.tiles[i].out_of_memory || !record_buffer_append(records, &job.tiles[i]))
-                ok = ok && tr_fail(err, "out of memory for training records");
-            record_buffer_free(&job.tiles[i]);
-        }
-    }
-    for (int i = 0; stats && i < nthreads; ++i)
-        path_stats_add(stats, &job.stats[i]);
-    for (int i = 0; i < nthreads; ++i)
-        trace_scratch_free(&job.scratch[i]);
-    free(job.tiles);
-    free(job.stats);
-    free(job.scratch);
-    return ok;
+    return run_job(&job.c, t, tile_count(t), threads, pass_tile, &job, records, NULL, stats,
+                   NULL, err);
 }
 
+/* ---- Training paths through random film positions ---------------------------------------- */
+
 typedef struct train_job {
-    const tracer *t;
+    job_common c;
     size_t first, paths;
     uint64_t seed;
     uint32_t iteration;
-    record_buffer *chunks;
-    size_t *path_end; /* NULL, or per path: its chunk's record count after it */
-    path_stats *stats;
+    size_t *path_end; /* NULL, or per path: the batch's record count after it */
 } train_job;
 
 static void train_chunk(void *user, size_t item, int thread)
 {
     train_job *job = user;
-    const scene *s = job->t->s;
-    record_buffer *out = &job->chunks[item];
+    const scene *s = job->c.t->s;
+    record_buffer *out = &job->c.parts[item];
     out->count = 0;
     for (size_t j = item * TRAIN_CHUNK; j < (item + 1) * TRAIN_CHUNK && j < job->paths; ++j) {
         rng r = rng_seed(job->seed, RNG_TRAIN, job->iteration, job->first + j);
         float px = rng_next(&r) * (float)s->width, py = rng_next(&r) * (float)s->height;
-        trace_path(job->t, &r, px, py, out, &job->stats[thread]);
+        trace_path(job->c.t, &r, px, py, out, &job->c.stats[thread]);
         if (job->path_end)
-            job->path_end[j] = out->count;
+            job->path_end[j] = out->count; /* the chunk's count; joined_chunk adds the rest */
     }
+}
+
+/* A chunk's records now start at `before` in the batch: its paths' counts follow. */
+static void joined_chunk(void *user, size_t item, size_t before)
+{
+    train_job *job = user;
+    for (size_t j = item * TRAIN_CHUNK; job->path_end && j < (item + 1) * TRAIN_CHUNK &&
+                                        j < job->paths;
+         ++j)
+        job->path_end[j] += before;
 }
 
 int trace_training_batch(const tracer *t, size_t first, size_t paths, uint64_t seed,
                          uint32_t iteration, int threads, record_buffer *out, size_t *path_end,
                          path_stats *stats, tr_error *err)
 {
-    train_job job;
-    size_t nchunks = (paths + TRAIN_CHUNK - 1) / TRAIN_CHUNK;
-    job.t = t;
-    job.first = first;
-    job.paths = paths;
-    job.path_end = path_end;
-    job.seed = seed;
-    job.iteration = iteration;
-    job.chunks = calloc(nchunks ? nchunks : 1, sizeof *job.chunks);
-    job.stats = calloc((size_t)(threads > 0 ? threads : 1), sizeof *job.stats);
-    if (!job.chunks || !job.stats) {
-        free(job.chunks);
-        free(job.stats);
-        return tr_fail(err, "out of memory");
-    }
-    int ok = parallel_for(nchunks, threads, train_chunk, &job, NULL, err);
-    out->count = 0;
-    for (size_t c = 0; c < nchunks; ++c) {
-        size_t before = out->count;
-        if (job.chunks[c].out_of_memory || !record_buffer_append(out, &job.chunks[c]))
-            ok = ok && tr_fail(err, "out of memory for training records");
-        for (size_t j = c * TRAIN_CHUNK; path_end && j < (c + 1) * TRAIN_CHUNK && j < paths; ++j)
-            path_end[j] += before; /* from the chunk's count to the batch's */
-        record_buffer_free(&job.chunks[c]);
-    }
-    for (int i = 0; stats && i < (threads > 0 ? threads : 1); ++i)
-        path_stats_add(stats, &job.stats[i]);
-    free(job.chunks);
-    free(job.stats);
-    return ok;
+    train_job job = {{0}, first, paths, seed, iteration, path_end};
+    size_t chunks = (paths + TRAIN_CHUNK - 1) / TRAIN_CHUNK;
+    return run_job(&job.c, t, chunks, threads, train_chunk, &job, out, joined_chunk, stats,
+                   NULL, err);
 }
