@@ -275,26 +275,11 @@ nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key, const
     static const char fn[] = "nf_guide_add_samples";
     if (!g)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: g is NULL", fn);
-    if (!ctx || !dir || !weight)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn,
-                       !ctx   ? "ctx"
-                       : !dir ? "dir"
-                              : "weight");
-    if (n == 0)
-        return NF_OK;
-    nf_status st;
-    if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
-        (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
-        (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
-        return st;
     size_t kept = 0;
-    for (size_t i = 0; i < n; ++i) {
-        if (!(weight[i] >= 0.0f) || !isfinite(weight[i]))
-            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: weight[%zu] = %g is negative or not finite", fn, i,
-                           (double)weight[i]);
-        kept += weight[i] > 0.0f;
-    }
+    nf_status st = nf_check_pointers(fn, "ctx", ctx, "dir", dir, "weight", weight, NULL, NULL);
+    if (st != NF_OK || n == 0 ||
+        (st = nf_validate_samples(fn, n, ctx, dir, weight, NULL, &kept)) != NF_OK)
+        return st;
     atomic_fetch_add(&g->adding, 1u);
     if (atomic_load(&g->training) != 0) {
         atomic_fetch_sub(&g->adding, 1u);

@@ -236,11 +236,6 @@ nf_status nf_guide_train_batch(nf_guide *g, size_t n, const nf_context *ctx, con
         *loss = NAN;
     if (!g)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: g is NULL", fn);
-    if (n > 0 && (!ctx || !dir || !weight))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn,
-                       !ctx   ? "ctx"
-                       : !dir ? "dir"
-                              : "weight");
     if (group_end) {
         if (ngroups == 0 || ngroups > g->cfg.groups)
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
@@ -256,23 +251,10 @@ nf_status nf_guide_train_batch(nf_guide *g, size_t n, const nf_context *ctx, con
                            fn, ngroups - 1, group_end[ngroups - 1], n);
     }
     /* Validate the whole batch before any process-wide call: a bad batch is refused here. */
-    double total = 0.0;
-    if (n > 0) {
-        nf_status st;
-        if ((st = nf_validate_batch_size(fn, n)) != NF_OK ||
-            (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
-            (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
-            return st;
-        for (size_t i = 0; i < n; ++i) {
-            if (!(weight[i] >= 0.0f) || !isfinite(weight[i]))
-                return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                               "%s: weight[%zu] = %g is negative or not finite", fn, i,
-                               (double)weight[i]);
-            total += weight[i];
-        }
-    }
-    (void)total;
-    nf_status st = nf_guide_begin_exclusive(g, fn);
+    nf_status st = nf_validate_samples(fn, n, ctx, dir, weight, NULL, NULL);
+    if (st != NF_OK)
+        return st;
+    st = nf_guide_begin_exclusive(g, fn);
     if (st != NF_OK)
         return st;
     nf_group_job job = {g, n, ctx, dir, weight, group_end, group_end ? ngroups : g->cfg.groups};

@@ -157,6 +157,12 @@ nf_status nf_fail(nf_status status, const char *fmt, ...)
 
 /* ---- validation of batch inputs (validate.c) --------------------------------------------- */
 
+/* Validates n training samples (nisflow/train.h): the arrays non-NULL unless n = 0, finite
+ * contexts and directions, weights finite and >= 0. *total (may be NULL) receives the
+ * weights' sum and *positive (may be NULL) how many are > 0. */
+nf_status nf_validate_samples(const char *fn, size_t n, const nf_context *ctx, const float *dir,
+                              const float *weight, double *total, size_t *positive);
+
 /* Refuses the first NULL among up to four named pointers (a NULL name ends the list) with a
  * message that names it: "nf_sample: dir is NULL". NF_OK when none is NULL. */
 nf_status nf_check_pointers(const char *fn, const char *name0, const void *p0, const char *name1,

@@ -14,28 +14,10 @@ static nf_status nf_validate_training(const char *fn, const nf_model *m, size_t 
                                       const nf_context *ctx, const float *dir, const float *weight,
                                       double *total)
 {
+    *total = 0.0;
     if (!m)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: model is NULL", fn);
-    *total = 0.0;
-    if (n == 0)
-        return NF_OK;
-    nf_status st;
-    if ((st = nf_check_pointers(fn, "ctx", ctx, "dir", dir, "weight", weight, NULL, NULL)) !=
-            NF_OK ||
-        (st = nf_validate_batch_size(fn, n)) != NF_OK ||
-        (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
-        (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
-        return st;
-    double sum = 0.0;
-    for (size_t i = 0; i < n; ++i) {
-        if (!(weight[i] >= 0.0f) || !isfinite(weight[i]))
-            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: weight[%zu] = %g is negative or not finite", fn, i,
-                           (double)weight[i]);
-        sum += weight[i];
-    }
-    *total = sum;
-    return NF_OK;
+    return nf_validate_samples(fn, n, ctx, dir, weight, total, NULL);
 }
 
 /* A valid batch can still give a non-finite loss or gradient when the parameters are extreme

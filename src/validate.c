@@ -63,3 +63,32 @@ nf_status nf_check_pointers(const char *fn, const char *name0, const void *p0, c
             return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn, names[i]);
     return NF_OK;
 }
+
+nf_status nf_validate_samples(const char *fn, size_t n, const nf_context *ctx, const float *dir,
+                              const float *weight, double *total, size_t *positive)
+{
+    double sum = 0.0;
+    size_t kept = 0;
+    if (n > 0) {
+        nf_status st;
+        if ((st = nf_check_pointers(fn, "ctx", ctx, "dir", dir, "weight", weight, NULL, NULL)) !=
+                NF_OK ||
+            (st = nf_validate_batch_size(fn, n)) != NF_OK ||
+            (st = nf_validate_contexts(fn, n, ctx)) != NF_OK ||
+            (st = nf_validate_directions(fn, "dir", n, dir)) != NF_OK)
+            return st;
+        for (size_t i = 0; i < n; ++i) {
+            if (!(weight[i] >= 0.0f) || !isfinite(weight[i]))
+                return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                               "%s: weight[%zu] = %g is negative or not finite", fn, i,
+                               (double)weight[i]);
+            sum += weight[i];
+            kept += weight[i] > 0.0f;
+        }
+    }
+    if (total)
+        *total = sum;
+    if (positive)
+        *positive = kept;
+    return NF_OK;
+}

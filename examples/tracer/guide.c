@@ -116,6 +116,16 @@ void guide_hooks_end(guide_hooks *h)
     training_guide = NULL;
 }
 
+int guide_take_trained(nf_guide *g, nf_model **model, tr_error *err)
+{
+    nf_model *trained = NULL;
+    if (nf_model_clone(nf_guide_training_model(g), &trained) != NF_OK)
+        return tr_fail(err, "%s", nf_last_error_message());
+    nf_model_destroy(*model);
+    *model = trained;
+    return 1;
+}
+
 /* ---- The BSDF prior ------------------------------------------------------------------------ */
 
 /* The shading point of a callback: its own (user, from guide_point_callbacks) when the call

@@ -100,6 +100,11 @@ typedef struct guide_hooks {
 void guide_hooks_init(guide_hooks *h, const nf_guide *g, int threads);
 void guide_hooks_end(guide_hooks *h);
 
+/* Replaces *model (destroyed) by a copy of the guide's training model, optimizer state
+ * included: what --save-model saves and the final render uses. Returns 0 with a message when
+ * the copy fails; *model is then unchanged. */
+int guide_take_trained(nf_guide *g, nf_model **model, tr_error *err);
+
 /* Collective (ranks.h): whether every rank's model has rank 0's parameters and step count,
  * bit for bit. Returns 1 if so; else 0 with a message naming the ranks that differ, as seen
  * after training iteration `iteration` (0: before training). */

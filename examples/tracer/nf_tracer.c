@@ -204,15 +204,8 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
     if (*model && nf_guide_create(*model, &gc, &guide) != NF_OK)
         return tr_fail(err, "%s", nf_last_error_message());
     int ok = render_with_budget(t, guide, &bs, img, &br, err);
-    if (ok && guide) { /* the trained model replaces the starting one */
-        nf_model *trained = NULL;
-        ok = nf_model_clone(nf_guide_training_model(guide), &trained) == NF_OK ||
-             tr_fail(err, "%s", nf_last_error_message());
-        if (ok) {
-            nf_model_destroy(*model);
-            *model = trained;
-        }
-    }
+    if (ok && guide) /* the trained model replaces the starting one */
+        ok = guide_take_trained(guide, model, err);
     nf_guide_destroy(guide);
     if (!ok)
         return 0;

@@ -256,15 +256,8 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
     /* The report counts every rank's samples (its times are this rank's). */
     if (ok)
         ok = ranks_sum_u64(&rep->samples, 1, err);
-    if (ok) { /* the trained model replaces the starting one */
-        nf_model *trained = NULL;
-        ok = nf_model_clone(nf_guide_training_model(guide), &trained) == NF_OK ||
-             tr_fail(err, "%s", nf_last_error_message());
-        if (ok) {
-            nf_model_destroy(*model);
-            *model = trained;
-        }
-    }
+    if (ok) /* the trained model replaces the starting one */
+        ok = guide_take_trained(guide, model, err);
     nf_guide_destroy(guide);
     record_buffer_free(&records);
     batch_free(&batch);

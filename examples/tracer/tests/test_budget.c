@@ -30,6 +30,7 @@
 #include "training.h"
 
 #include "mixed_scene.h"
+#include "test_policy.h"
 
 /* Under the sanitizers fewer samples keep the test fast, but not so few that the power check
  * of assert_same_mean fails: at 16 spp a lever had a standard error of 0.0036 (4 se = 5.6% of
@@ -73,13 +74,11 @@ static nf_model *trained_model(tracer *t)
     return model;
 }
 
-/* The library's policy with guiding probability g, and the rest as given (0: off). */
+/* test_policy's g, with the levers given (0: off). */
 static nf_guide_policy policy(float g, float max_boost, uint32_t light_mis_depth,
                               float min_roughness)
 {
-    nf_guide_policy p;
-    nf_guide_policy_init(&p);
-    p.mixture_prob = g;
+    nf_guide_policy p = test_policy(g);
     p.max_boost = max_boost;
     p.light_mis_depth = light_mis_depth;
     p.min_roughness = min_roughness;
