@@ -1,0 +1,238 @@
+/*
+ * fuzz_guide.c - libFuzzer target for the guide (nisflow/guide.h): a configuration and a
+ * program of calls read from the input. The configuration's fields take any bytes (out of
+ * range ones must be refused with a message); the program adds hostile samples (NaN, Inf,
+ * zero vectors, negative and huge weights, any keys and payloads), trains passes and batches
+ * with caller groups of any shape, publishes, acquires and releases (foreign and unbalanced
+ * releases included), and calls the path policy with any floats.
+ *
+ * Invariants (abort, which libFuzzer reports, when broken):
+ *   - every call returns NF_OK or a documented error with a message;
+ *   - a refused add leaves the store as it was (the next pass sees only accepted samples);
+ *   - the training model's parameters stay finite, and the published model acquire hands out
+ *     has the parameters of the last successful publish;
+ *   - the policy functions are total: probabilities in [0, 1), survival in [0, 1], the boost
+ *     finite and positive when it was.
+ * The model is built once per process, so that an execution costs the guide's work only.
+ */
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fuzz_common.h"
+
+#define MAX_SAMPLES 48
+#define MAX_PARAMS 8192
+
+typedef struct reader {
+    const uint8_t *p;
+    size_t n;
+} reader;
+
+static uint8_t next_byte(reader *r)
+{
+    if (r->n == 0)
+        return 0;
+    r->n--;
+    return *r->p++;
+}
+
+static uint32_t next_u32(reader *r)
+{
+    uint32_t v = 0;
+    for (int i = 0; i < 4; ++i)
+        v |= (uint32_t)next_byte(r) << (8 * i);
+    return v;
+}
+
+/* Mostly tame floats, sometimes any bit pattern (NaN, Inf, denormals, huge). */
+static float next_float(reader *r)
+{
+    uint8_t kind = next_byte(r);
+    if (kind < 200)
+        return (float)(next_byte(r)) / 255.0f * 2.0f - 0.5f;
+    uint32_t bits = next_u32(r);
+    float f;
+    memcpy(&f, &bits, sizeof f);
+    return f;
+}
+
+static const nf_model *shared_model(void)
+{
+    static nf_model *m;
+    if (!m) {
+        nf_config cfg;
+        nf_config_init(&cfg, NF_PRESET_SMALL);
+        cfg.sh_bands = 0;
+        NF_FUZZ_CHECK(nf_model_create(&cfg, &m) == NF_OK, "model");
+        NF_FUZZ_CHECK(nf_param_count(m) <= MAX_PARAMS, "param count");
+    }
+    return m;
+}
+
+static int known_status(nf_status s)
+{
+    return s == NF_OK || s == NF_ERROR_INVALID_ARGUMENT || s == NF_ERROR_OUT_OF_MEMORY ||
+           s == NF_ERROR_NUMERIC || s == NF_ERROR_BUSY || s == NF_ERROR_STALE;
+}
+
+static void check_status(nf_status s, const char *what)
+{
+    NF_FUZZ_CHECK(known_status(s), "%s returned %d", what, (int)s);
+    if (s != NF_OK)
+        NF_FUZZ_CHECK(nf_last_error_message()[0] != '\0', "%s: no message", what);
+}
+
+static void check_policy(reader *r, const nf_guide_policy *p)
+{
+    float boost = next_float(r), c = next_float(r);
+    float g = nf_guide_mixture_prob(p, boost);
+    NF_FUZZ_CHECK(g >= 0.0f && g < 1.0f, "mixture prob %g for boost %g", (double)g,
+                  (double)boost);
+    float q = nf_guide_roulette_survival(p, c, boost);
+    NF_FUZZ_CHECK(q >= 0.0f && q <= 1.0f, "survival %g", (double)q);
+    float b = nf_guide_boost(boost, next_float(r), next_float(r), g);
+    if (boost > 0.0f && isfinite(boost))
+        NF_FUZZ_CHECK(!(b < 0.0f) && !isnan(b), "boost %g from %g", (double)b, (double)boost);
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
+{
+    reader r = {data, size};
+    const nf_model *model = shared_model();
+    static float params[MAX_PARAMS], published[MAX_PARAMS], got[MAX_PARAMS];
+    const size_t P = nf_param_count(model);
+
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    /* Capacities in range stay small (the fuzzer's memory limit); 0 and 2^26 + 1 are out. */
+    uint8_t cap = next_byte(&r);
+    gc.store_capacity = cap == 0 ? 0u : cap == 1 ? ((size_t)1 << 26) + 1u : (size_t)cap;
+    gc.payload_bytes = next_byte(&r) % 16;
+    gc.step_samples = 1u + next_byte(&r) % 64;
+    gc.steps_per_pass = 1u + next_byte(&r) % 3;
+    gc.groups = next_byte(&r) % 10;
+    gc.patience = next_byte(&r) % 4;
+    if (next_byte(&r) % 4 == 0)
+        gc.clamp_quantile = next_float(&r);
+    if (next_byte(&r) % 4 == 0)
+        gc.learning_rate = next_float(&r);
+    if (next_byte(&r) % 4 == 0)
+        gc.policy.mixture_prob = next_float(&r);
+    if (next_byte(&r) % 4 == 0)
+        gc.policy.max_boost = next_float(&r);
+    nf_guide *g = NULL;
+    nf_status st = nf_guide_create(model, &gc, &g);
+    check_status(st, "nf_guide_create");
+    if (st != NF_OK) {
+        NF_FUZZ_CHECK(g == NULL, "a refused create wrote *out");
+        return 0;
+    }
+    NF_FUZZ_CHECK(nf_get_params(nf_guide_training_model(g), published) == NF_OK, "params");
+
+    nf_context ctx[MAX_SAMPLES];
+    float dir[3 * MAX_SAMPLES], weight[MAX_SAMPLES];
+    uint64_t key[MAX_SAMPLES];
+    uint8_t payload[MAX_SAMPLES * 16];
+    size_t group_end[16];
+    const nf_model *held[4] = {NULL, NULL, NULL, NULL};
+    uint64_t accepted = 0;
+    for (int op = 0; op < 24 && r.n > 0; ++op) {
+        switch (next_byte(&r) % 7) {
+        case 0:
+        case 1: { /* add samples */
+            size_t n = next_byte(&r) % (MAX_SAMPLES + 1);
+            for (size_t i = 0; i < n; ++i) {
+                for (int a = 0; a < 3; ++a) {
+                    ctx[i].position[a] = next_float(&r);
+                    ctx[i].normal[a] = a == 2 ? 1.0f : next_float(&r);
+                    ctx[i].wo[a] = a == 2 ? 1.0f : next_float(&r);
+                    dir[3 * i + (size_t)a] = next_float(&r);
+                }
+                weight[i] = next_float(&r) * (next_byte(&r) % 2 ? 1.0f : 100.0f);
+                key[i] = next_u32(&r) % 7u;
+            }
+            for (size_t i = 0; i < n * gc.payload_bytes; ++i)
+                payload[i] = next_byte(&r);
+            size_t positive = 0;
+            for (size_t i = 0; i < n; ++i)
+                positive += weight[i] > 0.0f;
+            st = nf_guide_add_samples(g, n, next_byte(&r) % 4 ? key : NULL, ctx, dir, weight,
+                                      next_byte(&r) % 2 ? payload : NULL);
+            check_status(st, "nf_guide_add_samples");
+            if (st == NF_OK)
+                accepted += positive;
+            break;
+        }
+        case 2: { /* a training pass */
+            nf_guide_stats before, after;
+            NF_FUZZ_CHECK(nf_guide_get_stats(g, &before) == NF_OK, "stats");
+            nf_guide_pass_report rep;
+            st = nf_guide_train_pass(g, NULL, NULL, &rep);
+            check_status(st, "nf_guide_train_pass");
+            NF_FUZZ_CHECK(nf_guide_get_stats(g, &after) == NF_OK, "stats");
+            if (st == NF_OK)
+                NF_FUZZ_CHECK(after.samples + after.dropped == accepted,
+                              "kept %llu + dropped %llu, accepted %llu",
+                              (unsigned long long)after.samples,
+                              (unsigned long long)after.dropped, (unsigned long long)accepted);
+            NF_FUZZ_CHECK(nf_get_params(nf_guide_training_model(g), params) == NF_OK, "params");
+            for (size_t i = 0; i < P; ++i)
+                NF_FUZZ_CHECK(isfinite(params[i]), "parameter %zu = %g", i, (double)params[i]);
+            break;
+        }
+        case 3: { /* a batch with the caller's groups, maybe malformed */
+            size_t n = next_byte(&r) % (MAX_SAMPLES + 1), ng = next_byte(&r) % 17;
+            for (size_t i = 0; i < n; ++i) {
+                ctx[i] = (nf_context){{0.1f * (float)(i % 7), 0.5f, 0.5f}, {0, 0, 1}, {0, 0, 1}};
+                for (int a = 0; a < 3; ++a)
+                    dir[3 * i + (size_t)a] = next_float(&r);
+                weight[i] = next_float(&r);
+            }
+            for (size_t k = 0; k < ng; ++k)
+                group_end[k] = next_byte(&r) % (n + 2);
+            float loss;
+            st = nf_guide_train_batch(g, n, ctx, dir, weight, next_byte(&r) % 3 ? group_end : NULL,
+                                      ng, NULL, NULL, &loss);
+            check_status(st, "nf_guide_train_batch");
+            break;
+        }
+        case 4: /* publish: the newest is the training model's parameters */
+            st = nf_guide_publish(g);
+            check_status(st, "nf_guide_publish");
+            if (st == NF_OK)
+                NF_FUZZ_CHECK(nf_get_params(nf_guide_training_model(g), published) == NF_OK,
+                              "params");
+            break;
+        case 5: { /* acquire into a slot; the newest published parameters come back */
+            size_t k = next_byte(&r) % 4;
+            if (held[k])
+                break;
+            st = nf_guide_acquire(g, &held[k]);
+            check_status(st, "nf_guide_acquire");
+            NF_FUZZ_CHECK(st == NF_OK && held[k], "acquire failed");
+            NF_FUZZ_CHECK(nf_get_params(held[k], got) == NF_OK, "params");
+            NF_FUZZ_CHECK(memcmp(got, published, P * sizeof *got) == 0,
+                          "acquire handed out a model other than the last published");
+            break;
+        }
+        case 6: { /* release: a held one, or a foreign one (refused) */
+            size_t k = next_byte(&r) % 4;
+            st = nf_guide_release(g, held[k] ? held[k] : model);
+            check_status(st, "nf_guide_release");
+            NF_FUZZ_CHECK((st == NF_OK) == (held[k] != NULL), "release of slot %zu", k);
+            held[k] = NULL;
+            break;
+        }
+        }
+        check_policy(&r, &gc.policy);
+    }
+    (void)nf_guide_keep_training(g, (double)next_float(&r), (double)next_float(&r));
+    for (size_t k = 0; k < 4; ++k)
+        if (held[k])
+            NF_FUZZ_CHECK(nf_guide_release(g, held[k]) == NF_OK, "final release");
+    nf_guide_destroy(g);
+    return 0;
+}
