@@ -11,6 +11,10 @@
  *             then the main thread forms g = sum F_k g_k / sum F_k and calls
  *             nf_apply_gradient. Everything (gradients, weight sums, the combination, the
  *             AdamW step and the synchronisation) is inside the timed region.
+ *   guide     one step of a guide (nisflow/guide.h) per batch: nf_guide_train_batch with the
+ *             guide's 16 gradient groups, run on T threads through the pool as the
+ *             caller's parallel-for, summed exactly and applied (the same bits on any T).
+ *             Batches below 16 samples are n/a.
  *   batch 1   streams of consecutive calls with n = 1, each on a different input (units of
  *             256 calls, as many units per repetition as its minimum time needs), reported
  *             per call. With T threads each thread makes its own stream of n = 1 calls over
@@ -77,6 +81,8 @@ typedef struct bench_case {
     int threads;
     const nf_model *model; /* sample, pdf */
     nf_model *train_model; /* train (a clone) */
+    nf_guide *guide;       /* guide (of a clone) */
+    pool *pl;              /* guide: the pool its parallel-for runs on (NULL: 1 thread) */
     const bench_data *d;
     size_t cursor; /* index of the next unit of work */
     /* the current pool job */
@@ -282,12 +288,54 @@ static int sharded_step(bench_case *c, pool *pl, size_t base)
     return 0;
 }
 
+/* The guide's parallel-for on the bench's pool: thread k runs tasks k, k + T, ... */
+typedef struct guide_tasks {
+    bench_case *c;
+    size_t count;
+    nf_task_fn task;
+    void *data;
+} guide_tasks;
+
+static void job_guide_tasks(void *arg, int k)
+{
+    guide_tasks *g = (guide_tasks *)arg;
+    for (size_t i = (size_t)k; i < g->count; i += (size_t)g->c->threads)
+        g->task(g->data, i);
+}
+
+static void guide_parallel_for(void *user, size_t count, nf_task_fn task, void *data)
+{
+    bench_case *c = (bench_case *)user;
+    guide_tasks g = {c, count, task, data};
+    pool_run(c->pl, job_guide_tasks, &g);
+}
+
+static int guide_step(bench_case *c, size_t base)
+{
+    const bench_data *d = c->d;
+    nf_parallel par = {guide_parallel_for, c};
+    nf_status st = nf_guide_train_batch(c->guide, c->batch, d->ctx + base, d->dir + 3 * base,
+                                        d->weight + base, NULL, 0, c->pl ? &par : NULL, NULL,
+                                        NULL);
+    if (st != NF_OK) {
+        fprintf(stderr, "nf_bench: nf_guide_train_batch failed: %s: %s\n", nf_status_string(st),
+                nf_last_error_message());
+        return -1;
+    }
+    return 0;
+}
+
 /* Runs `units` units of work and returns their wall time in *seconds. */
 static int run_units(bench_case *c, pool *pl, size_t units, double *seconds)
 {
     const bench_data *d = c->d;
     double t0 = now_s();
-    if (c->op != OP_TRAIN) {
+    if (c->op == OP_GUIDE) {
+        c->pl = c->threads > 1 ? pl : NULL;
+        for (size_t j = 0; j < units; ++j)
+            if (guide_step(c, unit_base(c, c->cursor + j)) != 0)
+                return -1;
+    } else if (c->op != OP_TRAIN) {
         c->first_unit = c->cursor;
         c->units = units;
         reset_results(c);
@@ -459,6 +507,10 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
         fprintf(stderr, "%s: n/a (a batch of %zu cannot be sharded)\n", label, batch);
         return 0;
     }
+    if (op == OP_GUIDE && batch < 16) {
+        fprintf(stderr, "%s: n/a (a guide step takes 16 groups)\n", label);
+        return 0;
+    }
     bench_case c;
     memset(&c, 0, sizeof c);
     c.op = op;
@@ -476,6 +528,18 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
         if (report_status(nf_model_clone(e->model, &train_model), "nf_model_clone") != 0)
             return -1;
         c.train_model = train_model;
+    }
+    nf_guide *guide = NULL;
+    if (op == OP_GUIDE) { /* the guide trains copies: every case sees the same model */
+        nf_guide_config gc;
+        nf_guide_config_init(&gc);
+        gc.store_capacity = 1; /* the steps take the bench's batches, not the store */
+        nf_config cfg;
+        nf_model_config(e->model, &cfg);
+        gc.learning_rate = cfg.learning_rate;
+        if (report_status(nf_guide_create(e->model, &gc, &guide), "nf_guide_create") != 0)
+            return -1;
+        c.guide = guide;
     }
     clear_outputs(e->d);
     /* Re-measure when other processes were busy; keep the quietest. */
@@ -499,6 +563,7 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
             break;
     }
     nf_model_destroy(train_model);
+    nf_guide_destroy(guide);
     if (bad || check_outputs(&c, name) != 0)
         return -1;
     best.attempts = attempt <= o->retries ? attempt + 1 : attempt;

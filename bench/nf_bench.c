@@ -25,8 +25,9 @@
 #define NFB_POOL 65536u     /* distinct inputs (a multiple of every batch size) */
 #define NFB_MAX_RESULTS 256 /* room for every case of a run: 2 presets x 32 at most */
 
-const char *const OP_NAME[OP_COUNT] = {"sample",       "pdf",       "train", "prepare",
-                                       "point-sample", "point-pdf", "vertex"};
+const char *const OP_NAME[OP_COUNT] = {"sample",    "pdf",          "train",
+                                       "guide",     "prepare",      "point-sample",
+                                       "point-pdf", "vertex"};
 const char *const PRESET_NAME[2] = {"small", "large"};
 
 /* ---- Command line ------------------------------------------------------------------------ */
@@ -38,7 +39,7 @@ static void usage(FILE *f)
             "  --preset small|large|all   presets to measure (default all)\n"
             "  --threads 1|2|all|N        thread counts (default all = 1 and 2)\n"
             "  --op LIST                  operations to measure, comma-separated (default\n"
-            "                             all): sample, pdf, train; the shading-point ops\n"
+            "                             all): sample, pdf, train, guide; the shading-point ops\n"
             "                             prepare, point-sample, point-pdf, vertex; point\n"
             "                             (those four); all\n"
             "  --reps N                   timed repetitions, median reported (default 7)\n"

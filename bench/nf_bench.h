@@ -30,12 +30,13 @@ enum {
     OP_SAMPLE = 0,
     OP_PDF = 1,
     OP_TRAIN = 2,
-    OP_BATCHED_COUNT = 3,
-    OP_PREPARE = 3,
-    OP_POINT_SAMPLE = 4,
-    OP_POINT_PDF = 5,
-    OP_VERTEX = 6,
-    OP_COUNT = 7
+    OP_GUIDE = 3, /* one step of a guide (guide.h): nf_guide_train_batch, 16 groups */
+    OP_BATCHED_COUNT = 4,
+    OP_PREPARE = 4,
+    OP_POINT_SAMPLE = 5,
+    OP_POINT_PDF = 6,
+    OP_VERTEX = 7,
+    OP_COUNT = 8
 };
 #define OP_MASK_ALL ((1 << OP_COUNT) - 1)
 #define OP_MASK_BATCHED ((1 << OP_BATCHED_COUNT) - 1)

@@ -161,6 +161,7 @@ double flops_per_sample(const preset_info *pi, int op)
     double direction = pi->flops_sparse - pi->flops_context;
     switch (op) {
     case OP_TRAIN:
+    case OP_GUIDE:
         return 3.0 * pi->flops_sparse;
     case OP_PREPARE:
         return pi->flops_context;
