@@ -201,6 +201,8 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
     nf_guide_config gc = o->guide;
     uint32_t ranks = (uint32_t)ranks_size();
     gc.step_samples = (gc.step_samples + ranks - 1) / ranks;
+    if (t->bsdf_prior) /* each sample's material, for the prior's callbacks */
+        gc.payload_bytes = sizeof(guide_point);
     if (*model && nf_guide_create(*model, &gc, &guide) != NF_OK)
         return tr_fail(err, "%s", nf_last_error_message());
     int ok = render_with_budget(t, guide, &bs, img, &br, err);

@@ -266,6 +266,12 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
         render_sq = calloc(pixels, sizeof *render_sq);
         ready = (render_sum && render_sq) || tr_fail(err, "out of memory for the image sums");
     }
+    /* The BSDF prior's callbacks find each training sample's material in its payload. */
+    if (ready && guide && t->bsdf_prior &&
+        nf_guide_get_config(guide)->payload_bytes < sizeof(guide_point))
+        ready = tr_fail(err, "the guide keeps %zu payload bytes per sample; the BSDF prior needs "
+                        "%zu (nf_guide_config.payload_bytes)",
+                        nf_guide_get_config(guide)->payload_bytes, sizeof(guide_point));
     if (!ranks_agree(ready, err))
         goto done;
 

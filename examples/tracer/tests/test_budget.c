@@ -175,12 +175,13 @@ static void test_levers_match_unguided(void **state)
     scene_free(&s);
 }
 
-/* A guide for the budget job: the library's defaults, with smaller steps for a tiny film. */
-static nf_guide *budget_guide(const scene *s, float train_fraction)
+/* A guide for the budget job: the library's defaults, with smaller steps for a tiny film;
+ * with the BSDF prior, each sample keeps its material. */
+static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_prior prior)
 {
     tr_error err;
     nf_model *model = NULL;
-    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+    guide_settings gs = guide_default_settings(prior);
     if (!guide_create(s, &gs, &model, &err))
         fail_msg("%s", err.msg);
     nf_guide_config gc;
@@ -189,10 +190,48 @@ static nf_guide *budget_guide(const scene *s, float train_fraction)
     gc.step_samples = 256;
     gc.steps_per_pass = 4;
     gc.store_capacity = 16384;
+    if (prior == GUIDE_PRIOR_BSDF)
+        gc.payload_bytes = sizeof(guide_point);
     nf_guide *g = NULL;
     assert_int_equal(nf_guide_create(model, &gc, &g), NF_OK);
     nf_model_destroy(model); /* the guide holds copies */
     return g;
+}
+
+static nf_guide *budget_guide(const scene *s, float train_fraction)
+{
+    return budget_guide_with(s, train_fraction, GUIDE_PRIOR_COSINE);
+}
+
+/* With the BSDF prior the guide's training finds every sample's material in its payload:
+ * the callbacks never fall back to a cosine lobe. */
+static void test_budget_job_bsdf_prior(void **state)
+{
+    (void)state;
+    scene s = load_mixed();
+    tr_error err;
+    tracer t = {.s = &s, .bsdf_prior = 1};
+    nf_guide_policy_init(&t.policy);
+    nf_guide *guide = budget_guide_with(&s, 0.5f, GUIDE_PRIOR_BSDF);
+    unsigned long long misses = guide_lookup_failures();
+    budget_settings bs = {0.5, now_seconds(), 2, 4};
+    image img;
+    budget_report rep;
+    if (!render_with_budget(&t, guide, &bs, &img, &rep, &err))
+        fail_msg("%s", err.msg);
+    assert_true(rep.steps > 0);
+    assert_int_equal(guide_lookup_failures(), misses);
+    image_free(&img);
+    nf_guide_destroy(guide);
+    /* A guide without room for the materials is refused, not trained on cosine lobes. */
+    guide = budget_guide(&s, 0.5f);
+    bs.start = now_seconds();
+    err.msg[0] = '\0';
+    assert_false(render_with_budget(&t, guide, &bs, &img, &rep, &err));
+    assert_non_null(strstr(err.msg, "payload"));
+    image_free(&img); /* allocated before the check: the caller frees it */
+    nf_guide_destroy(guide);
+    scene_free(&s);
 }
 
 static void test_budget_job(void **state)
@@ -313,6 +352,7 @@ int main(void)
         cmocka_unit_test(test_boost_cap_lowers_guiding),
         cmocka_unit_test(test_budget_job),
         cmocka_unit_test(test_budget_job_black_scene),
+        cmocka_unit_test(test_budget_job_bsdf_prior),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
