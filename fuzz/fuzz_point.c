@@ -166,6 +166,8 @@ static int status_allowed(nf_status st, const expect *e)
 
 typedef struct machine {
     nf_model *m;
+    nf_model *other; /* a second model of the same configuration, for op_clone */
+    float *buf;      /* nf_param_count floats of scratch */
     nf_prior_kind prior;
     uint64_t epoch; /* counts accepted changes of the parameters */
     slot slots[SLOTS];
@@ -393,8 +395,7 @@ static void op_change(machine *mc)
     reader *r = &mc->in;
     unsigned kind = rd_u8(r) % 4u;
     size_t count = nf_param_count(mc->m);
-    float *buf = (float *)malloc(count * sizeof *buf);
-    NF_FUZZ_CHECK(buf != NULL, "malloc");
+    float *buf = mc->buf;
     nf_status st;
     int changes;
     if (kind == 0) {
@@ -440,16 +441,17 @@ static void op_change(machine *mc)
         NF_FUZZ_CHECK(nf_train_step(mc->m, 1, &c, d, &zero_w, NULL) == NF_OK, "zero weights");
         changes = 0;
     }
-    free(buf);
     if (changes)
         mc->epoch++;
 }
 
 /* A clone refuses every point of the original, and the original every point of the clone. */
+/* Another model with the same state (nf_model_copy into the cached second model: a clone
+ * without the allocation), which must refuse the points of the first and vice versa. */
 static void op_clone(machine *mc)
 {
-    nf_model *clone = NULL;
-    NF_FUZZ_CHECK(nf_model_clone(mc->m, &clone) == NF_OK, "clone");
+    nf_model *clone = mc->other;
+    NF_FUZZ_CHECK(nf_model_copy(clone, mc->m) == NF_OK, "nf_model_copy");
     float u[2] = {0.25f, 0.75f}, dir[3], pdf[1];
     for (int i = 0; i < SLOTS; ++i) {
         fill(dir, 3);
@@ -469,7 +471,6 @@ static void op_clone(machine *mc)
                           "the clone refused its own point");
         }
     }
-    nf_model_destroy(clone);
 }
 
 static void op_copy(machine *mc)
@@ -482,9 +483,31 @@ static void op_copy(machine *mc)
 
 /* ---- the model ------------------------------------------------------------------------------- */
 
-static nf_model *make_model(reader *r, nf_prior_kind *prior_out)
+/* The models of one shape (the program's first byte), built once per process: a pristine
+ * one, the one a program works on (reset to the pristine one's state at the start of every
+ * input with nf_model_copy, so that an input replays alone), a second one for op_clone, and
+ * a parameter buffer. Building them per input cost most of an execution (megabytes of fresh
+ * pages for the largest shape); a few entries cover the shapes a run mutates between. */
+typedef struct shape_models {
+    int used;
+    unsigned key;
+    nf_prior_kind prior;
+    nf_model *pristine, *work, *other;
+    float *buf;
+} shape_models;
+
+static shape_models *models_for(unsigned a)
 {
-    unsigned a = rd_u8(r), b = rd_u8(r);
+    static shape_models cache[8];
+    shape_models *c = &cache[a % 8u];
+    if (c->used && c->key == a)
+        return c;
+    if (c->used) {
+        nf_model_destroy(c->pristine);
+        nf_model_destroy(c->work);
+        nf_model_destroy(c->other);
+        free(c->buf);
+    }
     nf_config cfg;
     nf_config_init(&cfg, (a & 1u) ? NF_PRESET_LARGE : NF_PRESET_SMALL);
     switch ((a >> 1) & 3u) {
@@ -511,22 +534,39 @@ static nf_model *make_model(reader *r, nf_prior_kind *prior_out)
     cfg.custom_prior = nf_fuzz_callbacks();
     cfg.isa = (nf_isa)((a >> 5) & 3u);
     cfg.phi_map = (a >> 7) & 1u ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR;
-    nf_model *m = NULL;
-    if (nf_model_create(&cfg, &m) != NF_OK) {
+    c->pristine = NULL;
+    if (nf_model_create(&cfg, &c->pristine) != NF_OK) {
         /* Kernels this CPU lacks: the best ones instead. */
         NF_FUZZ_CHECK(cfg.isa != NF_ISA_AUTO && cfg.isa != NF_ISA_GENERIC, "nf_model_create");
         cfg.isa = NF_ISA_AUTO;
-        NF_FUZZ_CHECK(nf_model_create(&cfg, &m) == NF_OK, "nf_model_create");
+        NF_FUZZ_CHECK(nf_model_create(&cfg, &c->pristine) == NF_OK, "nf_model_create");
     }
-    *prior_out = cfg.prior;
+    NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->work) == NF_OK, "nf_model_clone");
+    NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->other) == NF_OK, "nf_model_clone");
+    c->buf = (float *)malloc(nf_param_count(c->pristine) * sizeof *c->buf);
+    NF_FUZZ_CHECK(c->buf != NULL, "malloc");
+    c->prior = cfg.prior;
+    c->key = a;
+    c->used = 1;
+    return c;
+}
+
+static void make_model(reader *r, machine *mc)
+{
+    unsigned a = rd_u8(r), b = rd_u8(r);
+    shape_models *c = models_for(a);
+    NF_FUZZ_CHECK(nf_model_copy(c->work, c->pristine) == NF_OK, "nf_model_copy");
+    mc->m = c->work;
+    mc->other = c->other;
+    mc->buf = c->buf;
+    mc->prior = c->prior;
     /* Parameters uniform in [-scale, scale] from a seed, then a few raw values. */
     static const float scales[8] = {0.0f, 0.1f, 0.3f, 1.0f, 10.0f, 1e6f, 1e30f, FLT_MAX};
     float scale = scales[b & 7u];
     uint64_t seed = rd_u32(r) | 1u;
-    size_t count = nf_param_count(m);
-    float *p = (float *)malloc(count * sizeof *p);
-    NF_FUZZ_CHECK(p != NULL, "malloc");
-    NF_FUZZ_CHECK(nf_get_params(m, p) == NF_OK, "nf_get_params");
+    size_t count = nf_param_count(mc->m);
+    float *p = mc->buf;
+    NF_FUZZ_CHECK(nf_get_params(mc->m, p) == NF_OK, "nf_get_params");
     if (scale > 0.0f) {
         for (size_t i = 0; i < count; ++i) {
             seed ^= seed << 13;
@@ -541,9 +581,7 @@ static nf_model *make_model(reader *r, nf_prior_kind *prior_out)
         if (isfinite(v))
             p[at] = v;
     }
-    NF_FUZZ_CHECK(nf_set_params(m, p) == NF_OK, "nf_set_params");
-    free(p);
-    return m;
+    NF_FUZZ_CHECK(nf_set_params(mc->m, p) == NF_OK, "nf_set_params");
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
@@ -554,7 +592,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     memset(&mc, 0, sizeof mc);
     mc.in.p = data;
     mc.in.n = size;
-    mc.m = make_model(&mc.in, &mc.prior);
+    make_model(&mc.in, &mc);
     /* Unprepared slots hold a byte pattern of the input's choosing. */
     unsigned junk = rd_u8(&mc.in);
     for (int i = 0; i < SLOTS; ++i)
@@ -573,6 +611,5 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         default: op_copy(&mc); break;
         }
     }
-    nf_model_destroy(mc.m);
-    return 0;
+    return 0; /* the models stay cached for the next input (models_for) */
 }

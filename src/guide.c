@@ -258,9 +258,7 @@ nf_status nf_guide_publish(nf_guide *g)
                        "(nf_guide_release) first",
                        fn);
     }
-    /* g->mean is the step's scratch, free between training calls. */
-    if ((st = nf_get_params(g->train, g->mean)) == NF_OK)
-        st = nf_set_params(g->pub[back], g->mean);
+    st = nf_model_copy(g->pub[back], g->train);
     if (st == NF_OK)
         atomic_store(&g->newest, back);
     nf_guide_end_exclusive(g);

@@ -72,7 +72,14 @@ nf_status nf_model_allocate(const nf_config *cfg, const char *fn, nf_model **out
     if (!block)
         return nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate %zu bytes for a model", fn,
                        bytes);
-    memset(block, 0, bytes);
+    /* Zero the header, the parameters and optimizer state, and the packed weights (whose
+     * padding columns must stay zero); the gradient and staging scratch (4 of the 7
+     * parameter-sized arrays) are written before they are read, and untouched pages cost
+     * nothing until a training step (a clone or a create of a large model faulted every page
+     * in: megabytes for the largest shapes). */
+    size_t header = nf_header_bytes();
+    memset(block, 0, header + 3u * p * sizeof(float));
+    memset(block + header + 7u * p * sizeof(float), 0, packed * sizeof(float));
     nf_model *m = (nf_model *)block;
     *m = probe;
     m->cfg.allocator = alloc;
@@ -192,6 +199,37 @@ nf_status nf_model_clone(const nf_model *model, nf_model **out)
     memcpy(copy->packed, model->packed, model->packed_count * sizeof(float));
     copy->step = model->step;
     *out = copy;
+    return NF_OK;
+}
+
+nf_status nf_model_copy(nf_model *dst, const nf_model *src)
+{
+    static const char fn[] = "nf_model_copy";
+    if (!dst || !src)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn, !dst ? "dst" : "src");
+    if (dst == src)
+        return NF_OK;
+    const nf_config *a = &dst->cfg, *b = &src->cfg;
+    if (a->coupling_layers != b->coupling_layers || a->spline_bins != b->spline_bins ||
+        a->hidden_layers != b->hidden_layers || a->hidden_width != b->hidden_width ||
+        a->oneblob_bins != b->oneblob_bins || a->sh_bands != b->sh_bands || a->prior != b->prior ||
+        a->phi_map != b->phi_map || a->prior_epsilon != b->prior_epsilon ||
+        memcmp(a->bounds_min, b->bounds_min, sizeof a->bounds_min) != 0 ||
+        memcmp(a->bounds_max, b->bounds_max, sizeof a->bounds_max) != 0)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: dst and src differ in architecture, prior or bounds (nf_config): "
+                       "copy only between models of one configuration",
+                       fn);
+    size_t p = src->param_count;
+    nf_generation_begin(dst); /* dst's prepared points are stale from here on */
+    memcpy(dst->params, src->params, p * sizeof(float));
+    memcpy(dst->adam_m, src->adam_m, p * sizeof(float));
+    memcpy(dst->adam_v, src->adam_v, p * sizeof(float));
+    memcpy(dst->packed, src->packed, src->packed_count * sizeof(float));
+    dst->step = src->step;
+    dst->cfg.learning_rate = src->cfg.learning_rate;
+    dst->cfg.weight_decay = src->cfg.weight_decay;
+    nf_generation_end(dst);
     return NF_OK;
 }
 

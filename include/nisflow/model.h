@@ -201,6 +201,15 @@ NF_API void nf_model_destroy(nf_model *model);
  * Thread-safe with respect to other const calls on `model`. */
 NF_API nf_status nf_model_clone(const nf_model *model, nf_model **out);
 
+/* Makes dst equal to src without allocating: parameters, optimizer state (moments, step
+ * count) and the optimizer's settings (learning rate, weight decay). Both must share their
+ * architecture, prior (with its epsilon), phi map and bounds (NF_ERROR_INVALID_ARGUMENT
+ * otherwise, dst unchanged); dst keeps its own allocator, callbacks and instruction set.
+ * Every point prepared on dst becomes stale. For resetting a model to a saved state, or
+ * publishing one model's training into another that render threads sample between passes.
+ * Not thread-safe for dst (no other call may use it meanwhile); src is only read. */
+NF_API nf_status nf_model_copy(nf_model *dst, const nf_model *src);
+
 /* Copies the model's configuration (including its allocator and custom prior callbacks) to
  * *out. Thread-safe. */
 NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);

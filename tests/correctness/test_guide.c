@@ -597,6 +597,51 @@ static void test_payload(void **state)
     nf_model_destroy(m);
 }
 
+/* nf_model_copy, which publication uses: dst becomes src (parameters, optimizer state, step
+ * count) without allocating, its points go stale, and another configuration is refused. */
+static void test_model_copy(void **state)
+{
+    (void)state;
+    nf_model *a = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *b = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *large = nft_make_model(NF_PRESET_LARGE, NF_PRIOR_COSINE);
+    samples s = make_samples(256, 61);
+    assert_int_equal(nf_train_step(a, s.n, s.ctx, s.dir, s.weight, NULL), NF_OK);
+    assert_int_equal(nf_train_step(a, s.n, s.ctx, s.dir, s.weight, NULL), NF_OK);
+    nf_shading_point sp;
+    assert_int_equal(nf_point_prepare(b, &s.ctx[0], NULL, &sp), NF_OK);
+    assert_int_equal(nf_model_copy(b, a), NF_OK);
+    size_t P = nf_param_count(a);
+    float *pa = malloc(P * sizeof *pa), *pb = malloc(P * sizeof *pb);
+    assert_non_null(pa);
+    assert_non_null(pb);
+    assert_int_equal(nf_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    assert_memory_equal(pa, pb, P * sizeof *pa);
+    assert_int_equal(nf_model_step_count(b), 2);
+    float pdf_a, pdf_b;
+    assert_int_equal(nf_pdf(a, 1, &s.ctx[1], s.dir + 3, &pdf_a), NF_OK);
+    assert_int_equal(nf_pdf(b, 1, &s.ctx[1], s.dir + 3, &pdf_b), NF_OK);
+    assert_true(pdf_a == pdf_b);
+    float u[2] = {0.5f, 0.5f}, d[3];
+    assert_int_equal(nf_point_sample(b, &sp, 1, u, d, NULL), NF_ERROR_STALE);
+    /* The same next step from the same state: the optimizer state came along. */
+    assert_int_equal(nf_train_step(a, s.n, s.ctx, s.dir, s.weight, NULL), NF_OK);
+    assert_int_equal(nf_train_step(b, s.n, s.ctx, s.dir, s.weight, NULL), NF_OK);
+    assert_int_equal(nf_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    assert_memory_equal(pa, pb, P * sizeof *pa);
+    assert_int_equal(nf_model_copy(large, a), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "configuration"));
+    assert_int_equal(nf_model_copy(NULL, a), NF_ERROR_INVALID_ARGUMENT);
+    free(pa);
+    free(pb);
+    free_samples(&s);
+    nf_model_destroy(a);
+    nf_model_destroy(b);
+    nf_model_destroy(large);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -604,6 +649,7 @@ int main(void)
         cmocka_unit_test(test_store_bounds),     cmocka_unit_test(test_same_bits_any_threads),
         cmocka_unit_test(test_exact_across_processes), cmocka_unit_test(test_patience),
         cmocka_unit_test(test_publish),          cmocka_unit_test(test_payload),
+        cmocka_unit_test(test_model_copy),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
