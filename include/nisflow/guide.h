@@ -35,8 +35,12 @@
  *         }
  *     }
  *
- * Memory: everything is allocated by nf_guide_create (about store_capacity x (64 +
- * payload_bytes) x 2 bytes plus three copies of the model); nothing later allocates.
+ * Memory: everything is allocated by nf_guide_create, from the model's allocator: about
+ * store_capacity x (2 x (64 + payload_bytes) + 12) bytes for the store, step_samples x 64
+ * bytes for a step, groups x (4 x nf_param_count + 200) bytes for the gradients, and three
+ * copies of the model; nothing later allocates. Stack: the training calls need
+ * NF_TRAINING_STACK_BYTES (train.h) on every thread that runs their tasks, the calling
+ * thread included when it runs them itself; the other calls hold no buffers on the stack.
  * Every function returns a status with a message (status.h) or is documented as total.
  */
 #ifndef NISFLOW_GUIDE_H
