@@ -597,6 +597,63 @@ static void test_payload(void **state)
     nf_model_destroy(m);
 }
 
+/* A reduce hook that fails refuses the step on this process: the status comes back with a
+ * message, and the model is as before the step. */
+static nf_status failing_max(void *user, double *v, size_t n)
+{
+    (void)user;
+    (void)v;
+    (void)n;
+    return NF_ERROR_IO;
+}
+
+static nf_status passing_sum(void *user, int64_t *v, size_t n)
+{
+    (void)user;
+    (void)v;
+    (void)n;
+    return NF_OK;
+}
+
+static void test_failing_reduce_changes_nothing(void **state)
+{
+    (void)state;
+    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.store_capacity = 64;
+    nf_guide *g = make_guide(m, &gc);
+    samples s = make_samples(64, 71);
+    size_t P = nf_param_count(m);
+    float *before = malloc(P * sizeof *before), *after = malloc(P * sizeof *after);
+    assert_non_null(before);
+    assert_non_null(after);
+    params_of(g, before);
+    nf_reduce red = {failing_max, passing_sum, NULL};
+    float loss = 1.0f;
+    assert_int_equal(nf_guide_train_batch(g, s.n, s.ctx, s.dir, s.weight, NULL, 0, NULL, &red,
+                                          &loss),
+                     NF_ERROR_IO);
+    assert_non_null(strstr(nf_last_error_message(), "max_f64"));
+    assert_true(isnan(loss));
+    params_of(g, after);
+    assert_memory_equal(before, after, P * sizeof *before);
+    assert_int_equal(nf_guide_add_samples(g, s.n, s.key, s.ctx, s.dir, s.weight, NULL), NF_OK);
+    assert_int_equal(nf_guide_train_pass(g, NULL, &red, NULL), NF_ERROR_IO);
+    params_of(g, after);
+    assert_memory_equal(before, after, P * sizeof *before);
+    /* The guide is usable afterwards: no call is left marked as running. */
+    assert_int_equal(nf_guide_publish(g), NF_OK);
+    assert_int_equal(nf_guide_train_batch(g, s.n, s.ctx, s.dir, s.weight, NULL, 0, NULL, NULL,
+                                          &loss),
+                     NF_OK);
+    free(before);
+    free(after);
+    free_samples(&s);
+    nf_guide_destroy(g);
+    nf_model_destroy(m);
+}
+
 /* nf_model_copy, which publication uses: dst becomes src (parameters, optimizer state, step
  * count) without allocating, its points go stale, and another configuration is refused. */
 static void test_model_copy(void **state)
@@ -650,6 +707,7 @@ int main(void)
         cmocka_unit_test(test_exact_across_processes), cmocka_unit_test(test_patience),
         cmocka_unit_test(test_publish),          cmocka_unit_test(test_payload),
         cmocka_unit_test(test_model_copy),
+        cmocka_unit_test(test_failing_reduce_changes_nothing),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
