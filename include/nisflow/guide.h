@@ -253,10 +253,11 @@ NF_API nf_status nf_guide_train_batch(nf_guide *g, size_t n, const nf_context *c
  * arguments. Thread-safe on a guide no training call changes meanwhile. */
 NF_API int nf_guide_keep_training(const nf_guide *g, double elapsed, double budget);
 
-/* Copies the training model's parameters into the published model that no thread holds, and
- * makes it the newest: acquire hands it out from now on. NF_ERROR_BUSY when both published
- * models are still held (release one first); the newest stays as it was. Not thread-safe
- * with training calls; safe while other threads sample acquired models. */
+/* Copies the training model (parameters and optimizer state, nf_model_copy) into the
+ * published model that no thread holds, and makes it the newest: acquire hands it out from
+ * now on. NF_ERROR_BUSY, the newest staying as it was, when both published models are still
+ * held (release one first), or when nf_guide_add_samples or a training call runs meanwhile.
+ * Safe while other threads sample acquired models. */
 NF_API nf_status nf_guide_publish(nf_guide *g);
 
 /* The model that training changes, for saving (nf_model_save), inspection or nf_set_params.
