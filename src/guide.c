@@ -23,6 +23,8 @@ void nf_guide_config_init(nf_guide_config *gc)
     gc->train_fraction = 0.15f;
     gc->learning_rate = 5e-3f;
     gc->seed = 1;
+    gc->pass_choice = 1;
+    gc->explore_share = 0.05f;
     nf_guide_policy_init(&gc->policy);
 }
 
@@ -44,6 +46,8 @@ static nf_status nf_guide_config_check(const nf_guide_config *gc, const char *fn
     NF_RANGE(gc->clamp_quantile == 0.0f || (gc->clamp_quantile > 0.0f && gc->clamp_quantile < 1.0f),
              "clamp_quantile");
     NF_RANGE(gc->train_fraction >= 0.0f && gc->train_fraction <= 1.0f, "train_fraction");
+    NF_RANGE(gc->pass_choice <= 1, "pass_choice");
+    NF_RANGE(gc->explore_share >= 0.0f && gc->explore_share <= 0.5f, "explore_share");
     NF_RANGE(gc->policy.mixture_prob >= 0.0f && gc->policy.mixture_prob < 1.0f,
              "policy.mixture_prob");
     NF_RANGE(gc->policy.max_boost == 0.0f ||
@@ -172,6 +176,7 @@ nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_g
                        fn, cap, pb);
     }
     g->best_loss = INFINITY;
+    g->best_ratio = INFINITY;
     g->smooth_loss = NAN;
     g->last_loss = NAN;
     g->rng = gc->seed;

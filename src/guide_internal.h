@@ -60,6 +60,8 @@ struct nf_guide {
     float clamp;
     double best_loss, smooth_loss;
     uint32_t since_best, passes;
+    double best_ratio;         /* the lowest guided / plain ratio of a training pass so far */
+    uint32_t ratio_since_best; /* training passes since it last fell by NF_RATIO_STEP       */
     float last_loss;
     uint64_t samples, steps, refused;
     uint64_t rng;
@@ -69,6 +71,10 @@ struct nf_guide {
  * nf_guide_add_samples or another such call runs. */
 nf_status nf_guide_begin_exclusive(nf_guide *g, const char *fn);
 void nf_guide_end_exclusive(nf_guide *g);
+
+/* Whether the guided / plain ratios reported by nf_guide_report_training_ratio still say
+ * that training pays (guide_choice.c). */
+int nf_guide_training_pays(const nf_guide *g);
 
 /* Marks a guide config as initialized. */
 #define NF_GUIDE_CONFIG_MAGIC 0x4e464743u /* "NFGC" */

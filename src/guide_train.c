@@ -495,5 +495,7 @@ int nf_guide_keep_training(const nf_guide *g, double elapsed, double budget)
         return 0;
     if (budget > 0.0 && !(elapsed < (double)g->cfg.train_fraction * budget))
         return 0;
+    if (!nf_guide_training_pays(g))
+        return 0;
     return g->cfg.patience == 0 || g->since_best < g->cfg.patience;
 }

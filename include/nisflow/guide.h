@@ -159,6 +159,12 @@ typedef struct nf_guide_config {
     float train_fraction;    /* share of a time budget to train, [0, 1]; default 0.15     */
     float learning_rate;     /* AdamW rate set on the model; default 5e-3                  */
     uint64_t seed;           /* the draws from the store; default 1                        */
+    uint32_t pass_choice;    /* 1: nf_guide_choose_pass picks guided or plain render passes
+                              * from what each costs and buys (default); 0: every render
+                              * pass guided (a fixed policy)                               */
+    float explore_share;     /* the least share of render passes that stay guided when
+                              * plain ones measure better, so that guiding's estimate goes
+                              * on improving, [0, 0.5]; default 0.05                       */
     nf_guide_policy policy;  /* nf_guide_policy_init's                                     */
 } nf_guide_config;
 
@@ -248,10 +254,118 @@ NF_API nf_status nf_guide_train_batch(nf_guide *g, size_t n, const nf_context *c
                                       const nf_parallel *par, const nf_reduce *red, float *loss);
 
 /* Whether training still pays: 0 once `elapsed` reaches train_fraction of `budget` (both in
- * the caller's unit, seconds say; budget <= 0: no budget) or the held-out loss has not
- * improved by 1 % for `patience` passes. Every process gets the same answer for the same
+ * the caller's unit, seconds say; budget <= 0: no budget), the held-out loss has not
+ * improved by 1 % for `patience` passes, or the reported training ratios say it buys too
+ * little (nf_guide_report_training_ratio). Every process gets the same answer for the same
  * arguments. Thread-safe on a guide no training call changes meanwhile. */
 NF_API int nf_guide_keep_training(const nf_guide *g, double elapsed, double budget);
+
+/* ---- Guided or plain passes --------------------------------------------------------------- */
+
+/* After training, a pass guided by the flow costs more than a plain one (BSDF sampling and
+ * next-event estimation alone: the renderer's path tracer with no flow), and it does not
+ * always buy that much less variance: where next-event estimation already finds the light (a
+ * box lit directly), plain passes give more per second. A renderer that renders in passes
+ * (each pixel once, say) measures both kinds on the passes it renders anyway, asks
+ * nf_guide_choose_pass which kind to render next, and combines the passes of both kinds by
+ * inverse variance (docs/integration.md, "Guided or plain passes"). The choice stays unbiased:
+ * every pass is an unbiased estimate, whichever kind it is. */
+
+typedef enum nf_pass_kind { NF_PASS_GUIDED = 0, NF_PASS_PLAIN = 1 } nf_pass_kind;
+
+/* What the renderer measured on the render passes of one kind so far (after training). */
+typedef struct nf_pass_measure {
+    uint32_t passes; /* passes of this kind                                              */
+    double seconds;  /* their cost, >= 0, in one unit for both kinds (CPU seconds, say)   */
+    double variance; /* the variance of one pass of this kind, >= 0: relative to the
+                      * image, as nf_guide_pass_variance estimates it                     */
+} nf_pass_measure;
+
+/* nf_guide_choose_pass's answer. */
+typedef struct nf_pass_choice {
+    nf_pass_kind kind; /* render this kind next                                          */
+    int exploring;     /* 1: a guided pass that keeps explore_share while plain measures
+                        * better                                                         */
+    double ratio;      /* a guided pass's variance x cost over a plain pass's (below 1:
+                        * guiding pays); NaN until each kind has 2 passes                 */
+} nf_pass_choice;
+
+/* The variance of one pass of a kind, relative, from per-pixel sums: for each of n pixels (or
+ * any unit of the image), sum[i] and sum_sq[i] of its value (a luminance, say) over `passes`
+ * passes of the kind, and reference[i] the best estimate of the pixel's value (all passes of
+ * both kinds, and of training, averaged), the mean over i of
+ *     (sum_sq[i] - 2 reference[i] sum[i] + passes reference[i]^2) / passes / (reference[i]^2 +
+ * epsilon), the passes' mean squared distance to the reference, relative as relMSE is. The distance
+ * is to the reference, not to the kind's own mean: a kind whose rare paths carry the light shows
+ * zeros where the other kind has seen light, and its own mean would call those pixels
+ * noiseless. *out is 0 for n = 0. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with n > 0,
+ * NULL out, passes 0, epsilon not finite and > 0, a value not finite, sum_sq[i] < 0: the
+ * message names the first); *out is then unchanged. Thread-safe, allocates nothing. */
+NF_API nf_status nf_guide_pass_variance(size_t n, const double *sum, const double *sum_sq,
+                                        uint32_t passes, const double *reference, double epsilon,
+                                        double *out);
+
+/* Plain path tracing's second moment, measured on guided paths. A plain pass's variance
+ * is ruled by rare bright paths that its first passes miss (a light reached through a gap),
+ * so its own passes underestimate it; the guided paths find those paths often, and each one
+ * says how much it would weigh in plain path tracing. With R the ratio of plain path tracing's
+ * density of the path so far to the guided one's (BSDF over mixture densities, and plain
+ * roulette's survival over the guided one's), a contribution c_k (a luminance) that a guided
+ * path adds at its k-th contribution is worth c_k / R_k to plain path tracing, and
+ *     sum over k of c_k^2 / R_k + 2 sum over j < k of c_j c_k / R_j
+ * has plain path tracing's second moment as its expectation over guided paths (importance
+ * weighting; docs/theory.md, "Guided or plain passes"). Start a path with
+ * nf_plain_moment_start, follow its scatters and roulette, add its contributions; a plain
+ * path (R = 1) gives the square of its luminance. The light samples' MIS weights are the
+ * guided path's: the estimate is of plain path tracing with those weights. Thread-safe,
+ * total (the functions only write *m); NULL m is a no-op. */
+typedef struct nf_plain_moment {
+    float ratio;  /* R: plain path tracing's density of the path so far over the guided one's */
+    float sum;    /* the contributions so far, each divided by its R                          */
+    float moment; /* the estimate of plain path tracing's second moment                        */
+} nf_plain_moment;
+
+/* A path at the camera: R = 1, nothing added. */
+NF_API void nf_plain_moment_start(nf_plain_moment *m);
+
+/* A scattered direction with BSDF and mixture densities p_bsdf and p_mix (per steradian),
+ * or a delta lobe chosen with probability 1 - g_used (p_bsdf = p_mix = 0): R takes the step
+ * as nf_guide_boost's boost does. */
+NF_API void nf_plain_moment_scatter(nf_plain_moment *m, float p_bsdf, float p_mix, float g_used);
+
+/* Russian roulette survived with probability q_used at a path whose throughput's largest
+ * channel (before the roulette) is throughput_max: R takes plain roulette's survival, which is
+ * nf_guide_roulette_survival(p, throughput_max / R, 1), over q_used. */
+NF_API void nf_plain_moment_roulette(nf_plain_moment *m, const nf_guide_policy *p,
+                                     float throughput_max, float q_used);
+
+/* A contribution c >= 0 (a luminance, as added to the pixel) of the path; negative or
+ * non-finite c is ignored. */
+NF_API void nf_plain_moment_add(nf_plain_moment *m, float c);
+
+/* Tells the schedule what a training pass measured: `ratio` is its variance x cost over a
+ * plain pass's (as nf_pass_choice.ratio, with the training pass's own variance about the
+ * reference and its tracing time, steps not counted; plain passes measured as for
+ * nf_guide_choose_pass, two rendered before training). Once the ratio has not fallen by 5 %
+ * for 3 training passes while it stays above 0.8, nf_guide_keep_training says stop: a model
+ * that buys little over plain path tracing and has stopped improving does not repay its
+ * steps. Not calling it leaves the schedule as it was; pass_choice 0 ignores it.
+ * Errors: NF_ERROR_INVALID_ARGUMENT (NULL g, ratio NaN or negative; +inf is allowed).
+ * Not thread-safe with the training calls. */
+NF_API nf_status nf_guide_report_training_ratio(nf_guide *g, double ratio);
+
+/* Which kind of render pass to render next, from measured[NF_PASS_GUIDED] and
+ * measured[NF_PASS_PLAIN]: first two passes of each kind, guided first, alternating; then the
+ * kind with the lower variance x cost per pass (ties: guided), except that guided passes keep
+ * explore_share of all render passes when plain ones measure better, so that a model that
+ * measured worse early can still show better. Plain passes keep no such share: every pass
+ * measures plain path tracing's variance (nf_plain_moment), which measured[NF_PASS_PLAIN]
+ * must hold, and two passes measure its cost. With pass_choice 0, always guided.
+ * The answer depends only on the arguments and the configuration: processes that pass the same
+ * measures choose alike. Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not
+ * finite). Thread-safe. */
+NF_API nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured[2],
+                                      nf_pass_choice *out);
 
 /* Copies the training model (parameters and optimizer state, nf_model_copy) into the
  * published model that no thread holds, and makes it the newest: acquire hands it out from

@@ -1,0 +1,253 @@
+/*
+ * test_guide_choice.c - guided or plain passes (nisflow/guide.h): the relative variance of a
+ * kind of pass about a reference, exactly and in expectation, and the choice of the next
+ * pass: warm-up order, the cost rule, exploration, the fixed policy and bad input.
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "nf_test_support.h"
+
+static nf_guide *make_guide(const nf_guide_config *gc)
+{
+    nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = NULL;
+    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_guide *g = NULL;
+    assert_int_equal(nf_guide_create(m, gc, &g), NF_OK);
+    nf_model_destroy(m);
+    return g;
+}
+
+static nf_pass_measure measure(uint32_t passes, double seconds, double variance)
+{
+    nf_pass_measure m = {passes, seconds, variance};
+    return m;
+}
+
+/* Two pixels over four passes, by hand: pixel 0 saw 0, 0, 0, 4 about a reference of 1
+ * ((1 + 1 + 1 + 9) / 4 = 3, relative 3 / 1.01); pixel 1 saw 2 every time about 2 (0). A
+ * third pixel whose kind saw nothing where the reference has light counts its whole
+ * reference (0.25 / 0.26), where its own mean would say 0. */
+static void test_variance_by_hand(void **state)
+{
+    (void)state;
+    const double sum[3] = {4.0, 8.0, 0.0}, sum_sq[3] = {16.0, 16.0, 0.0};
+    const double ref[3] = {1.0, 2.0, 0.5};
+    double v = -1.0;
+    assert_int_equal(nf_guide_pass_variance(3, sum, sum_sq, 4, ref, 0.01, &v), NF_OK);
+    double expect = (3.0 / 1.01 + 0.0 + 0.25 / 0.26) / 3.0;
+    /* Three terms of a few flops each in double: within a few ulps. */
+    assert_true(fabs(v - expect) <= 1e-14 * expect);
+    assert_int_equal(nf_guide_pass_variance(0, NULL, NULL, 1, NULL, 0.01, &v), NF_OK);
+    assert_true(v == 0.0);
+}
+
+/* In expectation it is the relative variance: 2,000 pixels of 8 passes each, every pass a
+ * rare bright value (probability p of value a, else 0), about the true mean. */
+static void test_variance_in_expectation(void **state)
+{
+    (void)state;
+    enum { PIXELS = 2000, PASSES = 8 };
+    const double p = 0.05, a = 20.0, mean = p * a, eps = 0.01;
+    double *sum = calloc(PIXELS, sizeof *sum), *sq = calloc(PIXELS, sizeof *sq);
+    double *ref = calloc(PIXELS, sizeof *ref);
+    assert_non_null(sum);
+    assert_non_null(sq);
+    assert_non_null(ref);
+    nft_rng r;
+    nft_rng_seed(&r, 7, 0);
+    for (int i = 0; i < PIXELS; ++i) {
+        ref[i] = mean;
+        for (int k = 0; k < PASSES; ++k) {
+            double x = nft_rng_double(&r) < p ? a : 0.0;
+            sum[i] += x;
+            sq[i] += x * x;
+        }
+    }
+    double v = 0.0;
+    assert_int_equal(nf_guide_pass_variance(PIXELS, sum, sq, PASSES, ref, eps, &v), NF_OK);
+    double var = p * a * a - mean * mean, expect = var / (mean * mean + eps);
+    /* Each of the 16,000 values contributes (x - mean)^2, whose standard deviation is about
+     * a^2 sqrt(p) = 89 against a mean of 19: the estimate's relative standard error is
+     * 89 / 19 / sqrt(16,000) = 3.7 %; 15 % is four of them. */
+    assert_true(fabs(v / expect - 1.0) < 0.15);
+    free(sum);
+    free(sq);
+    free(ref);
+}
+
+static void test_variance_refuses(void **state)
+{
+    (void)state;
+    const double one[1] = {1.0}, nan[1] = {NAN}, neg[1] = {-1.0};
+    double v = 42.0;
+    assert_int_equal(nf_guide_pass_variance(1, NULL, one, 1, one, 0.01, &v),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "sum is NULL"));
+    assert_int_equal(nf_guide_pass_variance(1, one, one, 1, one, 0.01, NULL),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_pass_variance(1, one, one, 0, one, 0.01, &v),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_pass_variance(1, one, one, 1, one, 0.0, &v),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_pass_variance(1, one, one, 1, one, NAN, &v),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_pass_variance(1, nan, one, 1, one, 0.01, &v),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "pixel 0"));
+    assert_int_equal(nf_guide_pass_variance(1, one, neg, 1, one, 0.01, &v),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_pass_variance(1, one, one, 1, nan, 0.01, &v),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_true(v == 42.0); /* refused calls leave *out alone */
+}
+
+/* Before each kind has two passes: guided, plain, guided, plain, and no ratio. */
+static void test_warm_up(void **state)
+{
+    (void)state;
+    nf_guide *g = make_guide(NULL);
+    const uint32_t gp[4] = {0, 1, 1, 2}, pp[4] = {0, 0, 1, 1};
+    const nf_pass_kind expect[4] = {NF_PASS_GUIDED, NF_PASS_PLAIN, NF_PASS_GUIDED, NF_PASS_PLAIN};
+    for (int i = 0; i < 4; ++i) {
+        nf_pass_measure m[2] = {measure(gp[i], gp[i] * 0.2, 1.0), measure(pp[i], pp[i] * 0.1, 1.0)};
+        nf_pass_choice c;
+        assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK);
+        assert_int_equal(c.kind, expect[i]);
+        assert_true(isnan(c.ratio));
+        assert_int_equal(c.exploring, 0);
+    }
+    nf_guide_destroy(g);
+}
+
+/* Variance x seconds per pass decides: guided 1.0 x 0.2 s against plain 2.0 x 0.12 s is
+ * 0.2 against 0.24 (guided, ratio 5/6); plain 1.5 x 0.12 = 0.18 wins (ratio 10/9). */
+static void test_cost_rule(void **state)
+{
+    (void)state;
+    nf_guide *g = make_guide(NULL);
+    nf_pass_choice c;
+    nf_pass_measure m[2] = {measure(10, 2.0, 1.0), measure(10, 1.2, 2.0)};
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK);
+    assert_int_equal(c.kind, NF_PASS_GUIDED);
+    assert_true(fabs(c.ratio - 5.0 / 6.0) < 1e-12);
+    m[1].variance = 1.5;
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK);
+    assert_int_equal(c.kind, NF_PASS_PLAIN);
+    assert_true(fabs(c.ratio - 10.0 / 9.0) < 1e-12);
+    /* A tie, and two black images, go to guiding. */
+    m[0] = measure(10, 1.2, 1.5);
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK);
+    assert_int_equal(c.kind, NF_PASS_GUIDED);
+    m[0].variance = m[1].variance = 0.0;
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK);
+    assert_int_equal(c.kind, NF_PASS_GUIDED);
+    assert_true(c.ratio == 1.0);
+    nf_guide_destroy(g);
+}
+
+/* Guided passes keep explore_share of the passes while plain measures better: the next pass
+ * is guided while they have fewer than 5 % of them, and only then. Plain passes keep no share
+ * when guiding measures better (every pass measures plain path tracing). */
+static void test_exploration(void **state)
+{
+    (void)state;
+    nf_guide *g = make_guide(NULL);
+    nf_pass_choice c;
+    nf_pass_measure m[2] = {measure(5, 1.0, 10.0), measure(100, 20.0, 1.0)};
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK); /* 5 < 0.05 x 105 */
+    assert_int_equal(c.kind, NF_PASS_GUIDED);
+    assert_int_equal(c.exploring, 1);
+    m[0].passes = 6; /* 6 >= 5.3 */
+    m[0].seconds = 1.2;
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK);
+    assert_int_equal(c.kind, NF_PASS_PLAIN);
+    assert_int_equal(c.exploring, 0);
+    nf_pass_measure ahead[2] = {measure(100, 20.0, 1.0), measure(2, 0.4, 10.0)};
+    assert_int_equal(nf_guide_choose_pass(g, ahead, &c), NF_OK);
+    assert_int_equal(c.kind, NF_PASS_GUIDED);
+    assert_int_equal(c.exploring, 0);
+    nf_guide_destroy(g);
+
+    /* A run of choices against fixed measures: guided's share settles at the floor, and with
+     * guiding ahead plain passes stop after the warm-up. */
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.explore_share = 0.2f;
+    g = make_guide(&gc);
+    for (int plain_wins = 1; plain_wins >= 0; --plain_wins) {
+        /* Per pass: guided 0.2 s, plain 0.1 s; variances guided 3 or 1, plain 1 or 3. */
+        double vg = plain_wins ? 3.0 : 1.0, vp = plain_wins ? 1.0 : 3.0;
+        nf_pass_measure run[2] = {measure(0, 0.0, vg), measure(0, 0.0, vp)};
+        for (int i = 0; i < 1000; ++i) {
+            assert_int_equal(nf_guide_choose_pass(g, run, &c), NF_OK);
+            run[c.kind].passes++;
+            run[c.kind].seconds += c.kind == NF_PASS_GUIDED ? 0.2 : 0.1;
+        }
+        if (plain_wins) /* 0.1 x 1 against 0.2 x 3: guided keeps 20 % of 1000, to one pass */
+            assert_in_range(run[NF_PASS_GUIDED].passes, 200, 201);
+        else /* 0.2 x 1 against 0.1 x 3: plain keeps its two warm-up passes only */
+            assert_int_equal(run[NF_PASS_PLAIN].passes, 2);
+    }
+    nf_guide_destroy(g);
+}
+
+static void test_fixed_policy_and_refusals(void **state)
+{
+    (void)state;
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    assert_int_equal(gc.pass_choice, 1);
+    gc.pass_choice = 0;
+    nf_guide *g = make_guide(&gc);
+    nf_pass_choice c;
+    nf_pass_measure m[2] = {measure(10, 10.0, 10.0), measure(10, 1.0, 1.0)};
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_OK);
+    assert_int_equal(c.kind, NF_PASS_GUIDED);
+    m[1].variance = NAN;
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "NF_PASS_PLAIN"));
+    m[1].variance = 1.0;
+    m[0].seconds = -1.0;
+    assert_int_equal(nf_guide_choose_pass(g, m, &c), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_choose_pass(g, NULL, &c), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_choose_pass(NULL, m, &c), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_choose_pass(g, m, NULL), NF_ERROR_INVALID_ARGUMENT);
+    nf_guide_destroy(g);
+
+    /* The configuration's new fields are range-checked like the others. */
+    nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *model = NULL;
+    assert_int_equal(nf_model_create(&cfg, &model), NF_OK);
+    nf_guide_config_init(&gc);
+    gc.pass_choice = 2;
+    assert_int_equal(nf_guide_create(model, &gc, &g), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "pass_choice"));
+    nf_guide_config_init(&gc);
+    gc.explore_share = 0.6f;
+    assert_int_equal(nf_guide_create(model, &gc, &g), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "explore_share"));
+    nf_model_destroy(model);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_variance_by_hand),
+        cmocka_unit_test(test_variance_in_expectation),
+        cmocka_unit_test(test_variance_refuses),
+        cmocka_unit_test(test_warm_up),
+        cmocka_unit_test(test_cost_rule),
+        cmocka_unit_test(test_exploration),
+        cmocka_unit_test(test_fixed_policy_and_refusals),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
