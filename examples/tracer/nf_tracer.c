@@ -6,6 +6,7 @@
  *   nf_tracer --scene examples/scenes/cornell-box/scene.xml --width 256 --height 256
  */
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -217,16 +218,31 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
                "loss %.4f%s\n",
                br.train_passes, br.steps, (unsigned long long)br.samples, br.train_seconds,
                br.step_seconds, (double)br.last_loss,
-               br.stopped_early ? ", stopped: the loss stopped improving" : "");
+               br.stopped_early ? ", stopped: the loss or the gain stopped improving" : "");
+    if (*model && isfinite(br.train_ratio))
+        printf("training   its last pass's variance x time was %.3g of a plain pass's\n",
+               br.train_ratio);
     printf("budget     %.2f s of %.2f: %d training passes, %d render passes in %.2f s; the "
            "training passes weigh %.2f of the image\n",
            br.seconds, (double)o->time_budget, br.train_passes, br.render_passes,
            br.render_seconds, br.train_weight);
     uint64_t paths = stats->paths ? stats->paths : 1;
-    printf("paths      %.2f rays and %.2f guided vertices per path; a render pass takes %.3f CPU "
-           "s, its relative variance %.4g\n",
-           (double)stats->rays / (double)paths, (double)stats->guided_vertices / (double)paths,
-           br.render_passes ? br.render_cpu_seconds / br.render_passes : 0.0, br.pass_variance);
+    printf("paths      %.2f rays and %.2f guided vertices per path\n",
+           (double)stats->rays / (double)paths, (double)stats->guided_vertices / (double)paths);
+    /* The choice between guided and plain render passes (nisflow/guide.h), and its figures. */
+    const char *kind_name[2] = {"guided", "plain"};
+    double cpu_all = br.kind_cpu_seconds[0] + br.kind_cpu_seconds[1];
+    for (int k = 0; k < 2; ++k)
+        if (br.kind_passes[k])
+            printf("%-10s %d render passes, %.3f CPU s each, relative variance %.4g per pass; "
+                   "%.0f %% of the render passes' CPU time\n",
+                   kind_name[k], br.kind_passes[k], br.kind_cpu_seconds[k] / br.kind_passes[k],
+                   br.kind_variance[k],
+                   cpu_all > 0.0 ? 100.0 * br.kind_cpu_seconds[k] / cpu_all : 0.0);
+    if (isfinite(br.ratio))
+        printf("choice     a guided pass's variance x time is %.3g of a plain pass's: %s pays "
+               "(%d passes kept for the other kind)\n",
+               br.ratio, br.ratio <= 1.0 ? "guiding" : "plain path tracing", br.explored);
     return 1;
 }
 
@@ -337,7 +353,6 @@ static int run(int argc, char **argv)
         fail("reference", &err);
         goto done;
     }
-
 
     tracer t;
     memset(&t, 0, sizeof t);

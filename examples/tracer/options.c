@@ -117,6 +117,7 @@ static void v_paper(options *o, double v)
     o->guide.policy.max_boost = 0.0f;
     o->guide.policy.light_mis_depth = 0;
     o->guide.policy.min_roughness = 0.0f;
+    o->guide.pass_choice = 0; /* every render pass guided */
     o->sh_bands = -1;
     o->mis_training = 0;
 }
@@ -126,6 +127,12 @@ static void v_light_depth(options *o, double v) { o->guide.policy.light_mis_dept
 static void v_min_rough(options *o, double v) { o->guide.policy.min_roughness = (float)v; }
 static void v_train_fraction(options *o, double v) { o->guide.train_fraction = (float)v; }
 static void v_patience(options *o, double v) { o->guide.patience = (uint32_t)v; }
+static void v_explore(options *o, double v) { o->guide.explore_share = (float)v; }
+static void v_guided_passes(options *o, double v)
+{
+    (void)v;
+    o->guide.pass_choice = 0;
+}
 static void v_step_samples(options *o, double v) { o->guide.step_samples = (uint32_t)v; }
 static void v_steps_per_pass(options *o, double v) { o->guide.steps_per_pass = (uint32_t)v; }
 static void v_clamp(options *o, double v) { o->guide.clamp_quantile = (float)v; }
@@ -158,7 +165,7 @@ static const variant variants[] = {
     {"paper", SWITCH, v_paper,
      "the paper's protocol as libnisflow 0.1 ran it: guide-prob=0.5, 4 SH bands, training on "
      "all the emission, no boost cap, light MIS by the flow at every depth, smooth conductors "
-     "guided"},
+     "guided, every render pass guided"},
     {"guide-prob", 0.0, 0.99, 0, v_guide_prob, "probability of sampling the flow (0.7)"},
     {"guide-max-boost", 0.0, 1e6, 0, v_max_boost,
      "cap on the mixture's boost over BSDF sampling, 0 none (10)"},
@@ -171,6 +178,10 @@ static const variant variants[] = {
     {"train-fraction", 0.0, 0.95, 0, v_train_fraction, "share of the budget that trains (0.15)"},
     {"patience", 0.0, 1e6, 1, v_patience,
      "training passes without a 1 % better held-out loss before training stops, 0 never (6)"},
+    {"guided-passes", SWITCH, v_guided_passes,
+     "every render pass guided, none plain (nf_guide_config.pass_choice 0)"},
+    {"explore-share", 0.0, 0.5, 0, v_explore,
+     "least share of render passes for the kind that measures worse (0.05)"},
     {"step-samples", 16.0, 1048576.0, 1, v_step_samples, "samples per optimizer step (2048)"},
     {"steps-per-pass", 1.0, 4096.0, 1, v_steps_per_pass,
      "optimizer steps after a training pass (64)"},

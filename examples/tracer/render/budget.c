@@ -96,63 +96,237 @@ static double squared_error(const double *mean, double scale, const double *ref,
     return sum / (double)pixels;
 }
 
-/* Writes into img the inverse-variance combination of the training groups and the render
- * passes (render_sum, render_sq: per-pixel sums of RGB and of luminance squared, n passes).
- * Each group's variance is estimated by its mean squared distance to the render mean, less
- * the render mean's own variance; a slight bias, because the weights come from the same data,
- * which Practical Path Guiding accepts too. Returns the training groups' share. */
-static double combine(const pass_groups *g, const double *render_sum, const double *render_sq,
-                      int n, image *img, double *render_variance_out)
+/* The passes of one kind (nf_pass_kind: guided or plain; and the training passes, guided),
+ * per pixel. */
+typedef struct kind_sums {
+    double *rgb; /* 3 per pixel: the sums of the passes' RGB                              */
+    double *lum; /* the sums of their luminance                                           */
+    double *sq;  /* the sums of their luminance squared                                   */
+    double *m2;  /* the sums of the paths' estimates of plain path tracing's second moment
+                  * of the luminance (nf_plain_moment; a plain pass's is its square)      */
+    int n;       /* passes                                                                */
+    double cpu;  /* their CPU seconds, every thread and rank                              */
+} kind_sums;
+
+static void kind_free(kind_sums *k)
 {
-    double render_variance = 0.0;
-    size_t floats = g->n, pixels = floats / 3;
-    int groups = g->ngroups;
-    double w[MAX_GROUPS] = {0}, w_render = 0.0, total = 0.0;
-    if (n >= 2) {
-        double *mean = malloc(floats * sizeof *mean);
-        if (mean) {
-            double var = 0.0, rel = 0.0; /* variance of one render pass, and relative */
-            for (size_t i = 0; i < floats; ++i)
-                mean[i] = render_sum[i] / n;
-            for (size_t i = 0; i < pixels; ++i) {
-                double m = luminance(mean + 3 * i);
-                double s2 = fmax((render_sq[i] - (double)n * m * m) / (n - 1), 0.0);
-                var += s2;
-                rel += s2 / (m * m + METRIC_EPSILON);
-            }
-            var /= (double)pixels;
-            rel /= (double)pixels;
-            render_variance = rel;
-            /* var == 0 (a black image): no estimate, the pass counts decide below. */
-            w_render = var > 0.0 ? n / var : 0.0;
-            for (int k = 0; k < groups && var > 0.0; ++k) {
-                double v = squared_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var / n;
-                /* A group that looks better than the render passes is noise in the estimate:
-                 * never trust it more than its pass count says. */
-                v = fmax(v, var / g->count[k]);
-                w[k] = 1.0 / v;
-            }
-            free(mean);
-        }
+    free(k->rgb);
+    free(k->lum);
+    free(k->sq);
+    free(k->m2);
+}
+
+static int kind_alloc(kind_sums *k, size_t pixels)
+{
+    k->rgb = calloc(3 * pixels, sizeof *k->rgb);
+    k->lum = calloc(pixels, sizeof *k->lum);
+    k->sq = calloc(pixels, sizeof *k->sq);
+    k->m2 = calloc(pixels, sizeof *k->m2);
+    return k->rgb && k->lum && k->sq && k->m2;
+}
+
+static void kind_add(kind_sums *k, const image *pass, const float *moment, size_t pixels)
+{
+    for (size_t i = 0; i < pixels; ++i) {
+        const float *p = pass->data + 3 * i;
+        double l = ((double)p[0] + p[1] + p[2]) / 3.0;
+        k->rgb[3 * i] += p[0];
+        k->rgb[3 * i + 1] += p[1];
+        k->rgb[3 * i + 2] += p[2];
+        k->lum[i] += l;
+        k->sq[i] += l * l;
+        k->m2[i] += moment[i];
     }
-    if (w_render == 0.0) { /* no variance estimate: weigh by pass counts */
-        w_render = n;
+    k->n++;
+}
+
+/* What the budget job measures its passes with: the sums of the training passes and of the
+ * render passes of each kind, and scratch for the estimates. */
+typedef struct pass_sums {
+    kind_sums train, kind[2];
+    double *ref;          /* per pixel: the luminance averaged over every pass         */
+    double *pool, *pool2; /* per pixel: plain path tracing's first and second moments  */
+    size_t pixels;
+} pass_sums;
+
+static void sums_free(pass_sums *ps)
+{
+    kind_free(&ps->train);
+    kind_free(&ps->kind[0]);
+    kind_free(&ps->kind[1]);
+    free(ps->ref);
+    free(ps->pool);
+    free(ps->pool2);
+}
+
+static int sums_alloc(pass_sums *ps, size_t pixels)
+{
+    memset(ps, 0, sizeof *ps);
+    ps->pixels = pixels;
+    ps->ref = calloc(pixels, sizeof *ps->ref);
+    ps->pool = calloc(pixels, sizeof *ps->pool);
+    ps->pool2 = calloc(pixels, sizeof *ps->pool2);
+    return kind_alloc(&ps->train, pixels) && kind_alloc(&ps->kind[0], pixels) &&
+           kind_alloc(&ps->kind[1], pixels) && ps->ref && ps->pool && ps->pool2;
+}
+
+/* ps->ref: each pixel's luminance averaged over every pass, training and both kinds, the
+ * reference that the kinds' spreads are measured against (nf_guide_pass_variance). */
+static void sums_reference(pass_sums *ps)
+{
+    const kind_sums *k = ps->kind;
+    double n = (double)ps->train.n + k[0].n + k[1].n;
+    for (size_t i = 0; i < ps->pixels; ++i)
+        ps->ref[i] = n > 0.0 ? (ps->train.lum[i] + k[0].lum[i] + k[1].lum[i]) / n : 0.0;
+}
+
+/* ps->pool, pool2: plain path tracing's first and second moments as every pass tells them,
+ * summed: a guided pass (training or render) by its paths' nf_plain_moment, a plain pass by
+ * its own values. Returns the passes. */
+static int sums_plain_pool(pass_sums *ps)
+{
+    const kind_sums *k[3] = {&ps->train, &ps->kind[NF_PASS_GUIDED], &ps->kind[NF_PASS_PLAIN]};
+    for (size_t i = 0; i < ps->pixels; ++i) {
+        ps->pool[i] = k[0]->lum[i] + k[1]->lum[i] + k[2]->lum[i];
+        ps->pool2[i] = k[0]->m2[i] + k[1]->m2[i] + k[2]->m2[i];
+    }
+    return k[0]->n + k[1]->n + k[2]->n;
+}
+
+/* The mean over pixels of the squared distance of one pass to ref, from sums over n passes
+ * (absolute, luminance); 0 with no pass. */
+static double spread(const double *sum, const double *sq, int n, const double *ref, size_t pixels)
+{
+    if (n < 1)
+        return 0.0;
+    double acc = 0.0;
+    for (size_t i = 0; i < pixels; ++i)
+        acc += fmax((sq[i] - 2.0 * ref[i] * sum[i] + n * ref[i] * ref[i]) / n, 0.0);
+    return acc / (double)pixels;
+}
+
+/* Writes into img the inverse-variance combination of the training groups and the render
+ * passes of both kinds. A guided pass's variance is its passes' mean squared distance to the
+ * reference (all passes averaged); a plain pass's, plain path tracing's second moment about
+ * the reference as every pass tells it (sums_plain_pool: its own passes miss the rare bright
+ * paths that rule it); each group's, its mean squared distance to the render passes' combined
+ * mean, less that mean's own variance. The weights come from the same data, a slight bias
+ * that Practical Path Guiding accepts too. Absolute, not relative: a relative error divides by
+ * the reference, which for a render pass's own spread contains that pass's outliers and for a
+ * training group's distance does not, and on a scene with fireflies the two would differ
+ * tenfold. Returns the training groups' share. */
+static double combine(const pass_groups *g, pass_sums *ps, image *img)
+{
+    size_t floats = g->n, pixels = floats / 3;
+    const kind_sums *kinds = ps->kind;
+    int groups = g->ngroups;
+    double w[MAX_GROUPS] = {0}, wk[2] = {0, 0}, total = 0.0, var[2];
+    sums_reference(ps);
+    var[NF_PASS_GUIDED] = spread(kinds[0].lum, kinds[0].sq, kinds[0].n, ps->ref, pixels);
+    int pooled = sums_plain_pool(ps);
+    var[NF_PASS_PLAIN] = kinds[1].n ? spread(ps->pool, ps->pool2, pooled, ps->ref, pixels) : 0.0;
+    for (int k = 0; k < 2; ++k)
+        wk[k] = var[k] > 0.0 ? kinds[k].n / var[k] : 0.0;
+    double wr = wk[0] + wk[1];
+    double *mean = wr > 0.0 ? malloc(floats * sizeof *mean) : NULL;
+    if (mean) {
+        /* The render passes' combined mean, and its variance (per pixel, on average). */
+        for (size_t i = 0; i < floats; ++i) {
+            double acc = 0.0;
+            for (int k = 0; k < 2; ++k)
+                if (wk[k] > 0.0)
+                    acc += wk[k] * kinds[k].rgb[i] / kinds[k].n;
+            mean[i] = acc / wr;
+        }
+        double var_mean = 1.0 / wr;
+        /* A group looks better than a render pass of its kind only by chance: never trust it
+         * more than its pass count says (guided, or plain's if no guided pass measured). */
+        double floor = var[NF_PASS_GUIDED] > 0.0 ? var[NF_PASS_GUIDED] : var[NF_PASS_PLAIN];
+        for (int k = 0; k < groups; ++k) {
+            double v = squared_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var_mean;
+            w[k] = 1.0 / fmax(v, floor / g->count[k]);
+        }
+        free(mean);
+    } else { /* no variance estimate (a black image, or no render pass): pass counts */
+        for (int k = 0; k < 2; ++k)
+            wk[k] = kinds[k].n;
         for (int k = 0; k < groups; ++k)
             w[k] = g->count[k];
     }
     for (int k = 0; k < groups; ++k)
         total += w[k];
-    if (render_variance_out)
-        *render_variance_out = render_variance;
-    double train_share = total / (total + w_render);
-    total += w_render;
+    double train_share = total + wk[0] + wk[1] > 0.0 ? total / (total + wk[0] + wk[1]) : 0.0;
+    total += wk[0] + wk[1];
     for (size_t i = 0; i < floats; ++i) {
-        double acc = n > 0 ? w_render * render_sum[i] / n : 0.0;
+        double acc = 0.0;
+        for (int k = 0; k < 2; ++k)
+            if (kinds[k].n > 0)
+                acc += wk[k] * kinds[k].rgb[i] / kinds[k].n;
         for (int k = 0; k < groups; ++k)
             acc += w[k] * g->sum[k][i] / g->count[k];
         img->data[i] = total > 0.0 ? (float)(acc / total) : 0.0f;
     }
     return train_share;
+}
+
+/* Measures both kinds of render pass for nf_guide_choose_pass: passes, CPU seconds and
+ * relative variance (guided: its passes' spread; plain: plain path tracing's moments as every
+ * pass tells them), the same on every rank (each rank's pixels are its own: their sums add).
+ * Collective. */
+static int measure_kinds(pass_sums *ps, nf_pass_measure *m, tr_error *err)
+{
+    const kind_sums *kinds = ps->kind;
+    double v[2] = {0.0, 0.0};
+    sums_reference(ps);
+    for (int k = 0; k < 2; ++k) {
+        m[k].passes = (uint32_t)kinds[k].n;
+        m[k].seconds = kinds[k].cpu;
+    }
+    /* A non-finite pixel fails the estimate; pass_pixel keeps them out, so never. */
+    if (kinds[0].n > 0 &&
+        nf_guide_pass_variance(ps->pixels, kinds[0].lum, kinds[0].sq, (uint32_t)kinds[0].n, ps->ref,
+                               METRIC_EPSILON, &v[0]) != NF_OK)
+        v[0] = 0.0;
+    int pooled = sums_plain_pool(ps);
+    if (pooled > 0 && nf_guide_pass_variance(ps->pixels, ps->pool, ps->pool2, (uint32_t)pooled,
+                                             ps->ref, METRIC_EPSILON, &v[1]) != NF_OK)
+        v[1] = 0.0;
+    /* Each rank's mean covers its pixels (the others are zero): the ranks' means add. */
+    if (!ranks_sum_f64(v, 2, err))
+        return 0;
+    m[0].variance = v[0];
+    m[1].variance = v[1];
+    return 1;
+}
+
+/* Tells the guide what the training pass just rendered (pass, its tracing CPU seconds `cpu`
+ * on this rank) buys against plain passes: its variance about the reference x its cost over
+ * a plain pass's (nf_guide_report_training_ratio). *ratio receives it (NaN before two plain
+ * passes). Collective. */
+static int report_training_ratio(nf_guide *guide, pass_sums *ps, const image *pass, double cpu,
+                                 nf_pass_measure *measured, double *ratio, tr_error *err)
+{
+    if (!measure_kinds(ps, measured, err))
+        return 0;
+    for (size_t i = 0; i < ps->pixels; ++i) { /* the pass alone, in the scratch sums */
+        const float *p = pass->data + 3 * i;
+        ps->pool[i] = ((double)p[0] + p[1] + p[2]) / 3.0;
+        ps->pool2[i] = ps->pool[i] * ps->pool[i];
+    }
+    double v[2] = {0.0, cpu};
+    if (nf_guide_pass_variance(ps->pixels, ps->pool, ps->pool2, 1, ps->ref, METRIC_EPSILON,
+                               &v[0]) != NF_OK)
+        v[0] = 0.0;
+    if (!ranks_sum_f64(v, 2, err))
+        return 0;
+    const nf_pass_measure *pm = &measured[NF_PASS_PLAIN];
+    double plain = pm->passes ? pm->variance * pm->seconds / pm->passes : 0.0;
+    *ratio = NAN;
+    if (pm->passes < 2 || !(plain > 0.0))
+        return 1;
+    *ratio = v[0] * v[1] / plain;
+    return nf_guide_report_training_ratio(guide, *ratio) == NF_OK ||
+           tr_fail(err, "%s", nf_last_error_message());
 }
 
 /* ---- Training on a pass's records ------------------------------------------------------------ */
@@ -237,9 +411,9 @@ static int train_on_pass(nf_guide *g, sample_arrays *a, const record_buffer *rec
 
 /* ---- The job ------------------------------------------------------------------------------- */
 
-/* What rank 0's clock decides before a pass, the same for every rank. */
+/* What rank 0 decides before a pass, the same for every rank. */
 typedef struct pass_plan {
-    int32_t stop_training, stopped_early, stop;
+    int32_t stop_training, stopped_early, stop, kind;
 } pass_plan;
 
 int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, image *img,
@@ -251,21 +425,21 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
     sample_arrays arrays;
     record_buffer records = {0};
     image pass = {0};
-    double *render_sum = NULL, *render_sq = NULL;
+    pass_sums sums;
+    float *moment = NULL;
     int ok = 0;
     memset(rep, 0, sizeof *rep);
     memset(&groups, 0, sizeof groups);
     memset(&arrays, 0, sizeof arrays);
+    rep->ratio = rep->train_ratio = NAN;
     groups.n = 3 * pixels;
     groups.per_group = 1;
     /* Every step of the setup may fail on one rank only: the ranks agree before going on. */
-    int ready = image_alloc(img, s->width, s->height, err) &&
-                image_alloc(&pass, s->width, s->height, err);
-    if (ready) {
-        render_sum = calloc(3 * pixels, sizeof *render_sum);
-        render_sq = calloc(pixels, sizeof *render_sq);
-        ready = (render_sum && render_sq) || tr_fail(err, "out of memory for the image sums");
-    }
+    int ready =
+        image_alloc(img, s->width, s->height, err) && image_alloc(&pass, s->width, s->height, err);
+    int summed = sums_alloc(&sums, pixels);
+    moment = calloc(pixels, sizeof *moment);
+    ready = ready && ((summed && moment) || tr_fail(err, "out of memory for the image sums"));
     /* The BSDF prior's callbacks find each training sample's material in its payload. */
     if (ready && guide && t->bsdf_prior &&
         nf_guide_get_config(guide)->payload_bytes < sizeof(guide_point))
@@ -276,21 +450,39 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
         goto done;
 
     const double end = bs->start + bs->seconds;
-    double last_pass = 0.0;
+    double last_pass = 0.0, last_kind[2] = {0.0, 0.0};
+    nf_pass_measure measured[2];
+    memset(measured, 0, sizeof measured);
     int training = guide != NULL && nf_guide_get_config(guide)->train_fraction > 0.0f;
+    /* With the choice of passes, two plain passes come first: training measures itself
+     * against them (nf_guide_report_training_ratio). */
+    const int plain_first = training && nf_guide_get_config(guide)->pass_choice ? 2 : 0;
     uint32_t k = 0;
     for (;; ++k) {
         double t0 = now_seconds(), c0 = cpu_seconds();
-        /* Rank 0's clock decides; the held-out loss (the guide's patience) is the same on
-         * every rank. */
-        pass_plan plan = {0, 0, 0};
+        /* Rank 0's clock decides; the held-out loss (the guide's patience) and the measures
+         * are the same on every rank. */
+        pass_plan plan = {0, 0, 0, guide ? NF_PASS_GUIDED : NF_PASS_PLAIN};
         if (training && !nf_guide_keep_training(guide, t0 - bs->start, bs->seconds)) {
             plan.stop_training = 1;
             plan.stopped_early = nf_guide_keep_training(guide, t0 - bs->start, 0.0) == 0;
         }
-        /* Stop before a pass that would overrun (its time: the last pass's). A budget too
-         * short for a single pass still renders one. */
-        plan.stop = k > 0 && t0 + last_pass > end;
+        if (guide && (!training || plan.stop_training)) {
+            nf_pass_choice choice;
+            if (nf_guide_choose_pass(guide, measured, &choice) != NF_OK) {
+                tr_fail(err, "%s", nf_last_error_message());
+                goto done;
+            }
+            plan.kind = (int32_t)choice.kind;
+            rep->ratio = choice.ratio;
+            rep->explored += choice.exploring;
+        } else if (training && sums.kind[NF_PASS_PLAIN].n < plain_first) {
+            plan.kind = NF_PASS_PLAIN;
+        }
+        /* Stop before a pass that would overrun (its time: the last pass of its kind, or of
+         * any kind). A budget too short for a single pass still renders one. */
+        double expect = last_kind[plan.kind] > 0.0 ? last_kind[plan.kind] : last_pass;
+        plan.stop = k > 0 && t0 + expect > end;
         if (!ranks_broadcast(&plan, sizeof plan, err))
             goto done;
         if (plan.stop_training) {
@@ -299,23 +491,29 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
         }
         if (plan.stop)
             break;
+        const int train_pass = training && plan.kind == NF_PASS_GUIDED;
         const nf_model *m = NULL;
-        if (guide && nf_guide_acquire(guide, &m) != NF_OK) {
+        if (plan.kind == NF_PASS_GUIDED && guide && nf_guide_acquire(guide, &m) != NF_OK) {
             tr_fail(err, "%s", nf_last_error_message());
             goto done;
         }
-        t->model = m; /* every thread of the pass samples this one */
-        int rendered = render_pass(t, bs->seed, PASS_STREAM_BASE + k, bs->threads, &pass,
-                                   training ? &records : NULL, &rep->stats, err);
-        if (guide)
+        t->model = m; /* every thread of the pass samples this one; NULL: a plain pass */
+        int rendered = render_pass(t, bs->seed, PASS_STREAM_BASE + k, bs->threads, &pass, moment,
+                                   train_pass ? &records : NULL, &rep->stats, err);
+        if (m)
             nf_guide_release(guide, m);
+        t->model = NULL;
         if (!ranks_agree(rendered, err))
             goto done;
-        double t1 = now_seconds();
-        if (training) {
+        double t1 = now_seconds(), c1 = cpu_seconds();
+        if (train_pass) {
             if (!ranks_agree(groups_add(&groups, &pass) ||
                                  tr_fail(err, "out of memory for a training pass"),
                              err))
+                goto done;
+            kind_add(&sums.train, &pass, moment, pixels);
+            if (plain_first && !report_training_ratio(guide, &sums, &pass, c1 - c0, measured,
+                                                      &rep->train_ratio, err))
                 goto done;
             if (!train_on_pass(guide, &arrays, &records, bs->threads, k, rep, err))
                 goto done;
@@ -328,32 +526,43 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
             rep->step_seconds += t2 - t1;
             last_pass = t1 - t0; /* a render pass costs the tracing, not the step */
         } else {
-            for (size_t i = 0; i < pixels; ++i) {
-                const float *p = pass.data + 3 * i;
-                double l = ((double)p[0] + p[1] + p[2]) / 3.0;
-                render_sum[3 * i] += p[0];
-                render_sum[3 * i + 1] += p[1];
-                render_sum[3 * i + 2] += p[2];
-                render_sq[i] += l * l;
-            }
+            kind_sums *ks = &sums.kind[plan.kind];
+            kind_add(ks, &pass, moment, pixels);
+            double cpu = cpu_seconds() - c0;
+            if (!ranks_sum_f64(&cpu, 1, err))
+                goto done;
+            ks->cpu += cpu;
+            if (guide && !measure_kinds(&sums, measured, err))
+                goto done;
             rep->render_passes++;
-            last_pass = now_seconds() - t0;
+            last_pass = last_kind[plan.kind] = now_seconds() - t0;
             rep->render_seconds += last_pass;
-            rep->render_cpu_seconds += cpu_seconds() - c0;
+            rep->render_cpu_seconds += cpu;
         }
+    }
+    /* The measures of both kinds, as the last choice saw them and after it. */
+    if (!measure_kinds(&sums, measured, err))
+        goto done;
+    for (int i = 0; i < 2; ++i) {
+        rep->kind_passes[i] = sums.kind[i].n;
+        rep->kind_cpu_seconds[i] = sums.kind[i].cpu;
+        rep->kind_variance[i] = measured[i].variance;
     }
     /* Rank 0 receives the ranks' pixels (each rendered by one rank: exact sums) and combines. */
     for (int g = 0; g < groups.ngroups; ++g)
         if (!ranks_sum_doubles_to_root(groups.sum[g], groups.n, err))
             goto done;
-    if (!ranks_sum_doubles_to_root(render_sum, 3 * pixels, err) ||
-        !ranks_sum_doubles_to_root(render_sq, pixels, err) ||
-        !ranks_sum_u64((uint64_t *)&rep->stats, sizeof rep->stats / sizeof(uint64_t), err) ||
-        !ranks_sum_u64(&rep->samples, 1, err) ||
-        !ranks_sum_f64(&rep->render_cpu_seconds, 1, err))
+    kind_sums *all[3] = {&sums.train, &sums.kind[0], &sums.kind[1]};
+    for (int i = 0; i < 3; ++i)
+        if (!ranks_sum_doubles_to_root(all[i]->rgb, 3 * pixels, err) ||
+            !ranks_sum_doubles_to_root(all[i]->lum, pixels, err) ||
+            !ranks_sum_doubles_to_root(all[i]->sq, pixels, err) ||
+            !ranks_sum_doubles_to_root(all[i]->m2, pixels, err))
+            goto done;
+    if (!ranks_sum_u64((uint64_t *)&rep->stats, sizeof rep->stats / sizeof(uint64_t), err) ||
+        !ranks_sum_u64(&rep->samples, 1, err))
         goto done;
-    rep->train_weight = combine(&groups, render_sum, render_sq, rep->render_passes, img,
-                                &rep->pass_variance);
+    rep->train_weight = combine(&groups, &sums, img);
     rep->seconds = now_seconds() - bs->start;
     ok = 1;
 
@@ -363,7 +572,7 @@ done:
     samples_free(&arrays);
     record_buffer_free(&records);
     image_free(&pass);
-    free(render_sum);
-    free(render_sq);
+    sums_free(&sums);
+    free(moment);
     return ok;
 }

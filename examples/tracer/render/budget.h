@@ -37,13 +37,19 @@ typedef struct budget_report {
     double step_seconds;       /* of which optimizer steps                                  */
     double render_seconds;
     double render_cpu_seconds; /* CPU time of the render passes, all threads                */
-    double pass_variance;      /* relative variance of one render pass (luminance; the
-                                * estimate from the passes' spread, so heavy tails are
-                                * underestimated), 0 with fewer than 2 passes               */
+    /* The render passes by kind, [NF_PASS_GUIDED] and [NF_PASS_PLAIN] (nisflow/guide.h): */
+    int kind_passes[2];
+    double kind_cpu_seconds[2];
+    double kind_variance[2];   /* relative variance of one pass (nf_guide_pass_variance)    */
+    double ratio;              /* the last choice's guided / plain variance x cost; NaN:
+                                * none made (no guide, or too few passes)                   */
+    int explored;              /* guided passes kept while plain ones measured better       */
+    double train_ratio;        /* the last training pass's guided / plain variance x cost   */
     double seconds;            /* the whole job                                             */
     double train_weight;       /* the training passes' share of the combined image, [0, 1]  */
     float last_loss;
-    int stopped_early;         /* training ended because the loss stopped improving         */
+    int stopped_early;         /* training ended because the loss or the gain stopped
+                                * improving                                                 */
     int refused;               /* optimizer steps the library refused                       */
     path_stats stats;
 } budget_report;

@@ -344,6 +344,36 @@ static int scatter_plan(vertex_plan *vp, rng *r)
     return 1;
 }
 
+/* Adds radiance `value` found with MIS weight w to the path's estimate, and with weight
+ * w_plain, the one plain path tracing gives it (its scattered directions weighed by the
+ * BSDF's density), to what the path says of plain path tracing's second moment. */
+static void path_add(path_state *ps, rgb value, float w, float w_plain)
+{
+    ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, rgb_scale(value, w)));
+    if (!ps->guided) /* a plain path's moment is its square (path_moment) */
+        return;
+    rgb c = rgb_mul(ps->throughput, value);
+    nf_plain_moment_add(&ps->plain, w_plain * (c.r + c.g + c.b) / 3.0f);
+}
+
+/* What the path says of plain path tracing's second moment: a guided path's nf_plain_moment,
+ * a plain path's squared luminance. */
+static float path_moment(const path_state *ps)
+{
+    float l = (ps->L.r + ps->L.g + ps->L.b) / 3.0f;
+    return ps->guided ? ps->plain.moment : l * l;
+}
+
+/* The MIS weights of emission found after a scattered direction whose light-sampling density
+ * is light_pdf: the path's (prev_pdf) and plain path tracing's (prev_p_bsdf). */
+static void emission_weights(const path_state *ps, float light_pdf, float *w, float *w_plain)
+{
+    *w = ps->prev_pdf > 0.0f ? power_heuristic(ps->prev_pdf, light_pdf) : 1.0f;
+    *w_plain = ps->prev_p_bsdf == ps->prev_pdf ? *w
+               : ps->prev_p_bsdf > 0.0f        ? power_heuristic(ps->prev_p_bsdf, light_pdf)
+                                               : 1.0f;
+}
+
 /* Traces the path's next segment and plans the vertex it finds: emission found there is
  * added (and handed to the previous record), then next-event estimation, roulette and the
  * choice of the scattered direction draw their random numbers, and the flow's questions are
@@ -364,9 +394,11 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     if (!scene_intersect(s, &ry, &h)) {
         rgb le = env_eval(s, ry.d);
         if (!rgb_is_black(le)) {
-            float w = ps->prev_pdf > 0.0f ? power_heuristic(ps->prev_pdf, light_pdf_env(s, ry.d)) : 1.0f;
+            float w = 1.0f, w_plain = 1.0f;
+            if (ps->prev_pdf > 0.0f || ps->prev_p_bsdf > 0.0f)
+                emission_weights(ps, light_pdf_env(s, ry.d), &w, &w_plain);
             if (!(depth == 1 && s->hide_emitters))
-                ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, rgb_scale(le, w)));
+                path_add(ps, le, w, w_plain);
             if (prev) {
                 put_rgb(prev->emitted, le);
                 prev->emitted_mis = w;
@@ -380,11 +412,12 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     const shape *shp = &s->shapes[h.shape];
 
     if (shp->emissive && v3_dot(wo, sf.ng) > 0.0f) {
-        float w = 1.0f;
-        if (ps->prev_pdf > 0.0f)
-            w = power_heuristic(ps->prev_pdf, light_pdf_area(s, h.shape, h.prim, ry.d, h.t, sf.ng));
+        float w = 1.0f, w_plain = 1.0f;
+        if (ps->prev_pdf > 0.0f || ps->prev_p_bsdf > 0.0f)
+            emission_weights(ps, light_pdf_area(s, h.shape, h.prim, ry.d, h.t, sf.ng), &w,
+                             &w_plain);
         if (!(depth == 1 && s->hide_emitters))
-            ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, rgb_scale(shp->radiance, w)));
+            path_add(ps, shp->radiance, w, w_plain);
         if (prev) {
             put_rgb(prev->emitted, shp->radiance);
             prev->emitted_mis = w;
@@ -442,6 +475,8 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
         if (!(rng_next(r) < q))
             return 1; /* scatters = 0: the light sample still counts */
         vp->rr = 1.0f / q;
+        if (ps->guided)
+            nf_plain_moment_roulette(&ps->plain, &t->policy, rgb_max(ps->throughput), q);
     }
     vp->scatters = scatter_plan(vp, r);
     if (!vp->scatters)
@@ -496,6 +531,11 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         float w = power_heuristic(vp->nee_light_pdf, p_mix);
         rgb d = rgb_scale(vp->nee_value, w / vp->nee_light_pdf);
         ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, d));
+        if (ps->guided) {
+            float w_plain = q->light ? power_heuristic(vp->nee_light_pdf, vp->nee_p_bsdf) : w;
+            rgb c = rgb_mul(ps->throughput, vp->nee_value);
+            nf_plain_moment_add(&ps->plain, w_plain / vp->nee_light_pdf * (c.r + c.g + c.b) / 3.0f);
+        }
         if (v)
             put_rgb(v->direct, d);
     }
@@ -509,8 +549,10 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
     float pdf = 0.0f, p_flow = q->p_flow, p_bsdf = vp->p_bsdf;
     if (vp->delta) {
         weight = vp->delta_weight;
-        if (g > 0.0f) /* the BSDF technique ran with probability 1 - g */
+        if (g > 0.0f) { /* the BSDF technique ran with probability 1 - g */
             ps->boost = nf_guide_boost(ps->boost, 0.0f, 0.0f, g);
+            nf_plain_moment_scatter(&ps->plain, 0.0f, 0.0f, g);
+        }
     } else {
         if (vp->flow_chosen)
             p_bsdf = bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, frame_to_local(&vp->sh.fr, wi));
@@ -522,8 +564,10 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         if (!(p_weight > 0.0f) || rgb_is_black(f))
             return 0;
         weight = rgb_scale(f, 1.0f / p_weight);
-        if (g > 0.0f)
+        if (g > 0.0f) {
             ps->boost = nf_guide_boost(ps->boost, p_bsdf, p_weight, g);
+            nf_plain_moment_scatter(&ps->plain, p_bsdf, p_weight, g);
+        }
     }
     if (!rgb_is_finite(weight) || rgb_is_black(weight))
         return 0;
@@ -539,6 +583,7 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         }
     }
     ps->prev_pdf = pdf;
+    ps->prev_p_bsdf = vp->delta ? 0.0f : p_bsdf;
     ps->ry.o = offset_origin(vp->p, vp->sh.ng, wi);
     ps->ry.d = wi;
     ps->ry.tmax = INFINITY;
@@ -554,24 +599,33 @@ static uint32_t film_pixel(const scene *s, float px, float py)
     return (uint32_t)y * (uint32_t)s->width + (uint32_t)x;
 }
 
-static void path_start(const scene *s, float px, float py, path_state *ps)
+static void path_start(const tracer *t, float px, float py, path_state *ps)
 {
+    const scene *s = t->s;
+    ps->guided = t->model != NULL;
     ps->L = rgb_gray(0.0f);
     ps->throughput = rgb_gray(1.0f);
     ps->ry = camera_ray(s, px, py);
     ps->prev_pdf = 0.0f; /* density of the last scattered direction (0: delta or camera) */
+    ps->prev_p_bsdf = 0.0f;
     ps->depth = 0;
     ps->boost = 1.0f;
+    nf_plain_moment_start(&ps->plain);
 }
 
-rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
-               path_stats *st)
+rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records, path_stats *st)
+{
+    return trace_path_moment(t, r, px, py, records, st, NULL);
+}
+
+rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer *records,
+                      path_stats *st, float *moment)
 {
     nf_path_vertex pv[MAX_RECORDED_VERTICES]; /* the library's record of the path */
     vertex_extra ex[MAX_RECORDED_VERTICES];
     path_recorder rec = {pv, ex, 0, MAX_RECORDED_VERTICES}, *pr = records ? &rec : NULL;
     path_state ps;
-    path_start(t->s, px, py, &ps);
+    path_start(t, px, py, &ps);
     st->paths++;
     for (;;) {
         /* The previous vertex's record receives what this ray finds. */
@@ -587,6 +641,8 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
     }
     if (pr)
         recorder_close(t, pr, film_pixel(t->s, px, py), records, st);
+    if (moment)
+        *moment = path_moment(&ps);
     return ps.L;
 }
 
@@ -697,7 +753,7 @@ static path_recorder *recorders_in(const scene *s, size_t n, trace_scratch *sc)
 }
 
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
-                 record_buffer *records, trace_scratch *scratch, path_stats *st)
+                 float *moment, record_buffer *records, trace_scratch *scratch, path_stats *st)
 {
     path_state ps[TRACE_BATCH];
     vertex_plan vp[TRACE_BATCH];
@@ -709,11 +765,12 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
     path_recorder *pr = trace_paths_pay(t) && records ? recorders_in(t->s, n, scratch) : NULL;
     if (!trace_paths_pay(t) || (records && !pr)) { /* the same bits, one path at a time */
         for (size_t i = 0; i < n; ++i)
-            out[i] = trace_path(t, &r[i], px[i], py[i], records, st);
+            out[i] =
+                trace_path_moment(t, &r[i], px[i], py[i], records, st, moment ? &moment[i] : NULL);
         return;
     }
     for (size_t i = 0; i < n; ++i) {
-        path_start(t->s, px[i], py[i], &ps[i]);
+        path_start(t, px[i], py[i], &ps[i]);
         st->paths++;
         live[nlive++] = i;
     }
@@ -739,6 +796,8 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
     }
     for (size_t i = 0; i < n; ++i) {
         out[i] = ps[i].L;
+        if (moment)
+            moment[i] = path_moment(&ps[i]);
         if (pr) /* in path order, as n calls of trace_path append them */
             recorder_close(t, &pr[i], film_pixel(t->s, px[i], py[i]), records, st);
     }

@@ -75,12 +75,16 @@ void path_stats_add(path_stats *a, const path_stats *b);
 typedef struct path_state {
     rgb L, throughput;
     ray ry;
-    float prev_pdf; /* density of the last scattered direction (0: delta or camera) */
-    int depth;      /* segments traced so far                                       */
-    float boost;    /* product over the guided vertices so far of p_bsdf / p_mix (1 / (1 - g)
-                     * for a delta lobe, nf_guide_boost): how much the mixture has raised the
-                     * throughput over BSDF sampling's, read by the policy's boost cap and
-                     * roulette (nf_guide_mixture_prob, nf_guide_roulette_survival)       */
+    float prev_pdf;    /* density of the last scattered direction (0: delta or camera)    */
+    float prev_p_bsdf; /* its BSDF density, which plain path tracing's MIS weighs with     */
+    int depth;         /* segments traced so far                                          */
+    float boost;       /* product over the guided vertices so far of p_bsdf / p_mix (1 / (1 - g)
+                        * for a delta lobe, nf_guide_boost): how much the mixture has raised
+                        * the throughput over BSDF sampling's, read by the policy's boost cap
+                        * and roulette (nf_guide_mixture_prob, nf_guide_roulette_survival)  */
+    int guided;        /* the tracer has a model: the path may be guided                  */
+    nf_plain_moment plain; /* what a guided path says of plain path tracing's second moment
+                            * (nisflow/guide.h), which budget.h's choice of passes reads   */
 } path_state;
 
 /* Traces the path through film position (px, py) and returns its radiance estimate.
@@ -88,6 +92,11 @@ typedef struct path_state {
  * (zero-weight samples carry no information for the loss). */
 rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
                path_stats *stats);
+
+/* trace_path, and with moment != NULL *moment receives the path's estimate of plain path
+ * tracing's second moment of the pixel's luminance (nf_plain_moment). */
+rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer *records,
+                      path_stats *stats, float *moment);
 
 /* How many paths trace_paths takes at once: a whole 16 x 16 tile of pixels, so that even
  * the later rounds, when most paths have ended, and scenes where guided vertices are rare
@@ -114,10 +123,12 @@ void trace_scratch_free(trace_scratch *scratch);
  * (docs/performance.md). Models with a custom prior are asked at shading points. With
  * records != NULL the paths' vertices are kept in *scratch (about 170 bytes per vertex, up to
  * the scene's max_depth vertices per path); when it cannot grow, the paths are traced one at
- * a time (the same bits). Uses about 170 KiB of stack (360 bytes of plan
- * per path). */
+ * a time (the same bits). With moment != NULL, moment[i] receives path i's estimate of plain
+ * path tracing's second moment (trace_path_moment). Uses about 170 KiB of stack (360 bytes of
+ * plan per path). */
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
-                 record_buffer *records, trace_scratch *scratch, path_stats *stats);
+                 float *moment, record_buffer *records, trace_scratch *scratch,
+                 path_stats *stats);
 
 /* Whether trace_paths batches anything for t: a guided model without a custom prior, and
  * t->no_batching not set. Otherwise trace_paths traces the paths one after the other. */

@@ -6,6 +6,7 @@
  */
 #include "render.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -161,19 +162,25 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
 typedef struct pass_job {
     job_common c;
     image *img;
+    float *moment; /* NULL, or per pixel: plain path tracing's second moment (trace_paths) */
     uint64_t seed;
     uint32_t pass;
 } pass_job;
 
-/* One pixel's sample of a pass, written into the pass image. */
-static void pass_pixel(image *img, int x, int y, rgb c)
+/* One pixel's sample of a pass, written into the pass image (and its moment). */
+static void pass_pixel(pass_job *job, int x, int y, rgb c, float moment)
 {
-    if (!rgb_is_finite(c)) /* as in render_tile: a NaN must not poison the pixel */
+    if (!rgb_is_finite(c)) { /* as in render_tile: a NaN must not poison the pixel */
         c = rgb_gray(0.0f);
-    float *p = image_pixel(img, x, y);
+        moment = 0.0f;
+    }
+    float *p = image_pixel(job->img, x, y);
     p[0] = c.r;
     p[1] = c.g;
     p[2] = c.b;
+    if (job->moment)
+        job->moment[(size_t)y * (size_t)job->img->width + (size_t)x] =
+            isfinite(moment) ? moment : 0.0f;
 }
 
 /* Traces n gathered paths together and writes their pixels (and their records to out). */
@@ -181,9 +188,10 @@ static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float 
                        const float *py, int (*at)[2], record_buffer *out)
 {
     rgb c[TRACE_BATCH];
-    trace_paths(job->c.t, n, r, px, py, c, out, &job->c.scratch[thread], &job->c.stats[thread]);
+    float m[TRACE_BATCH];
+    trace_paths(job->c.t, n, r, px, py, c, m, out, &job->c.scratch[thread], &job->c.stats[thread]);
     for (size_t i = 0; i < n; ++i)
-        pass_pixel(job->img, at[i][0], at[i][1], c[i]);
+        pass_pixel(job, at[i][0], at[i][1], c[i], m[i]);
 }
 
 /* A guided pass traces its tile's paths TRACE_BATCH at a time (trace_paths: the flow's
@@ -207,9 +215,10 @@ static void pass_tile(void *user, size_t k, int thread)
             rng pr = rng_seed(job->seed, RNG_RENDER, job->pass, pixel);
             float jx = rng_next(&pr), jy = rng_next(&pr);
             if (!batched) {
-                pass_pixel(job->img, x, y,
-                           trace_path(job->c.t, &pr, (float)x + jx, (float)y + jy, out,
-                                      &job->c.stats[thread]));
+                float m = 0.0f;
+                rgb c = trace_path_moment(job->c.t, &pr, (float)x + jx, (float)y + jy, out,
+                                          &job->c.stats[thread], &m);
+                pass_pixel(job, x, y, c, m);
                 continue;
             }
             r[n] = pr;
@@ -227,12 +236,14 @@ static void pass_tile(void *user, size_t k, int thread)
 }
 
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
-                record_buffer *records, path_stats *stats, tr_error *err)
+                float *moment, record_buffer *records, path_stats *stats, tr_error *err)
 {
-    pass_job job = {{0}, img, seed, pass};
+    pass_job job = {{0}, img, moment, seed, pass};
     clear_for_ranks(t, img);
-    return run_job(&job.c, t, tile_count(t), threads, pass_tile, &job, records, NULL, stats,
-                   NULL, err);
+    if (moment && t->ranks > 1)
+        memset(moment, 0, (size_t)img->width * (size_t)img->height * sizeof *moment);
+    return run_job(&job.c, t, tile_count(t), threads, pass_tile, &job, records, NULL, stats, NULL,
+                   err);
 }
 
 /* ---- Training paths through random film positions ---------------------------------------- */

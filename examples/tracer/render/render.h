@@ -24,11 +24,13 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
 
 /* Renders one path per pixel into img (overwriting it; the scene's resolution; with
  * t->ranks > 1 only this rank's tiles, the others black, as render_image) with the random
- * streams of `pass`. With records != NULL, replaces its contents with the training records of
- * those paths, in tile order (the same whatever the number of threads). The passes of a
- * time-budgeted render (budget.h) are these. */
+ * streams of `pass`. With moment != NULL (one float per pixel, row-major), each pixel's path
+ * also writes its estimate of plain path tracing's second moment there (trace_path_moment).
+ * With records != NULL, replaces its contents with the training records of those paths, in
+ * tile order (the same whatever the number of threads). The passes of a time-budgeted render
+ * (budget.h) are these. */
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
-                record_buffer *records, path_stats *stats, tr_error *err);
+                float *moment, record_buffer *records, path_stats *stats, tr_error *err);
 
 /* Whether this rank renders pixel (x, y) in render_image and render_pass: always with one
  * rank; with t->ranks > 1, the pixels of the rank's tiles. */

@@ -168,12 +168,25 @@ static void check_batched_pass(guide_prior prior, uint32_t light_mis_depth, int 
     assert_true(image_alloc(&other, s.width, s.height, &err));
     record_buffer records_one = {0}, records_batched = {0};
     path_stats st_one = {0}, st_batched = {0}, st_recorded = {0};
-    assert_true(render_pass(&one_by_one, 7, 3, 2, &one, &records_one, &st_one, &err));
-    assert_true(render_pass(&t, 7, 3, 2, &batched, NULL, &st_batched, &err));
-    assert_true(render_pass(&t, 7, 3, 2, &recorded, &records_batched, &st_recorded, &err));
-    assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, &err));
-    size_t bytes = (size_t)s.width * (size_t)s.height * 3u * sizeof(float);
+    size_t pixels = (size_t)s.width * (size_t)s.height;
+    float *moment_one = calloc(pixels, sizeof(float)),
+          *moment_batched = calloc(pixels, sizeof(float));
+    assert_non_null(moment_one);
+    assert_non_null(moment_batched);
+    assert_true(render_pass(&one_by_one, 7, 3, 2, &one, moment_one, &records_one, &st_one, &err));
+    assert_true(render_pass(&t, 7, 3, 2, &batched, moment_batched, NULL, &st_batched, &err));
+    assert_true(render_pass(&t, 7, 3, 2, &recorded, NULL, &records_batched, &st_recorded, &err));
+    assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, NULL, &err));
+    size_t bytes = pixels * 3u * sizeof(float);
     assert_memory_equal(one.data, batched.data, bytes);
+    /* The paths' estimates of plain path tracing's second moment too, and they say something. */
+    assert_memory_equal(moment_one, moment_batched, pixels * sizeof(float));
+    double moments = 0.0;
+    for (size_t i = 0; i < pixels; ++i)
+        moments += moment_one[i];
+    assert_true(moments > 0.0);
+    free(moment_one);
+    free(moment_batched);
     assert_memory_equal(one.data, recorded.data, bytes);
     assert_memory_not_equal(one.data, other.data, bytes); /* the comparison is not vacuous */
     assert_memory_equal(&st_one, &st_batched, sizeof st_one);
