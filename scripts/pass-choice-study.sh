@@ -7,14 +7,16 @@
 # get unguided ones of our own, 4096 paths per pixel, rendered once into the output directory
 # (about 5 minutes). Prints one line per run and a summary per scene and method (mean and
 # standard deviation over the seeds). About 25 minutes (45 runs of 30 s); the machine should be
-# otherwise idle.
+# otherwise idle. Runs are cached in the output directory (a complete log is not run again).
 #
 #   scripts/pass-choice-study.sh            the study
 #   scripts/pass-choice-study.sh --smoke    one scene, 3-s budgets, one seed, a 64-spp
 #                                           reference: about a minute
 #
 # Environment: NF_PC_OUT (default out/pass-choice), NF_PC_BUDGET (30), NF_PC_SEEDS (1 2 3),
-# NF_PC_BIDIR_SEEDS (1 2 3 4 5), NF_PC_SCENES (veach-ajar statue cornell-box veach-bidir).
+# NF_PC_BIDIR_SEEDS (1 2 3 4 5), NF_PC_SCENES (veach-ajar statue cornell-box veach-bidir),
+# NF_PC_FLAGS (options for every run, "--model large" say) and NF_PC_TAG (a name for them, in
+# the runs' file names and lines).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TRACER=build/examples/nf_tracer
@@ -24,6 +26,8 @@ SEEDS=${NF_PC_SEEDS:-1 2 3}
 BIDIR_SEEDS=${NF_PC_BIDIR_SEEDS:-1 2 3 4 5}
 SCENES=${NF_PC_SCENES:-veach-ajar statue cornell-box veach-bidir}
 REF_SPP=4096
+FLAGS=${NF_PC_FLAGS:-}
+TAG=${NF_PC_TAG:-}
 if [ "${1:-}" = --smoke ]; then
     OUT=out/pass-choice-smoke BUDGET=3 SEEDS=1 BIDIR_SEEDS=1 SCENES=cornell-box REF_SPP=64
 fi
@@ -51,17 +55,19 @@ for s in $SCENES; do
     [ "$s" = veach-bidir ] && seeds=$BIDIR_SEEDS
     for seed in $seeds; do
         for m in defaults guided-passes plain; do
-            log=$OUT/$s-$m-$seed.log
+            log=$OUT/$s$TAG-$m-$seed.log
+            # A run whose log is complete is not run again: delete it to rerun.
+            grep -q '^error' "$log" 2>/dev/null ||
             # shellcheck disable=SC2086 # SIZE and METHOD hold options
             "$TRACER" --scene "examples/scenes/$s/scene.xml" ${SIZE[$s]} --threads 2 \
                 --seed "$seed" --time-budget "$BUDGET" --reference "$(reference "$s")" \
-                --out "$OUT/$s-$m-$seed" ${METHOD[$m]} 2>&1 | tr '\r' '\n' | grep -v '^\s*$' > "$log"
+                --out "$OUT/$s$TAG-$m-$seed" ${METHOD[$m]} $FLAGS 2>&1 | tr '\r' '\n' | grep -v '^\s*$' > "$log"
             err=$(grep -Eo 'MAPE [0-9.e+-]+, relMSE [0-9.e+-]+' "$log" | tail -n 1 | tr -d ,)
             cpu=$(awk '/^(guided|plain) .*render passes/ { print $1, $2 }' "$log" | tr '\n' ' ')
-            echo "$s $m $seed $err passes: $cpu"
+            echo "$s$TAG $m $seed $err passes: $cpu"
         done
     done
-done | tee "$OUT/runs.txt"
+done | tee "$OUT/runs$TAG.txt"
 # scene method seed MAPE m relMSE r ...: mean and standard deviation per scene and method.
 awk '{ k = $1 " " $2; n[k]++; r[k] += $7; r2[k] += $7 * $7; m[k] += $5; m2[k] += $5 * $5 }
      END { for (k in n) {
@@ -69,4 +75,4 @@ awk '{ k = $1 " " $2; n[k]++; r[k] += $7; r2[k] += $7 * $7; m[k] += $5; m2[k] +=
                sr = n[k] > 1 ? sqrt((r2[k] - n[k] * mr * mr) / (n[k] - 1)) : 0
                sm = n[k] > 1 ? sqrt((m2[k] - n[k] * mm * mm) / (n[k] - 1)) : 0
                printf "%s: relMSE %.4g +- %.2g, MAPE %.4g +- %.2g (%d seeds)\n", k, mr, sr, mm, sm, n[k] } }' \
-    "$OUT/runs.txt" | sort | tee "$OUT/summary.txt"
+    "$OUT/runs$TAG.txt" | sort | tee "$OUT/summary$TAG.txt"

@@ -193,79 +193,89 @@ static int sums_plain_pool(pass_sums *ps)
     return k[0]->n + k[1]->n + k[2]->n;
 }
 
-/* The mean over pixels of the squared distance of one pass to ref, from sums over n passes
- * (absolute, luminance); 0 with no pass. */
-static double spread(const double *sum, const double *sq, int n, const double *ref, size_t pixels)
-{
-    if (n < 1)
-        return 0.0;
-    double acc = 0.0;
-    for (size_t i = 0; i < pixels; ++i)
-        acc += fmax((sq[i] - 2.0 * ref[i] * sum[i] + n * ref[i] * ref[i]) / n, 0.0);
-    return acc / (double)pixels;
-}
-
 /* Writes into img the inverse-variance combination of the training groups and the render
- * passes of both kinds. A guided pass's variance is its passes' mean squared distance to the
- * reference (all passes averaged); a plain pass's, plain path tracing's second moment about
- * the reference as every pass tells it (sums_plain_pool: its own passes miss the rare bright
- * paths that rule it); each group's, its mean squared distance to the render passes' combined
- * mean, less that mean's own variance. The weights come from the same data, a slight bias
- * that Practical Path Guiding accepts too. Absolute, not relative: a relative error divides by
- * the reference, which for a render pass's own spread contains that pass's outliers and for a
- * training group's distance does not, and on a scene with fireflies the two would differ
- * tenfold. Returns the training groups' share. */
+ * passes of both kinds. The kinds are combined per pixel, each weighed by its passes over its
+ * variance of one pass at that pixel: a guided pass's, its passes' mean squared distance to
+ * the reference (all passes averaged); a plain pass's, plain path tracing's second moment
+ * about the reference as every pass tells it (sums_plain_pool: its own passes miss the rare
+ * bright paths that rule it). Per pixel, because those paths gather in a few pixels, where one
+ * weight for the whole image would trust a plain pass far too much. Each group's variance is
+ * its mean squared distance to the render passes' combined mean, less that mean's own
+ * variance, and it is weighed against that mean for the whole image. The weights come from
+ * the same data, a slight bias that Practical Path Guiding accepts too. Absolute, not
+ * relative: a relative error divides by the reference, which for a render pass's own spread
+ * contains that pass's outliers and for a training group's distance does not, and on a scene
+ * with fireflies the two would differ tenfold. Returns the training groups' share. */
 static double combine(const pass_groups *g, pass_sums *ps, image *img)
 {
     size_t floats = g->n, pixels = floats / 3;
     const kind_sums *kinds = ps->kind;
     int groups = g->ngroups;
-    double w[MAX_GROUPS] = {0}, wk[2] = {0, 0}, total = 0.0, var[2];
+    double w[MAX_GROUPS] = {0}, total = 0.0, w_render = 0.0, mean_v[2] = {0.0, 0.0};
     sums_reference(ps);
-    var[NF_PASS_GUIDED] = spread(kinds[0].lum, kinds[0].sq, kinds[0].n, ps->ref, pixels);
-    int pooled = sums_plain_pool(ps);
-    var[NF_PASS_PLAIN] = kinds[1].n ? spread(ps->pool, ps->pool2, pooled, ps->ref, pixels) : 0.0;
-    for (int k = 0; k < 2; ++k)
-        wk[k] = var[k] > 0.0 ? kinds[k].n / var[k] : 0.0;
-    double wr = wk[0] + wk[1];
-    double *mean = wr > 0.0 ? malloc(floats * sizeof *mean) : NULL;
+    const double np = sums_plain_pool(ps), ng = kinds[NF_PASS_GUIDED].n;
+    const double *ref = ps->ref;
+    /* One pass's variance at pixel i, of each kind. */
+#define GUIDED_VAR(i)                                                                              \
+    fmax((kinds[0].sq[i] - 2.0 * ref[i] * kinds[0].lum[i] + ng * ref[i] * ref[i]) / ng, 0.0)
+#define PLAIN_VAR(i) fmax((ps->pool2[i] - 2.0 * ref[i] * ps->pool[i] + np * ref[i] * ref[i]) / np, 0.0)
+    for (size_t i = 0; i < pixels; ++i) {
+        mean_v[0] += ng > 0.0 ? GUIDED_VAR(i) : 0.0;
+        mean_v[1] += np > 0.0 ? PLAIN_VAR(i) : 0.0;
+    }
+    mean_v[0] /= (double)pixels;
+    mean_v[1] /= (double)pixels;
+    /* A pixel whose spread is 0 (black so far) is weighed by pass counts: the floors. */
+    const double floor_v[2] = {fmax(1e-3 * mean_v[0], 1e-30), fmax(1e-3 * mean_v[1], 1e-30)};
+    const int measured = (ng > 0.0 && mean_v[0] > 0.0) || (kinds[1].n > 0 && mean_v[1] > 0.0);
+    double *mean = measured ? malloc(floats * sizeof *mean) : NULL;
     if (mean) {
         /* The render passes' combined mean, and its variance (per pixel, on average). */
-        for (size_t i = 0; i < floats; ++i) {
-            double acc = 0.0;
-            for (int k = 0; k < 2; ++k)
-                if (wk[k] > 0.0)
-                    acc += wk[k] * kinds[k].rgb[i] / kinds[k].n;
-            mean[i] = acc / wr;
+        double var_mean = 0.0;
+        for (size_t i = 0; i < pixels; ++i) {
+            double wg = ng > 0.0 ? ng / fmax(GUIDED_VAR(i), floor_v[0]) : 0.0;
+            double wp = kinds[1].n > 0 ? kinds[1].n / fmax(PLAIN_VAR(i), floor_v[1]) : 0.0;
+            for (int c = 0; c < 3; ++c) {
+                double acc = 0.0;
+                if (wg > 0.0)
+                    acc += wg * kinds[0].rgb[3 * i + c] / ng;
+                if (wp > 0.0)
+                    acc += wp * kinds[1].rgb[3 * i + c] / kinds[1].n;
+                mean[3 * i + c] = acc / (wg + wp);
+            }
+            var_mean += 1.0 / (wg + wp);
         }
-        double var_mean = 1.0 / wr;
+        var_mean /= (double)pixels;
+        w_render = 1.0 / var_mean;
         /* A group looks better than a render pass of its kind only by chance: never trust it
          * more than its pass count says (guided, or plain's if no guided pass measured). */
-        double floor = var[NF_PASS_GUIDED] > 0.0 ? var[NF_PASS_GUIDED] : var[NF_PASS_PLAIN];
+        double floor = mean_v[0] > 0.0 ? mean_v[0] : mean_v[1];
         for (int k = 0; k < groups; ++k) {
             double v = squared_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var_mean;
             w[k] = 1.0 / fmax(v, floor / g->count[k]);
         }
-        free(mean);
     } else { /* no variance estimate (a black image, or no render pass): pass counts */
-        for (int k = 0; k < 2; ++k)
-            wk[k] = kinds[k].n;
+        w_render = kinds[0].n + kinds[1].n;
         for (int k = 0; k < groups; ++k)
             w[k] = g->count[k];
     }
+#undef GUIDED_VAR
+#undef PLAIN_VAR
     for (int k = 0; k < groups; ++k)
         total += w[k];
-    double train_share = total + wk[0] + wk[1] > 0.0 ? total / (total + wk[0] + wk[1]) : 0.0;
-    total += wk[0] + wk[1];
+    double train_share = total + w_render > 0.0 ? total / (total + w_render) : 0.0;
+    total += w_render;
     for (size_t i = 0; i < floats; ++i) {
         double acc = 0.0;
-        for (int k = 0; k < 2; ++k)
-            if (kinds[k].n > 0)
-                acc += wk[k] * kinds[k].rgb[i] / kinds[k].n;
+        if (mean)
+            acc = w_render * mean[i];
+        else if (w_render > 0.0) /* pass counts: the render passes' plain mean */
+            acc = kinds[0].rgb[i] + kinds[1].rgb[i];
         for (int k = 0; k < groups; ++k)
             acc += w[k] * g->sum[k][i] / g->count[k];
         img->data[i] = total > 0.0 ? (float)(acc / total) : 0.0f;
     }
+    free(mean);
     return train_share;
 }
 
