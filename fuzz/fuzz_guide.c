@@ -12,7 +12,9 @@
  *   - the training model's parameters stay finite, and the published model acquire hands out
  *     has the parameters of the last successful publish;
  *   - the policy functions are total: probabilities in [0, 1), survival in [0, 1], the boost
- *     finite and positive when it was.
+ *     finite and positive when it was;
+ *   - the choice of passes answers a kind and a ratio >= 0 or NaN, the variance is finite and
+ *     >= 0 or refused, a plain moment is never NaN or negative.
  * The model is built once per process, so that an execution costs the guide's work only.
  */
 #include <math.h>
@@ -98,6 +100,65 @@ static void check_policy(reader *r, const nf_guide_policy *p)
         NF_FUZZ_CHECK(!(b < 0.0f) && !isnan(b), "boost %g from %g", (double)b, (double)boost);
 }
 
+static double next_double(reader *r)
+{
+    uint8_t kind = next_byte(r);
+    if (kind < 200)
+        return (double)next_float(r);
+    uint64_t bits = (uint64_t)next_u32(r) | (uint64_t)next_u32(r) << 32;
+    double d;
+    memcpy(&d, &bits, sizeof d);
+    return d;
+}
+
+/* The choice of passes with any measures, the variance with any sums, the training ratio and
+ * a plain moment fed any floats: documented statuses, answers in range, *out untouched when
+ * refused, the moment never NaN or negative. */
+static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
+{
+    nf_pass_measure m[2];
+    for (int k = 0; k < 2; ++k) {
+        m[k].passes = next_byte(r) % 8;
+        m[k].seconds = next_double(r);
+        m[k].variance = next_double(r);
+    }
+    nf_pass_choice c;
+    nf_status st = nf_guide_choose_pass(g, m, &c);
+    check_status(st, "nf_guide_choose_pass");
+    if (st == NF_OK)
+        NF_FUZZ_CHECK((c.kind == NF_PASS_GUIDED || c.kind == NF_PASS_PLAIN) &&
+                          (c.exploring == 0 || c.exploring == 1) && !(c.ratio < 0.0),
+                      "choice %d %d %g", (int)c.kind, c.exploring, c.ratio);
+    double sum[4], sq[4], ref[4], v = -1.0;
+    size_t n = next_byte(r) % 5;
+    for (size_t i = 0; i < n; ++i) {
+        sum[i] = next_double(r);
+        sq[i] = next_double(r);
+        ref[i] = next_double(r);
+    }
+    st = nf_guide_pass_variance(n, sum, sq, next_byte(r) % 4, ref, next_double(r), &v);
+    check_status(st, "nf_guide_pass_variance");
+    NF_FUZZ_CHECK(st == NF_OK ? v >= 0.0 && isfinite(v) : v == -1.0, "variance %g (status %d)", v,
+                  (int)st);
+    check_status(nf_guide_report_training_ratio(g, next_double(r)),
+                 "nf_guide_report_training_ratio");
+    nf_plain_moment pm;
+    nf_plain_moment_start(&pm);
+    for (int k = next_byte(r) % 8; k > 0; --k) {
+        switch (next_byte(r) % 3) {
+        case 0:
+            nf_plain_moment_scatter(&pm, next_float(r), next_float(r), next_float(r));
+            break;
+        case 1:
+            nf_plain_moment_roulette(&pm, pol, next_float(r), next_float(r));
+            break;
+        default:
+            nf_plain_moment_add(&pm, next_float(r));
+        }
+        NF_FUZZ_CHECK(pm.moment >= 0.0f, "plain moment %g", (double)pm.moment);
+    }
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     reader r = {data, size};
@@ -140,7 +201,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     const nf_model *held[4] = {NULL, NULL, NULL, NULL};
     uint64_t accepted = 0;
     for (int op = 0; op < 24 && r.n > 0; ++op) {
-        switch (next_byte(&r) % 7) {
+        switch (next_byte(&r) % 8) {
         case 0:
         case 1: { /* add samples */
             size_t n = next_byte(&r) % (MAX_SAMPLES + 1);
@@ -218,6 +279,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                           "acquire handed out a model other than the last published");
             break;
         }
+        case 7: /* guided or plain passes, with any measures */
+            check_choice(&r, g, &gc.policy);
+            break;
         case 6: { /* release: a held one, or a foreign one (refused) */
             size_t k = next_byte(&r) % 4;
             st = nf_guide_release(g, held[k] ? held[k] : model);

@@ -36,6 +36,8 @@ nf_status nf_guide_pass_variance(size_t n, const double *sum, const double *sum_
         double m2 = (q - 2.0 * r * s + k * r * r) / k;
         acc += fmax(m2, 0.0) / (r * r + epsilon);
     }
+    if (!isfinite(acc))
+        return nf_fail(NF_ERROR_NUMERIC, "%s: the squared distances overflow a double", fn);
     *out = n ? acc / (double)n : 0.0;
     return NF_OK;
 }
@@ -111,7 +113,8 @@ void nf_plain_moment_roulette(nf_plain_moment *m, const nf_guide_policy *p, floa
         return;
     float r = fmaxf(m->ratio, NF_PLAIN_RATIO_FLOOR);
     float q_plain = nf_guide_roulette_survival(p, throughput_max / r, 1.0f);
-    m->ratio = r * (q_plain / q_used);
+    /* q_plain = 0: plain path tracing would never have gone on (R = 0, floored when used). */
+    m->ratio = q_plain > 0.0f ? r * (q_plain / q_used) : 0.0f;
 }
 
 void nf_plain_moment_add(nf_plain_moment *m, float c)

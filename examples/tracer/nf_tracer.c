@@ -241,7 +241,7 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
                    cpu_all > 0.0 ? 100.0 * br.kind_cpu_seconds[k] / cpu_all : 0.0);
     if (isfinite(br.ratio))
         printf("choice     a guided pass's variance x time is %.3g of a plain pass's: %s pays "
-               "(%d passes kept for the other kind)\n",
+               "(%d guided passes kept while plain ones measured better)\n",
                br.ratio, br.ratio <= 1.0 ? "guiding" : "plain path tracing", br.explored);
     return 1;
 }

@@ -300,7 +300,8 @@ typedef struct nf_pass_choice {
  * zeros where the other kind has seen light, and its own mean would call those pixels
  * noiseless. *out is 0 for n = 0. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with n > 0,
  * NULL out, passes 0, epsilon not finite and > 0, a value not finite, sum_sq[i] < 0: the
- * message names the first); *out is then unchanged. Thread-safe, allocates nothing. */
+ * message names the first), NF_ERROR_NUMERIC (finite values whose squares overflow); *out is
+ * then unchanged. Thread-safe, allocates nothing. */
 NF_API nf_status nf_guide_pass_variance(size_t n, const double *sum, const double *sum_sq,
                                         uint32_t passes, const double *reference, double epsilon,
                                         double *out);
@@ -318,7 +319,7 @@ NF_API nf_status nf_guide_pass_variance(size_t n, const double *sum, const doubl
  * nf_plain_moment_start, follow its scatters and roulette, add its contributions; a plain
  * path (R = 1) gives the square of its luminance. The light samples' MIS weights are the
  * guided path's: the estimate is of plain path tracing with those weights. Thread-safe,
- * total (the functions only write *m); NULL m is a no-op. */
+ * total (the functions only write *m; moment stays >= 0, +inf at worst); NULL m is a no-op. */
 typedef struct nf_plain_moment {
     float ratio;  /* R: plain path tracing's density of the path so far over the guided one's */
     float sum;    /* the contributions so far, each divided by its R                          */

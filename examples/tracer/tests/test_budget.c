@@ -7,9 +7,10 @@
  *     scene with the same mean as plain path tracing;
  *   - the boost cap is wired into the integrator: a cap the first vertex already reaches
  *     guides nothing;
- *   - render_with_budget, guided by a library guide, with its training passes combined into
- *     the image, agrees with plain path tracing too, ends within its budget and reports
- *     consistent counts.
+ *   - render_with_budget, guided by a library guide, with its training passes and its guided
+ *     and plain render passes combined into the image, agrees with plain path tracing too,
+ *     ends within its budget and reports consistent counts; so does the fixed policy (every
+ *     render pass guided).
  */
 #include <math.h>
 #include <setjmp.h>
@@ -264,12 +265,61 @@ static void test_budget_job(void **state)
     assert_int_equal(nf_guide_get_stats(guide, &gs), NF_OK);
     assert_int_equal(gs.samples, rep.samples);
     assert_true(rep.train_weight >= 0.0 && rep.train_weight <= 1.0);
+    /* The guide chose every render pass: the two plain passes before training are plain,
+     * the kinds add up, and both measured a variance. */
+    assert_int_equal(rep.kind_passes[NF_PASS_GUIDED] + rep.kind_passes[NF_PASS_PLAIN],
+                     rep.render_passes);
+    assert_true(rep.kind_passes[NF_PASS_PLAIN] >= 2);
+    for (int k = 0; k < 2; ++k)
+        assert_true(rep.kind_variance[k] >= 0.0 && isfinite(rep.kind_variance[k]));
     assert_null(t.model); /* the job's published model does not outlive it */
     /* The job stops before a pass that would overrun; a pass of this 20 x 20 film takes
      * milliseconds (tens under sanitizers), so 0.25 s is a wide margin for a loaded machine
      * and still catches a job that ignores its budget. */
     assert_true(elapsed < bs.seconds + 0.25);
     assert_same_mean("budget job, training passes combined", &reference, &img);
+    image_free(&img);
+    image_free(&reference);
+    nf_guide_destroy(guide);
+    scene_free(&s);
+}
+
+/* With pass_choice 0 every render pass is guided, none plain, and the image keeps the mean. */
+static void test_budget_job_guided_passes(void **state)
+{
+    (void)state;
+    scene s = load_mixed();
+    tr_error err;
+    tracer plain = {.s = &s};
+    image reference;
+    render(&plain, 4 * SPP, 300, &reference);
+    tracer t = {.s = &s};
+    nf_guide_policy_init(&t.policy);
+    t.mis_training = 1;
+    nf_model *model = NULL;
+    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+    if (!guide_create(&s, &gs, &model, &err))
+        fail_msg("%s", err.msg);
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.train_fraction = 0.5f;
+    gc.step_samples = 256;
+    gc.steps_per_pass = 4;
+    gc.store_capacity = 16384;
+    gc.pass_choice = 0;
+    nf_guide *guide = NULL;
+    assert_int_equal(nf_guide_create(model, &gc, &guide), NF_OK);
+    nf_model_destroy(model);
+    budget_settings bs = {0.5, now_seconds(), 2, 5};
+    image img;
+    budget_report rep;
+    if (!render_with_budget(&t, guide, &bs, &img, &rep, &err))
+        fail_msg("%s", err.msg);
+    assert_true(rep.render_passes >= 2);
+    assert_int_equal(rep.kind_passes[NF_PASS_PLAIN], 0);
+    assert_int_equal(rep.kind_passes[NF_PASS_GUIDED], rep.render_passes);
+    assert_true(isnan(rep.ratio)); /* no choice was made */
+    assert_same_mean("budget job, every pass guided", &reference, &img);
     image_free(&img);
     image_free(&reference);
     nf_guide_destroy(guide);
@@ -351,6 +401,7 @@ int main(void)
         cmocka_unit_test(test_levers_match_unguided),
         cmocka_unit_test(test_boost_cap_lowers_guiding),
         cmocka_unit_test(test_budget_job),
+        cmocka_unit_test(test_budget_job_guided_passes),
         cmocka_unit_test(test_budget_job_black_scene),
         cmocka_unit_test(test_budget_job_bsdf_prior),
     };
