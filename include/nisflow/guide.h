@@ -19,7 +19,10 @@
  *     trains a private one (double-buffered: training and sampling at the same time is safe,
  *     or refused with NF_ERROR_BUSY, never silently wrong);
  *   - the path policy the study measured: the mixture probability and its boost cap, the
- *     Russian roulette rule, which vertices weigh light samples by the flow.
+ *     Russian roulette rule, which vertices weigh light samples by the flow;
+ *   - the choice, after training, between guided and plain passes, from what each kind
+ *     costs and buys as the renderer measured it (plain path tracing measured on guided
+ *     paths too, nf_plain_moment), and a training schedule that stops when it buys little.
  *
  * The recipe (docs/integration.md has it with a renderer around it):
  *
