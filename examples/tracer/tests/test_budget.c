@@ -178,7 +178,8 @@ static void test_levers_match_unguided(void **state)
 
 /* A guide for the budget job: the library's defaults, with smaller steps for a tiny film;
  * with the BSDF prior, each sample keeps its material. */
-static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_prior prior)
+static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_prior prior,
+                                   uint32_t pass_choice)
 {
     tr_error err;
     nf_model *model = NULL;
@@ -191,6 +192,7 @@ static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_p
     gc.step_samples = 256;
     gc.steps_per_pass = 4;
     gc.store_capacity = 16384;
+    gc.pass_choice = pass_choice;
     if (prior == GUIDE_PRIOR_BSDF)
         gc.payload_bytes = sizeof(guide_point);
     nf_guide *g = NULL;
@@ -201,7 +203,7 @@ static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_p
 
 static nf_guide *budget_guide(const scene *s, float train_fraction)
 {
-    return budget_guide_with(s, train_fraction, GUIDE_PRIOR_COSINE);
+    return budget_guide_with(s, train_fraction, GUIDE_PRIOR_COSINE, 1);
 }
 
 /* With the BSDF prior the guide's training finds every sample's material in its payload:
@@ -213,7 +215,7 @@ static void test_budget_job_bsdf_prior(void **state)
     tr_error err;
     tracer t = {.s = &s, .bsdf_prior = 1};
     nf_guide_policy_init(&t.policy);
-    nf_guide *guide = budget_guide_with(&s, 0.5f, GUIDE_PRIOR_BSDF);
+    nf_guide *guide = budget_guide_with(&s, 0.5f, GUIDE_PRIOR_BSDF, 1);
     unsigned long long misses = guide_lookup_failures();
     budget_settings bs = {0.5, now_seconds(), 2, 4};
     image img;
@@ -235,9 +237,11 @@ static void test_budget_job_bsdf_prior(void **state)
     scene_free(&s);
 }
 
-static void test_budget_job(void **state)
+/* The budget job on the mixed scene, guided by a library guide that chooses its passes
+ * (pass_choice 1) or renders every pass guided (0): it keeps plain path tracing's mean, ends
+ * within its budget and reports consistent counts. */
+static void check_budget_job(uint32_t pass_choice, double seconds, uint64_t seed)
 {
-    (void)state;
     scene s = load_mixed();
     tr_error err;
     tracer plain = {.s = &s};
@@ -247,15 +251,17 @@ static void test_budget_job(void **state)
     tracer t = {.s = &s};
     nf_guide_policy_init(&t.policy);
     t.mis_training = 1;
-    nf_guide *guide = budget_guide(&s, 0.5f);
-    budget_settings bs = {1.0, now_seconds(), 2, 9};
+    nf_guide *guide = budget_guide_with(&s, 0.5f, GUIDE_PRIOR_COSINE, pass_choice);
+    budget_settings bs = {seconds, now_seconds(), 2, seed};
     image img;
     budget_report rep;
     if (!render_with_budget(&t, guide, &bs, &img, &rep, &err))
         fail_msg("%s", err.msg);
     double elapsed = now_seconds() - bs.start;
-    printf("  budget job: %d training passes, %d render passes, %.3f s, training weight %.3f\n",
-           rep.train_passes, rep.render_passes, elapsed, rep.train_weight);
+    printf("  budget job: %d training passes, %d render passes (%d plain), %.3f s, training "
+           "weight %.3f\n",
+           rep.train_passes, rep.render_passes, rep.kind_passes[NF_PASS_PLAIN], elapsed,
+           rep.train_weight);
     assert_true(rep.train_passes >= 1);
     assert_true(rep.render_passes >= 2);
     assert_int_equal(rep.refused, 0);
@@ -265,65 +271,40 @@ static void test_budget_job(void **state)
     assert_int_equal(nf_guide_get_stats(guide, &gs), NF_OK);
     assert_int_equal(gs.samples, rep.samples);
     assert_true(rep.train_weight >= 0.0 && rep.train_weight <= 1.0);
-    /* The guide chose every render pass: the two plain passes before training are plain,
-     * the kinds add up, and both measured a variance. */
     assert_int_equal(rep.kind_passes[NF_PASS_GUIDED] + rep.kind_passes[NF_PASS_PLAIN],
                      rep.render_passes);
-    assert_true(rep.kind_passes[NF_PASS_PLAIN] >= 2);
     for (int k = 0; k < 2; ++k)
         assert_true(rep.kind_variance[k] >= 0.0 && isfinite(rep.kind_variance[k]));
+    if (pass_choice) /* the two plain passes before training come first */
+        assert_true(rep.kind_passes[NF_PASS_PLAIN] >= 2);
+    else { /* every render pass guided, and no choice made */
+        assert_int_equal(rep.kind_passes[NF_PASS_PLAIN], 0);
+        assert_true(isnan(rep.ratio));
+    }
     assert_null(t.model); /* the job's published model does not outlive it */
     /* The job stops before a pass that would overrun; a pass of this 20 x 20 film takes
      * milliseconds (tens under sanitizers), so 0.25 s is a wide margin for a loaded machine
      * and still catches a job that ignores its budget. */
     assert_true(elapsed < bs.seconds + 0.25);
-    assert_same_mean("budget job, training passes combined", &reference, &img);
+    assert_same_mean(pass_choice ? "budget job, guided and plain passes combined"
+                                 : "budget job, every pass guided",
+                     &reference, &img);
     image_free(&img);
     image_free(&reference);
     nf_guide_destroy(guide);
     scene_free(&s);
 }
 
-/* With pass_choice 0 every render pass is guided, none plain, and the image keeps the mean. */
+static void test_budget_job(void **state)
+{
+    (void)state;
+    check_budget_job(1, 1.0, 9);
+}
+
 static void test_budget_job_guided_passes(void **state)
 {
     (void)state;
-    scene s = load_mixed();
-    tr_error err;
-    tracer plain = {.s = &s};
-    image reference;
-    render(&plain, 4 * SPP, 300, &reference);
-    tracer t = {.s = &s};
-    nf_guide_policy_init(&t.policy);
-    t.mis_training = 1;
-    nf_model *model = NULL;
-    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
-    if (!guide_create(&s, &gs, &model, &err))
-        fail_msg("%s", err.msg);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.train_fraction = 0.5f;
-    gc.step_samples = 256;
-    gc.steps_per_pass = 4;
-    gc.store_capacity = 16384;
-    gc.pass_choice = 0;
-    nf_guide *guide = NULL;
-    assert_int_equal(nf_guide_create(model, &gc, &guide), NF_OK);
-    nf_model_destroy(model);
-    budget_settings bs = {0.5, now_seconds(), 2, 5};
-    image img;
-    budget_report rep;
-    if (!render_with_budget(&t, guide, &bs, &img, &rep, &err))
-        fail_msg("%s", err.msg);
-    assert_true(rep.render_passes >= 2);
-    assert_int_equal(rep.kind_passes[NF_PASS_PLAIN], 0);
-    assert_int_equal(rep.kind_passes[NF_PASS_GUIDED], rep.render_passes);
-    assert_true(isnan(rep.ratio)); /* no choice was made */
-    assert_same_mean("budget job, every pass guided", &reference, &img);
-    image_free(&img);
-    image_free(&reference);
-    nf_guide_destroy(guide);
-    scene_free(&s);
+    check_budget_job(0, 0.5, 5);
 }
 
 /* Guided vertices of one render of the mixed scene (8 spp) with the boost cap `max_boost`
