@@ -39,10 +39,7 @@ typedef struct reader {
     size_t n, at;
 } reader;
 
-static unsigned rd_u8(reader *r)
-{
-    return r->at < r->n ? r->p[r->at++] : 0u;
-}
+static unsigned rd_u8(reader *r) { return r->at < r->n ? r->p[r->at++] : 0u; }
 
 static uint32_t rd_u32(reader *r)
 {
@@ -124,6 +121,8 @@ static int slot_state(const slot *s, uint64_t epoch, int *exact)
     *exact = 1;
     if (!s->prepared)
         return S_REFUSED;
+    if (memcmp(&s->sp, &s->pristine, sizeof s->sp) == 0) /* the common case, in one call */
+        return s->epoch == epoch ? S_VALID : S_STALE;
     const unsigned char *a = (const unsigned char *)&s->sp;
     const unsigned char *b = (const unsigned char *)&s->pristine;
     for (size_t i = 0; i < sizeof s->sp; ++i) {
@@ -224,12 +223,10 @@ static void op_prepare(machine *mc)
     if (flags & 4u)
         cb.sample = NULL;
     const nf_prior_callbacks *prior = (flags & 3u) == 3u ? &cb : NULL;
-    int ok = context_ok(&c) &&
-             (!prior || (mc->prior == NF_PRIOR_CUSTOM && cb.sample != NULL));
+    int ok = context_ok(&c) && (!prior || (mc->prior == NF_PRIOR_CUSTOM && cb.sample != NULL));
     nf_shading_point before = s->sp;
     nf_status st = nf_point_prepare(mc->m, &c, prior, &s->sp);
-    NF_FUZZ_CHECK(st == (ok ? NF_OK : NF_ERROR_INVALID_ARGUMENT), "nf_point_prepare: %d",
-                  (int)st);
+    NF_FUZZ_CHECK(st == (ok ? NF_OK : NF_ERROR_INVALID_ARGUMENT), "nf_point_prepare: %d", (int)st);
     if (st != NF_OK) {
         NF_FUZZ_CHECK(memcmp(&before, &s->sp, sizeof before) == 0,
                       "a refused nf_point_prepare wrote the point");
@@ -242,8 +239,8 @@ static void op_prepare(machine *mc)
 }
 
 /* nf_sample's bits for n u pairs at the points' contexts: one call of n, n calls of 1. */
-static void check_against_batch(const nf_model *m, const nf_context *rep, size_t n,
-                                const float *u, const float *dir, const float *pdf)
+static void check_against_batch(const nf_model *m, const nf_context *rep, size_t n, const float *u,
+                                const float *dir, const float *pdf)
 {
     float d[3 * MAX_N], p[MAX_N];
     NF_FUZZ_CHECK(nf_sample(m, n, rep, u, d, p) == NF_OK, "nf_sample");
@@ -262,8 +259,8 @@ static void check_against_batch(const nf_model *m, const nf_context *rep, size_t
     }
 }
 
-static void check_against_pdf(const nf_model *m, const nf_context *rep, size_t n,
-                              const float *dir, const float *pdf)
+static void check_against_pdf(const nf_model *m, const nf_context *rep, size_t n, const float *dir,
+                              const float *pdf)
 {
     float p[MAX_N];
     NF_FUZZ_CHECK(nf_pdf(m, n, rep, dir, p) == NF_OK, "nf_pdf");
@@ -275,15 +272,15 @@ static void check_against_pdf(const nf_model *m, const nf_context *rep, size_t n
                       (double)pdf[i], (double)p[i]);
     for (size_t i = 0; i < n; ++i) {
         NF_FUZZ_CHECK(nf_pdf(m, 1, &rep[i], dir + 3 * i, p) == NF_OK, "nf_pdf n = 1");
-        NF_FUZZ_CHECK(memcmp(p, pdf + i, sizeof *p) == 0,
-                      "point pdf %zu differs from nf_pdf n = 1", i);
+        NF_FUZZ_CHECK(memcmp(p, pdf + i, sizeof *p) == 0, "point pdf %zu differs from nf_pdf n = 1",
+                      i);
     }
 }
 
 /* The points of a call: one slot for nf_point_* (returned), or a slot per entry for
  * nf_points_* (copied into arr); their contexts go to ctx and their states into *e. */
-static slot *pick_points(machine *mc, int batch, size_t n, nf_shading_point *arr,
-                         nf_context *ctx, expect *e)
+static slot *pick_points(machine *mc, int batch, size_t n, nf_shading_point *arr, nf_context *ctx,
+                         expect *e)
 {
     reader *r = &mc->in;
     slot *one = &mc->slots[rd_u8(r) % SLOTS];
@@ -345,8 +342,8 @@ static void op_pdf(machine *mc, int batch)
     }
     fill(pdf, n);
     const char *fn = batch ? "nf_points_pdf" : "nf_point_pdf";
-    nf_status st = batch ? nf_points_pdf(mc->m, n, arr, dir, pdf)
-                         : nf_point_pdf(mc->m, &one->sp, n, dir, pdf);
+    nf_status st =
+        batch ? nf_points_pdf(mc->m, n, arr, dir, pdf) : nf_point_pdf(mc->m, &one->sp, n, dir, pdf);
     NF_FUZZ_CHECK(status_allowed(st, &e), "%s: status %d (refused %d, stale %d, inputs %d)", fn,
                   (int)st, e.refused, e.stale, e.inputs_ok);
     if (st != NF_OK) {
@@ -370,8 +367,7 @@ static void op_corrupt(machine *mc)
     if (where < 128)
         offset = where; /* the header */
     else
-        offset = offsetof(nf_shading_point, cache_) + (size_t)(where - 128u) * 8u +
-                 (rd_u8(r) & 7u);
+        offset = offsetof(nf_shading_point, cache_) + (size_t)(where - 128u) * 8u + (rd_u8(r) & 7u);
     if (prior_byte(offset))
         offset = offsetof(nf_shading_point, check_);
     ((unsigned char *)&s->sp)[offset] ^= (unsigned char)mask;
@@ -430,8 +426,7 @@ static void op_change(machine *mc)
         if (!all_finite)
             NF_FUZZ_CHECK(st == NF_ERROR_INVALID_ARGUMENT, "nf_apply_gradient %d", (int)st);
         else
-            NF_FUZZ_CHECK(st == NF_OK || st == NF_ERROR_NUMERIC, "nf_apply_gradient %d",
-                          (int)st);
+            NF_FUZZ_CHECK(st == NF_OK || st == NF_ERROR_NUMERIC, "nf_apply_gradient %d", (int)st);
         changes = st == NF_OK;
     } else {
         /* Calls that change nothing. */
@@ -464,8 +459,7 @@ static void op_clone(machine *mc)
     if (s->prepared && context_ok(&s->ctx)) {
         nf_shading_point own;
         if (nf_point_prepare(clone, &s->ctx, NULL, &own) == NF_OK) {
-            NF_FUZZ_CHECK(nf_point_sample(mc->m, &own, 1, u, dir, pdf) ==
-                              NF_ERROR_INVALID_ARGUMENT,
+            NF_FUZZ_CHECK(nf_point_sample(mc->m, &own, 1, u, dir, pdf) == NF_ERROR_INVALID_ARGUMENT,
                           "the original accepted a point of the clone");
             NF_FUZZ_CHECK(nf_point_sample(clone, &own, 1, u, dir, pdf) == NF_OK,
                           "the clone refused its own point");
@@ -483,37 +477,42 @@ static void op_copy(machine *mc)
 
 /* ---- the model ------------------------------------------------------------------------------- */
 
-/* The models of one shape (the program's first byte), built once per process: a pristine
- * one, the one a program works on (reset to the pristine one's state at the start of every
- * input with nf_model_copy, so that an input replays alone), a second one for op_clone, and
- * a parameter buffer. Building them per input cost most of an execution (megabytes of fresh
- * pages for the largest shape); a few entries cover the shapes a run mutates between. */
+/* The models of one shape (the program's first byte, all 256 of them), built once per process
+ * on first use and kept: a pristine one, the one a program works on (reset at the start of
+ * every input with nf_model_copy, so that an input replays alone), a second one for op_clone,
+ * a parameter buffer, and `seeded`, the pristine model with the random parameters of the
+ * last (scale, seed) pair a program asked for. Building models per input cost most of an
+ * execution (megabytes of fresh pages); drawing and checking every parameter per input cost
+ * most of the rest under the sanitizers' instrumentation, and consecutive inputs (mutations
+ * of one program) mostly share the pair, so the parameters are drawn again only when it
+ * changes. Every path gives the work model the same state for the same input. */
 typedef struct shape_models {
-    int used;
-    unsigned key;
     nf_prior_kind prior;
-    nf_model *pristine, *work, *other;
+    nf_model *pristine, *work, *other, *seeded;
     float *buf;
+    int seeded_valid;
+    unsigned seeded_scale;
+    uint32_t seeded_seed;
 } shape_models;
 
 static shape_models *models_for(unsigned a)
 {
-    static shape_models cache[8];
-    shape_models *c = &cache[a % 8u];
-    if (c->used && c->key == a)
+    static shape_models cache[256];
+    shape_models *c = &cache[a & 255u];
+    if (c->pristine)
         return c;
-    if (c->used) {
-        nf_model_destroy(c->pristine);
-        nf_model_destroy(c->work);
-        nf_model_destroy(c->other);
-        free(c->buf);
-    }
     nf_config cfg;
     nf_config_init(&cfg, (a & 1u) ? NF_PRESET_LARGE : NF_PRESET_SMALL);
     switch ((a >> 1) & 3u) {
-    case 1: /* too large for the point's cache */
-        cfg.coupling_layers = 8;
-        cfg.hidden_width = 64;
+    case 1:
+        /* Too large for the point's cache (6 layers of 40 units, padded to 48: 288 floats of
+         * context sums), with as few parameters as that allows (fewer one-blob bins and SH
+         * bands than the presets), so that a program on it costs about what one on a preset
+         * costs. */
+        cfg.coupling_layers = 6;
+        cfg.hidden_width = 40;
+        cfg.oneblob_bins = 8;
+        cfg.sh_bands = 2;
         break;
     case 2: /* the smallest network */
         cfg.coupling_layers = 1;
@@ -534,7 +533,6 @@ static shape_models *models_for(unsigned a)
     cfg.custom_prior = nf_fuzz_callbacks();
     cfg.isa = (nf_isa)((a >> 5) & 3u);
     cfg.phi_map = (a >> 7) & 1u ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR;
-    c->pristine = NULL;
     if (nf_model_create(&cfg, &c->pristine) != NF_OK) {
         /* Kernels this CPU lacks: the best ones instead. */
         NF_FUZZ_CHECK(cfg.isa != NF_ISA_AUTO && cfg.isa != NF_ISA_GENERIC, "nf_model_create");
@@ -543,39 +541,58 @@ static shape_models *models_for(unsigned a)
     }
     NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->work) == NF_OK, "nf_model_clone");
     NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->other) == NF_OK, "nf_model_clone");
+    NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->seeded) == NF_OK, "nf_model_clone");
     c->buf = (float *)malloc(nf_param_count(c->pristine) * sizeof *c->buf);
     NF_FUZZ_CHECK(c->buf != NULL, "malloc");
     c->prior = cfg.prior;
-    c->key = a;
-    c->used = 1;
+    c->seeded_valid = 0;
     return c;
 }
 
-static void make_model(reader *r, machine *mc)
+/* c->seeded as the pristine model with parameters uniform in [-scale, scale] from `seed`
+ * (scale index 0: the pristine parameters). */
+static void seed_params(shape_models *c, unsigned scale_index, uint32_t seed_bits)
 {
-    unsigned a = rd_u8(r), b = rd_u8(r);
-    shape_models *c = models_for(a);
-    NF_FUZZ_CHECK(nf_model_copy(c->work, c->pristine) == NF_OK, "nf_model_copy");
-    mc->m = c->work;
-    mc->other = c->other;
-    mc->buf = c->buf;
-    mc->prior = c->prior;
-    /* Parameters uniform in [-scale, scale] from a seed, then a few raw values. */
+    if (c->seeded_valid && c->seeded_scale == scale_index && c->seeded_seed == seed_bits)
+        return;
     static const float scales[8] = {0.0f, 0.1f, 0.3f, 1.0f, 10.0f, 1e6f, 1e30f, FLT_MAX};
-    float scale = scales[b & 7u];
-    uint64_t seed = rd_u32(r) | 1u;
-    size_t count = nf_param_count(mc->m);
-    float *p = mc->buf;
-    NF_FUZZ_CHECK(nf_get_params(mc->m, p) == NF_OK, "nf_get_params");
+    float scale = scales[scale_index];
+    NF_FUZZ_CHECK(nf_model_copy(c->seeded, c->pristine) == NF_OK, "nf_model_copy");
     if (scale > 0.0f) {
+        uint64_t seed = seed_bits | 1u;
+        size_t count = nf_param_count(c->seeded);
+        float *p = c->buf;
         for (size_t i = 0; i < count; ++i) {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
             p[i] = scale * ((float)(seed >> 40) * 0x1p-23f - 1.0f);
         }
+        NF_FUZZ_CHECK(nf_set_params(c->seeded, p) == NF_OK, "nf_set_params");
     }
-    for (unsigned k = 0; k < ((b >> 3) & 3u); ++k) {
+    c->seeded_scale = scale_index;
+    c->seeded_seed = seed_bits;
+    c->seeded_valid = 1;
+}
+
+static void make_model(reader *r, machine *mc)
+{
+    unsigned a = rd_u8(r), b = rd_u8(r);
+    shape_models *c = models_for(a);
+    seed_params(c, b & 7u, rd_u32(r));
+    NF_FUZZ_CHECK(nf_model_copy(c->work, c->seeded) == NF_OK, "nf_model_copy");
+    mc->m = c->work;
+    mc->other = c->other;
+    mc->buf = c->buf;
+    mc->prior = c->prior;
+    /* Then a few raw values. */
+    unsigned edits = (b >> 3) & 3u;
+    if (edits == 0)
+        return;
+    size_t count = nf_param_count(mc->m);
+    float *p = mc->buf;
+    NF_FUZZ_CHECK(nf_get_params(mc->m, p) == NF_OK, "nf_get_params");
+    for (unsigned k = 0; k < edits; ++k) {
         size_t at = rd_u32(r) % count;
         float v = rd_float(r);
         if (isfinite(v))

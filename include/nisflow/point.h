@@ -44,8 +44,8 @@
  * is written by nf_point_prepare only; any number of threads may sample one prepared point at
  * once. Nothing here allocates.
  *
- * Stack: measured with GCC 12's -fstack-usage, each call uses at most 1.5 KiB of the
- * caller's stack with the AVX-512 kernels, 2.8 KiB with AVX2 and 3.4 KiB with the generic
+ * Stack: measured with GCC 12's -fstack-usage, each call uses at most 2.0 KiB of the
+ * caller's stack with the AVX-512 kernels, 2.9 KiB with AVX2 and 3.4 KiB with the generic
  * ones for the presets' shapes; other shapes up to the configuration limits take up to
  * 4.4 KiB (nf_point_prepare: 2.3 KiB at most). Renderers that shade on fiber stacks should
  * allow 5 KiB per call; tests/correctness/test_point.c measures the calls against that bound.

@@ -6,8 +6,11 @@
  * Prepare stores, per coupling layer, the context's share of the first hidden layer
  * (nf_input_layer_context: bias, position one-blobs, SH of normal and wo). Each direction then
  * adds the three one-blob slots of its pass-through coordinate (nf_input_layer_blob) and runs
- * the rest of the conditioner, the spline and the maps of sphere.h: the same functions, in the
- * same order, as the per-sample and tile paths, so the results are the same bits.
+ * the rest of the conditioner, the spline and the maps of sphere.h: the same operations, in the
+ * same order, as the per-sample and tile paths, so the results are the same bits. Where the
+ * operations are laid out for one direction (a preset's hidden units kept in a register, the
+ * knots' steps vectorized across bins ahead of their running sums), each is the tile's
+ * operation on the same values, never a reassociated or fused one.
  */
 #ifndef NISFLOW_KERNELS_POINT_H
 #define NISFLOW_KERNELS_POINT_H
@@ -31,6 +34,9 @@ typedef struct nf_point_shape {
     uint32_t hp;         /* hidden units padded to NF_CHUNK          */
     uint32_t raw;        /* 3K + 1                                   */
     uint32_t raw_stride; /* 3K + 1 padded to NF_CHUNK                */
+    uint32_t lanes;      /* 1: a preset's shape, whose conditioner may keep its hidden units
+                            in registers (nf_point_conditioner); 0: any shape, whose calls
+                            keep the smaller stack frame of the path through memory */
 } nf_point_shape;
 
 static inline nf_point_shape nf_point_shape_of(const nf_model *m)
@@ -42,33 +48,42 @@ static inline nf_point_shape nf_point_shape_of(const nf_model *m)
                         m->cfg.hidden_width,
                         NF_PAD(m->cfg.hidden_width),
                         m->raw_dim,
-                        NF_PAD(m->raw_dim)};
+                        NF_PAD(m->raw_dim),
+                        0u};
     return s;
+}
+
+/* The knot derivatives a direction computes: all K + 1 of them, in whole vectors of NF_CHUNK
+ * where the raw parameters' padding holds them (the presets: 16 and 32), so that no scalar
+ * remainder of the vectorized softplus is left; the values past K + 1 are never read. */
+static inline uint32_t nf_point_derivative_count(uint32_t bins, uint32_t raw_stride)
+{
+    return 2u * bins + NF_PAD(bins + 1u) <= raw_stride ? NF_PAD(bins + 1u) : bins + 1u;
 }
 
 /* What one direction needs beyond the point, as views into one array of floats that the
  * caller sizes for the shape (NF_POINT_WORK_FLOATS): the raw spline parameters, the knot
  * derivatives, and either the hidden activations (two rows, ping-pong) or, once the
- * conditioner is done with them, the spline's exps and knots. The presets need 84 and 148
- * floats, the configuration limits 596 (2.4 KiB). */
+ * conditioner is done with them, the spline's exps and knots. The presets need 98 and 194
+ * floats, the configuration limits 626 (2.5 KiB). */
 typedef struct nf_point_scratch {
-    float *raw;    /* raw_stride                                   */
-    float *d, *sd; /* bins + 1 each: knot derivatives, their slopes */
-    float *act[2]; /* hp each                                       */
-    float *e;      /* 2 bins: exps, then softmaxes (over act)       */
-    float *x, *y;  /* bins + 1 each: the knots (over act)           */
+    float *raw;    /* raw_stride                                            */
+    float *d, *sd; /* NF_PAD(bins + 1) each: knot derivatives, their slopes */
+    float *act[2]; /* hp each                                               */
+    float *e;      /* 2 bins: exps (over act)                               */
+    float *x, *y;  /* bins + 1 each: the knots (over act)                   */
 } nf_point_scratch;
 
 #define NF_POINT_MAX2(a, b) ((a) > (b) ? (a) : (b))
 #define NF_POINT_WORK_FLOATS(raw_stride, bins, hp)                                                 \
-    ((raw_stride) + 2u * ((bins) + 1u) + NF_POINT_MAX2(2u * (hp), 4u * (bins) + 2u))
+    ((raw_stride) + 2u * NF_PAD((bins) + 1u) + NF_POINT_MAX2(2u * (hp), 4u * (bins) + 2u))
 
 static inline void nf_point_scratch_in(float *work, nf_point_shape sh, nf_point_scratch *sc)
 {
     sc->raw = work;
     sc->d = work + sh.raw_stride;
-    sc->sd = sc->d + sh.bins + 1;
-    float *shared = sc->sd + sh.bins + 1;
+    sc->sd = sc->d + NF_PAD(sh.bins + 1u);
+    float *shared = sc->sd + NF_PAD(sh.bins + 1u);
     sc->act[0] = shared;
     sc->act[1] = shared + sh.hp;
     sc->e = shared;
@@ -76,16 +91,44 @@ static inline void nf_point_scratch_in(float *work, nf_point_shape sh, nf_point_
     sc->y = sc->x + sh.bins + 1;
 }
 
+/* The knots of both halves of the spline (widths into x, heights into y) from the 2K exps in
+ * e, which it overwrites: nf_spline_knots_from_exps's operations on each half, in its order,
+ * without keeping the softmax (only reverse mode reads it). The steps m + (1 - K m) softmax_i,
+ * independent of one another, come first, in one loop over the 2K values (a vector or two for the
+ * presets); only the two running sums are sequential, as two independent chains. */
+static inline void nf_point_knots(uint32_t bins, float *e, float *x, float *y)
+{
+    float sum_w = 0.0f, sum_h = 0.0f;
+    for (uint32_t i = 0; i < bins; ++i) {
+        sum_w += e[i];
+        sum_h += e[bins + i];
+    }
+    const float inv_w = 1.0f / sum_w, inv_h = 1.0f / sum_h;
+    const float scale = 1.0f - (float)bins * NF_SPLINE_MIN;
+    float *step = e; /* in place: the exps are not read again */
+    for (uint32_t i = 0; i < 2 * bins; ++i)
+        step[i] = NF_SPLINE_MIN + scale * (e[i] * (i < bins ? inv_w : inv_h));
+    float acc_w = 0.0f, acc_h = 0.0f;
+    x[0] = y[0] = 0.0f;
+    for (uint32_t i = 0; i < bins; ++i) {
+        acc_w += step[i];
+        acc_h += step[bins + i];
+        x[i + 1] = acc_w;
+        y[i + 1] = acc_h;
+    }
+    x[bins] = y[bins] = 1.0f; /* exactly 1, as nf_spline_knots_from_exps pins it */
+}
+
 /* The spline of the raw parameters in sc->raw: knots and every knot derivative
- * (nf_spline_build's and nf_spline_bin_at's values; the softmaxes, which only reverse mode
- * reads, overwrite the exps). A circular spline's d_K is d_0 (circle.h); its rotation stays
- * in sc->raw[3K]. */
-static inline void nf_point_spline(uint32_t bins, int circular, const nf_point_scratch *sc)
+ * (nf_spline_build's and nf_spline_bin_at's values). A circular spline's d_K is d_0
+ * (circle.h); its rotation stays in sc->raw[3K]. */
+static inline void nf_point_spline(uint32_t bins, uint32_t raw_stride, int circular,
+                                   const nf_point_scratch *sc)
 {
     nf_spline_exps(bins, sc->raw, sc->e);
-    nf_spline_knots_from_exps(bins, sc->e, sc->x, sc->e);
-    nf_spline_knots_from_exps(bins, sc->e + bins, sc->y, sc->e + bins);
-    nf_spline_derivatives(bins, sc->raw + 2 * bins, sc->d, sc->sd);
+    nf_point_knots(bins, sc->e, sc->x, sc->y);
+    nf_spline_derivatives(nf_point_derivative_count(bins, raw_stride) - 1u, sc->raw + 2 * bins,
+                          sc->d, sc->sd);
     if (circular) {
         sc->d[bins] = sc->d[0];
         sc->sd[bins] = sc->sd[0];
@@ -140,8 +183,61 @@ static inline const float *nf_point_context_sums(const nf_model *m, const nf_sha
     return into;
 }
 
+/* Lane k of a chunk held in a register. */
+static inline float nf_point_lane(const nf_lanes *v, uint32_t k)
+{
+#if defined(NF_LANES_VECTOR)
+    return (*v)[k];
+#else
+    return v->v[k];
+#endif
+}
+
+/* y[0..stride) = bias + sum_k x[k] W[k] (nf_dense_one: the same multiply-adds in the same
+ * order) for inputs that are one chunk of hidden units in a register, each broadcast from its
+ * lane. Stored to memory instead and read back one float at a time, as nf_dense_one reads
+ * them, the units waited on the store: a 16-lane store followed by single-float loads from it
+ * cost the per-direction conditioner about a third of its time (AMD Zen 4). */
+static inline void nf_point_dense_lanes(nf_lanes *y, const float *restrict w, uint32_t stride,
+                                        const float *restrict bias, const nf_lanes *x,
+                                        uint32_t inputs)
+{
+    for (uint32_t c = 0; c < stride; c += NF_CHUNK) {
+        nf_lanes acc, row;
+        nf_lanes_load(&acc, bias + c);
+        for (uint32_t k = 0; k < inputs; ++k) {
+            nf_lanes_load(&row, w + (size_t)k * stride + c);
+            nf_lanes_madd(&acc, nf_point_lane(x, k), &row);
+        }
+        y[c / NF_CHUNK] = acc;
+    }
+}
+
+/* The raw parameters' clamp (nf_conditioner_forward's nf_clampf, NaN to the lower bound) on a
+ * chunk in a register, stored to out. The upper bound is nf_minf(t, hi) = -nf_maxf(-t, -hi)
+ * (t is not NaN after the lower bound; negation by * -1 is exact, zeros' signs included). */
+static inline void nf_point_clamp_store(float *out, const nf_lanes *v)
+{
+    nf_lanes r = *v, bound, flip;
+    nf_lanes_splat(&bound, -NF_RAW_LIMIT);
+    nf_lanes_splat(&flip, -1.0f);
+    nf_lanes_max(&r, &bound); /* nf_maxf(v, -limit) */
+    nf_lanes_mul(&r, &flip);
+    nf_lanes_max(&r, &bound); /* -nf_minf(t, limit) */
+    nf_lanes_mul(&r, &flip);
+    nf_lanes_store(out, &r);
+}
+
+/* The most raw parameters (padded) the register path of nf_point_conditioner holds: the large
+ * preset's 64. Wider outputs take the path through memory, so that the array of chunks costs
+ * the stack of every call only 256 bytes. */
+#define NF_POINT_LANES_RAW 64u
+
 /* Raw spline parameters of coupling layer `layer` into sc->raw, from the pass-through
- * coordinate v: nf_conditioner_forward with the context's share read from the point. */
+ * coordinate v: nf_conditioner_forward with the context's share read from the point. The
+ * padding of sc->raw is clamped too (finite values the spline never reads): whole vectors, no
+ * remainder. Hidden layers of one chunk (both presets) stay in registers from the context sums
+ * to the output layer (nf_point_dense_lanes); wider ones go through sc->act. */
 static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
                                         const nf_shading_point *p, uint32_t layer, float v,
                                         const nf_point_scratch *sc)
@@ -153,6 +249,29 @@ static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
     uint32_t rows[3];
     float vals[3];
     nf_oneblob_slots(v, sh.blob_bins, 0, nf_layer_wraps(m, layer), rows, vals);
+    if (sh.lanes && hp == NF_CHUNK && sh.raw_stride <= NF_POINT_LANES_RAW) {
+        /* nf_input_layer_blob, nf_relu and nf_dense_one on registers: same operations */
+        const float *w = packed + lin[0].weight;
+        nf_lanes h, row, zero, out[NF_POINT_LANES_RAW / NF_CHUNK];
+        nf_lanes_load(&h, ctx);
+        for (uint32_t s = 0; s < 3; ++s) {
+            nf_lanes_load(&row, w + (size_t)rows[s] * hp);
+            nf_lanes_madd(&h, vals[s], &row);
+        }
+        nf_lanes_splat(&zero, 0.0f);
+        nf_lanes_max(&h, &zero);
+        for (uint32_t l = 1; l < sh.depth; ++l) {
+            nf_point_dense_lanes(out, packed + lin[l].weight, hp, packed + lin[l].bias, &h,
+                                 sh.width);
+            h = out[0];
+            nf_lanes_max(&h, &zero);
+        }
+        nf_point_dense_lanes(out, packed + lin[sh.depth].weight, sh.raw_stride,
+                             packed + lin[sh.depth].bias, &h, sh.width);
+        for (uint32_t c = 0; c < sh.raw_stride / NF_CHUNK; ++c)
+            nf_point_clamp_store(sc->raw + (size_t)c * NF_CHUNK, &out[c]);
+        return;
+    }
     nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc->act[0]);
     nf_relu(sc->act[0], hp);
     const float *h = sc->act[0];
@@ -164,7 +283,7 @@ static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
     }
     nf_dense_one(sc->raw, packed + lin[sh.depth].weight, sh.raw_stride, packed + lin[sh.depth].bias,
                  h, sh.width);
-    for (uint32_t r = 0; r < sh.raw; ++r)
+    for (uint32_t r = 0; r < sh.raw_stride; ++r)
         sc->raw[r] = nf_clampf(sc->raw[r], -NF_RAW_LIMIT, NF_RAW_LIMIT);
 }
 
@@ -263,7 +382,7 @@ static inline void nf_point_walk_spline(const nf_model *m, nf_point_shape sh, in
 {
     uint32_t i = nf_point_walk_layer(sh, inverse, j), t = nf_transformed(i);
     nf_point_conditioner(m, sh, w->p, i, w->x[1 - t], sc);
-    nf_point_spline(sh.bins, nf_layer_circular(m, i), sc);
+    nf_point_spline(sh.bins, sh.raw_stride, nf_layer_circular(m, i), sc);
 }
 
 /* The second half of step j: the spline applied (forward) or inverted (inverse), with a
@@ -350,11 +469,11 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
 /* The presets' shapes (nisflow/model.h: NF_PRESET_SMALL, NF_PRESET_LARGE). */
 #define NF_POINT_SHAPE_SMALL                                                                       \
     {                                                                                              \
-        2u, 8u, 32u, 1u, 16u, 16u, 25u, 32u                                                        \
+        2u, 8u, 32u, 1u, 16u, 16u, 25u, 32u, 1u                                                    \
     }
 #define NF_POINT_SHAPE_LARGE                                                                       \
     {                                                                                              \
-        4u, 16u, 32u, 2u, 16u, 16u, 49u, 64u                                                       \
+        4u, 16u, 32u, 2u, 16u, 16u, 49u, 64u, 1u                                                   \
     }
 
 static inline int nf_point_shape_equal(nf_point_shape a, nf_point_shape b)
