@@ -293,13 +293,14 @@ typedef struct nf_pass_choice {
                         * guiding pays); NaN until each kind has 2 passes                 */
 } nf_pass_choice;
 
-/* The variance of one pass of a kind, relative, from per-pixel sums: for each of n pixels (or
- * any unit of the image), sum[i] and sum_sq[i] of its value (a luminance, say) over `passes`
- * passes of the kind, and reference[i] the best estimate of the pixel's value (all passes of
- * both kinds, and of training, averaged), the mean over i of
- *     (sum_sq[i] - 2 reference[i] sum[i] + passes reference[i]^2) / passes / (reference[i]^2 +
- * epsilon), the passes' mean squared distance to the reference, relative as relMSE is. The distance
- * is to the reference, not to the kind's own mean: a kind whose rare paths carry the light shows
+/* The variance of one pass of a kind, relative, from per-pixel sums. For each of n pixels (or
+ * any unit of the image): S = sum[i] and Q = sum_sq[i], the sums of its value (a luminance,
+ * say) and of its square over the kind's k = `passes` passes, and r = reference[i], the best
+ * estimate of the pixel's value (every pass of both kinds and of training, averaged). *out is
+ * the mean over i of
+ *     (Q - 2 r S + k r^2) / k / (r^2 + epsilon),
+ * the passes' mean squared distance to the reference, relative as relMSE is. The distance is
+ * to the reference, not to the kind's own mean: a kind whose rare paths carry the light shows
  * zeros where the other kind has seen light, and its own mean would call those pixels
  * noiseless. *out is 0 for n = 0. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with n > 0,
  * NULL out, passes 0, epsilon not finite and > 0, a value not finite, sum_sq[i] < 0: the
@@ -320,9 +321,10 @@ NF_API nf_status nf_guide_pass_variance(size_t n, const double *sum, const doubl
  * has plain path tracing's second moment as its expectation over guided paths (importance
  * weighting; docs/theory.md, "Guided or plain passes"). Start a path with
  * nf_plain_moment_start, follow its scatters and roulette, add its contributions; a plain
- * path (R = 1) gives the square of its luminance. The light samples' MIS weights are the
- * guided path's: the estimate is of plain path tracing with those weights. Thread-safe,
- * total (the functions only write *m; moment stays >= 0, +inf at worst); NULL m is a no-op. */
+ * path (R = 1) gives the square of its luminance. Add each contribution with the MIS weight
+ * plain path tracing would give it (light sampling against the BSDF's density), not the
+ * guided path's. Thread-safe, total (the functions only write *m; moment stays >= 0, +inf at
+ * worst); NULL m is a no-op. */
 typedef struct nf_plain_moment {
     float ratio;  /* R: plain path tracing's density of the path so far over the guided one's */
     float sum;    /* the contributions so far, each divided by its R                          */
