@@ -1,8 +1,9 @@
 /*
- * budget.c - the time-budgeted job of budget.h: training passes, render passes, and their
- * inverse-variance combination. Training is the library's guide (nisflow/guide.h): the
- * passes' records go to its store, its schedule says when to stop, and render threads sample
- * its published model.
+ * budget.c - the time-budgeted job of budget.h: training passes, render passes guided or
+ * plain, and their inverse-variance combination. Training and the choice of passes are the
+ * library's guide (nisflow/guide.h): the passes' records go to its store, its schedule says
+ * when to stop, the measures of both kinds of pass say which to render next, and render
+ * threads sample its published model.
  */
 #include "budget.h"
 

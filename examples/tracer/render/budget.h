@@ -3,14 +3,19 @@
  * `nf_tracer --time-budget`, and what docs/equal-time.md measures.
  *
  * The job is a sequence of passes of one path per pixel (render_pass):
+ *   0. with the guide's choice of passes (nf_guide_config.pass_choice), two plain passes,
+ *      the yardstick that training measures itself against;
  *   1. training passes, guided by the guide's published model: their records go to the
  *      guide, which trains after each pass (nisflow/guide.h: its store, its steps, its
  *      schedule), and their radiance is kept, not thrown away;
- *   2. render passes with the model frozen, until the next pass would overrun the budget.
- * Training stops when the guide says (nf_guide_keep_training: its share of the budget, or
- * the held-out loss's patience). The image is the inverse-variance combination of the
- * training passes (grouped) and the render passes (docs/equal-time.md, "How the budget is
- * spent"). Without a guide every pass is a render pass.
+ *   2. render passes with the model frozen, each guided or plain as nf_guide_choose_pass
+ *      says, until the next pass would overrun the budget.
+ * Every pass also writes its paths' estimates of plain path tracing's second moment
+ * (nf_plain_moment), which measure plain passes. Training stops when the guide says
+ * (nf_guide_keep_training: its share of the budget, the held-out loss's patience, or the
+ * training passes' ratio to a plain pass). The image is the inverse-variance combination of
+ * the training passes (grouped) and the render passes of both kinds, per pixel
+ * (docs/tracer.md, "The time budget"). Without a guide every pass is a plain render pass.
  */
 #ifndef TRACER_BUDGET_H
 #define TRACER_BUDGET_H
