@@ -84,6 +84,54 @@ static void test_variance_in_expectation(void **state)
     free(ref);
 }
 
+/* nf_plain_moment has plain path tracing's second moment as its expectation over guided
+ * paths (docs/theory.md section 8), checked on a path of one scatter in [0, 1] with
+ * integrand f(x) = x^2: emission 0.5 seen at the camera, then a direction drawn from the
+ * guided density p_g(x) = 2x where plain path tracing draws it uniformly (p_p = 1), Russian
+ * roulette survived with probability 0.5 where plain path tracing's rule would have given
+ * min(f / p_p, 0.95), and the direction's contribution f / p_g / 0.5. Plain path tracing's
+ * value is 0.5 + [survives] f / (p_p q_p), whose second moment is
+ *     0.25 + 2 x 0.5 x int f + int f^2 / (p_p q_p) = 0.25 + 1/3 + int x^4 / min(x^2, 0.95). */
+static void test_plain_moment_in_expectation(void **state)
+{
+    (void)state;
+    nf_guide_policy pol;
+    nf_guide_policy_init(&pol); /* max_survival 0.95 */
+    const double a = sqrt(0.95); /* x^2 reaches 0.95 here */
+    const double expect = 0.25 + 1.0 / 3.0 + a * a * a / 3.0 + (1.0 - pow(a, 5.0)) / (5.0 * 0.95);
+    enum { N = 400000 };
+    nft_rng r;
+    nft_rng_seed(&r, 31, 0);
+    double sum = 0.0, sum_sq = 0.0;
+    for (int i = 0; i < N; ++i) {
+        nf_plain_moment m;
+        nf_plain_moment_start(&m);
+        nf_plain_moment_add(&m, 0.5f);
+        /* x from p_g = 2x: the inverse of x^2; x > 0 keeps p_g positive. */
+        float x = (float)sqrt(fmax(nft_rng_double(&r), 1e-12));
+        float f = x * x, p_g = 2.0f * x, q = 0.5f;
+        nf_plain_moment_scatter(&m, 1.0f, p_g, 0.7f);
+        if (nft_rng_double(&r) < q) {
+            nf_plain_moment_roulette(&m, &pol, f / p_g, q);
+            nf_plain_moment_add(&m, f / p_g / q);
+        }
+        sum += m.moment;
+        sum_sq += (double)m.moment * m.moment;
+    }
+    double mean = sum / N, sd = sqrt(fmax(sum_sq / N - mean * mean, 0.0));
+    /* Five standard errors of the mean of N independent estimates; float rounding of the
+     * accumulator is far below (relative 1e-7 per path). */
+    double tol = 5.0 * sd / sqrt((double)N);
+    assert_true(fabs(mean - expect) < tol);
+    assert_true(tol < 0.01 * expect); /* and the check is tight: under 1 % */
+    /* A plain path (R = 1 throughout) gives the square of its value. */
+    nf_plain_moment m;
+    nf_plain_moment_start(&m);
+    nf_plain_moment_add(&m, 0.25f);
+    nf_plain_moment_add(&m, 1.5f);
+    assert_true(fabs(m.moment - 1.75f * 1.75f) < 1e-6f);
+}
+
 static void test_variance_refuses(void **state)
 {
     (void)state;
@@ -244,6 +292,7 @@ int main(void)
         cmocka_unit_test(test_variance_by_hand),
         cmocka_unit_test(test_variance_in_expectation),
         cmocka_unit_test(test_variance_refuses),
+        cmocka_unit_test(test_plain_moment_in_expectation),
         cmocka_unit_test(test_warm_up),
         cmocka_unit_test(test_cost_rule),
         cmocka_unit_test(test_exploration),
