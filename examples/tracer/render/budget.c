@@ -467,7 +467,8 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
     int training = guide != NULL && nf_guide_get_config(guide)->train_fraction > 0.0f;
     /* With the choice of passes, two plain passes come first: training measures itself
      * against them (nf_guide_report_training_ratio). */
-    const int plain_first = training && nf_guide_get_config(guide)->pass_choice ? 2 : 0;
+    const int choosing = guide != NULL && nf_guide_get_config(guide)->pass_choice;
+    const int plain_first = training && choosing ? 2 : 0;
     uint32_t k = 0;
     for (;; ++k) {
         double t0 = now_seconds(), c0 = cpu_seconds();
@@ -543,7 +544,9 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
             if (!ranks_sum_f64(&cpu, 1, err))
                 goto done;
             ks->cpu += cpu;
-            if (guide && !measure_kinds(&sums, measured, err))
+            /* The choice reads the measures before every pass; a fixed policy only reports
+             * them, once, after the last. */
+            if (choosing && !measure_kinds(&sums, measured, err))
                 goto done;
             rep->render_passes++;
             last_pass = last_kind[plan.kind] = now_seconds() - t0;
