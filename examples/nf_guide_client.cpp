@@ -76,7 +76,7 @@ PassResult trace(const nf_model *model, nf_guide *guide, const nf_guide_policy *
     for (size_t i = 0; i < paths; ++i) {
         Vec p{uni(rng), uni(rng), 0.0f};
         float g = model ? nf_guide_mixture_prob(policy, 1.0f) : 0.0f; // nf
-        nf_context c = {{p.x, p.y, p.z}, {0.0f, 0.0f, 1.0f}, {0.0f, 0.0f, 1.0f}};
+        nf_context c = {{p.x, p.y, p.z}, {0.0f, 0.0f, 1.0f}, {0.0f, 0.0f, 1.0f}, 0.0f};
         nf_shading_point sp;
         if (model && nf_point_prepare(model, &c, nullptr, &sp) != NF_OK) // nf
             g = 0.0f; // a point the guide cannot take: the BSDF alone, still unbiased

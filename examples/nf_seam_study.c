@@ -160,7 +160,8 @@ static int run(nf_prior_kind prior, const integrand *f, uint64_t seed, const opt
         return 0;
     nf_context c = {{0.5f, 0.5f, 0.5f},
                     {(float)f->n[0], (float)f->n[1], (float)f->n[2]},
-                    {(float)f->n[0], (float)f->n[1], (float)f->n[2]}};
+                    {(float)f->n[0], (float)f->n[1], (float)f->n[2]},
+                    0.0f};
     static nf_context ctx[BATCH];
     static float u[2 * BATCH], dir[3 * BATCH], pdf[BATCH], weight[BATCH];
     for (int i = 0; i < BATCH; ++i)

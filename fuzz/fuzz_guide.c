@@ -247,7 +247,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         case 3: { /* a batch with the caller's groups, maybe malformed */
             size_t n = next_byte(&r) % (MAX_SAMPLES + 1), ng = next_byte(&r) % 17;
             for (size_t i = 0; i < n; ++i) {
-                ctx[i] = (nf_context){{0.1f * (float)(i % 7), 0.5f, 0.5f}, {0, 0, 1}, {0, 0, 1}};
+                ctx[i] = (nf_context){{0.1f * (float)(i % 7), 0.5f, 0.5f}, {0, 0, 1}, {0, 0, 1}, 0.0f};
                 for (int a = 0; a < 3; ++a)
                     dir[3 * i + (size_t)a] = next_float(&r);
                 weight[i] = next_float(&r);

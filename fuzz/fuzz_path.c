@@ -30,6 +30,9 @@
 
 #include "fuzz_common.h"
 
+/* The floats of one context, which the sentinel checks walk. */
+#define NF_CTX_FLOATS (sizeof(nf_context) / sizeof(float))
+
 #define MAX_VERTICES 64
 #define OUT_CAP (MAX_VERTICES + 2)
 #define SIZE_SENTINEL ((size_t)0x5eed5eedu)
@@ -122,7 +125,7 @@ typedef struct outputs {
 static void fill(outputs *o)
 {
     float *c = (float *)o->ctx;
-    for (size_t i = 0; i < 9 * OUT_CAP; ++i)
+    for (size_t i = 0; i < NF_CTX_FLOATS * OUT_CAP; ++i)
         c[i] = FLOAT_SENTINEL;
     for (size_t i = 0; i < 3 * OUT_CAP; ++i)
         o->dir[i] = FLOAT_SENTINEL;
@@ -137,7 +140,7 @@ static void fill(outputs *o)
 static int untouched_from(const outputs *o, size_t from)
 {
     const float *c = (const float *)o->ctx;
-    for (size_t i = 9 * from; i < 9 * OUT_CAP; ++i)
+    for (size_t i = NF_CTX_FLOATS * from; i < NF_CTX_FLOATS * OUT_CAP; ++i)
         if (memcmp(&c[i], &(float){FLOAT_SENTINEL}, sizeof(float)) != 0)
             return 0;
     for (size_t i = 3 * from; i < 3 * OUT_CAP; ++i)

@@ -233,7 +233,7 @@ typedef struct nf_point {
  * rather than read with a wrong normal, context or callback. A sum of the header's 64-bit
  * words times distinct odd constants: any change of a single word changes it, and the
  * multiplies are independent, so the check costs a few cycles of latency per call. On
- * 64-bit targets the header is 96 bytes without padding (asserted in point.c), read as 12
+ * 64-bit targets the header is 104 bytes without padding (asserted in point.c), read as 13
  * words; elsewhere field by field, since struct padding need not survive a copy. */
 static inline uint32_t nf_point_hash(const nf_shading_point *p)
 {
@@ -248,7 +248,7 @@ static inline uint32_t nf_point_hash(const nf_shading_point *p)
     }
 #else
     uint32_t w[32], n = 0;
-    memcpy(w, &p->context_, sizeof p->context_); /* 9 floats */
+    memcpy(w, &p->context_, sizeof p->context_); /* 10 floats */
     n = (uint32_t)(sizeof p->context_ / sizeof w[0]);
     w[n++] = p->magic_;
     w[n++] = (uint32_t)p->model_id_;

@@ -9,11 +9,13 @@
 /* nf_point_hash reads the header as 64-bit words: it must have no padding, whose bytes a copy
  * of the point need not keep. */
 _Static_assert(
-    offsetof(nf_shading_point, check_) == 96 && offsetof(nf_shading_point, context_) == 0 &&
-        offsetof(nf_shading_point, magic_) == 36 && offsetof(nf_shading_point, model_id_) == 40 &&
-        offsetof(nf_shading_point, generation_) == 48 && offsetof(nf_shading_point, prior_) == 56 &&
-        offsetof(nf_shading_point, frame_) == 80 && offsetof(nf_shading_point, cached_) == 92,
-    "the shading point's header is 96 bytes without padding");
+    offsetof(nf_shading_point, check_) == 104 && offsetof(nf_shading_point, context_) == 0 &&
+        offsetof(nf_shading_point, magic_) == 40 && offsetof(nf_shading_point, cached_) == 44 &&
+        offsetof(nf_shading_point, model_id_) == 48 &&
+        offsetof(nf_shading_point, generation_) == 56 && offsetof(nf_shading_point, prior_) == 64 &&
+        offsetof(nf_shading_point, frame_) == 88 && offsetof(nf_shading_point, zero_) == 100 &&
+        offsetof(nf_shading_point, cache_) == 128,
+    "the shading point's header is 104 bytes without padding");
 #endif
 
 /* A point is usable with `m` when its header is intact, it was prepared on `m`, and m's

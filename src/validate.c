@@ -39,6 +39,13 @@ nf_status nf_validate_contexts(const char *fn, size_t n, const nf_context *ctx)
         if (!nf_vector_usable(ctx[i].wo))
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                            "%s: ctx[%zu].wo is zero-length or not finite", fn, i);
+        /* phase_g is read only in a medium (a zero normal): on surfaces, contexts filled
+         * before 0.5.0, which leave it uninitialized, stay valid. */
+        if (ctx[i].normal[0] == 0.0f && ctx[i].normal[1] == 0.0f && ctx[i].normal[2] == 0.0f &&
+            !(fabsf(ctx[i].phase_g) <= NF_PHASE_G_MAX))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: ctx[%zu].phase_g = %g is not finite or beyond +-%g", fn, i,
+                           (double)ctx[i].phase_g, (double)NF_PHASE_G_MAX);
     }
     return NF_OK;
 }

@@ -56,7 +56,15 @@ typedef struct nf_context {
     float position[3];
     float normal[3];
     float wo[3];
+    /* The Henyey-Greenstein asymmetry of the medium at a point in a participating medium:
+     * finite, |phase_g| <= NF_PHASE_G_MAX. On surfaces it is never read (any value, so that
+     * contexts filled before 0.5.0 stay valid); zero-initialise it. (Added in 0.5.0.) */
+    float phase_g;
 } nf_context;
+
+/* The largest |phase_g| a context may carry: beyond it the phase function's peak is too
+ * narrow for float directions. */
+#define NF_PHASE_G_MAX 0.99f
 
 /* The prior (latent density) of the flow. Values are explicit and never renumbered. */
 typedef enum nf_prior_kind {

@@ -72,13 +72,14 @@ NF_EXTERN_C_BEGIN
 typedef struct nf_shading_point {
     nf_context context_;       /* the context as given, passed to custom priors     */
     uint32_t magic_;           /* marks a prepared point                              */
+    uint32_t cached_;          /* 1: cache_ holds context sums; 0: encodings          */
     uint64_t model_id_;        /* the model it belongs to                             */
     uint64_t generation_;      /* that model's parameter generation                   */
     nf_prior_callbacks prior_; /* the custom prior's callbacks at this point          */
     float frame_[3];           /* the unit normal                                     */
-    uint32_t cached_;          /* 1: cache_ holds context sums; 0: encodings          */
+    uint32_t zero_;            /* 0, so that the hashed header is whole 64-bit words  */
     uint32_t check_;           /* a hash of the fields above                          */
-    uint32_t reserved_[7];
+    uint32_t reserved_[5];
     float cache_[NF_SHADING_POINT_CACHE_FLOATS];
 } nf_shading_point;
 

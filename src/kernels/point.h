@@ -313,6 +313,7 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
     for (uint32_t a = 0; a < 3; ++a)
         p->frame_[a] = feat.ctx.normal[a];
     p->cached_ = (size_t)layers * hp <= NF_SHADING_POINT_CACHE_FLOATS;
+    p->zero_ = 0;
     for (uint32_t r = 0; r < sizeof p->reserved_ / sizeof p->reserved_[0]; ++r)
         p->reserved_[r] = 0;
     p->check_ = 0; /* nf_point_prepare (point.c) seals public points; stack points need none */

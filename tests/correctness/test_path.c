@@ -31,6 +31,9 @@
 
 #include "nf_test_support.h"
 
+/* The floats of one context, which the sentinel checks walk. */
+#define NF_CTX_FLOATS (sizeof(nf_context) / sizeof(float))
+
 #define MAX_V 64
 #define SIZE_SENTINEL ((size_t)0x5eed5eedu)
 
@@ -87,7 +90,7 @@ typedef struct result {
 
 static nf_status run(const nf_path_vertex *v, size_t n, size_t capacity, result *r)
 {
-    nft_fill_sentinel((float *)r->ctx, 9 * MAX_V);
+    nft_fill_sentinel((float *)r->ctx, NF_CTX_FLOATS * MAX_V);
     nft_fill_sentinel(r->dir, 3 * MAX_V);
     nft_fill_sentinel(r->weight, MAX_V);
     for (size_t i = 0; i < MAX_V; ++i)
@@ -125,7 +128,7 @@ static void check_against_reference(const nf_path_vertex *v, size_t n, const res
         ++expected;
     }
     assert_int_equal(r->count, expected);
-    assert_true(nft_untouched((const float *)(r->ctx + expected), 9 * (MAX_V - expected)));
+    assert_true(nft_untouched((const float *)(r->ctx + expected), NF_CTX_FLOATS * (MAX_V - expected)));
     assert_true(nft_untouched(r->dir + 3 * expected, 3 * (MAX_V - expected)));
     assert_true(nft_untouched(r->weight + expected, MAX_V - expected));
     for (size_t i = expected; i < MAX_V; ++i)
@@ -450,7 +453,7 @@ static void test_capacity(void **state)
         result r;
         assert_int_equal(run(v, n, need - 1, &r), NF_ERROR_CAPACITY);
         assert_int_equal(r.count, need);
-        assert_true(nft_untouched((const float *)r.ctx, 9 * MAX_V));
+        assert_true(nft_untouched((const float *)r.ctx, NF_CTX_FLOATS * MAX_V));
         assert_true(nft_untouched(r.dir, 3 * MAX_V));
         assert_true(nft_untouched(r.weight, MAX_V));
         for (size_t i = 0; i < MAX_V; ++i)

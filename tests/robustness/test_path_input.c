@@ -22,6 +22,9 @@
 
 #include "nf_test_support.h"
 
+/* The floats of one context, which the sentinel checks walk. */
+#define NF_CTX_FLOATS (sizeof(nf_context) / sizeof(float))
+
 #define N 5
 #define CAP 8
 #define SIZE_SENTINEL ((size_t)0x5eed5eedu)
@@ -56,7 +59,7 @@ typedef struct outputs {
 
 static void fill(outputs *o)
 {
-    nft_fill_sentinel((float *)o->ctx, 9 * CAP);
+    nft_fill_sentinel((float *)o->ctx, NF_CTX_FLOATS * CAP);
     nft_fill_sentinel(o->dir, 3 * CAP);
     nft_fill_sentinel(o->weight, CAP);
     for (int i = 0; i < CAP; ++i)
@@ -66,7 +69,7 @@ static void fill(outputs *o)
 
 static void assert_untouched(const outputs *o)
 {
-    assert_true(nft_untouched((const float *)o->ctx, 9 * CAP));
+    assert_true(nft_untouched((const float *)o->ctx, NF_CTX_FLOATS * CAP));
     assert_true(nft_untouched(o->dir, 3 * CAP));
     assert_true(nft_untouched(o->weight, CAP));
     for (int i = 0; i < CAP; ++i)

@@ -185,7 +185,7 @@ static void test_sh_bands_reach_the_model(void **state)
         nf_config cfg = created_config(&s, &gs, &model);
         assert_int_equal(cfg.sh_bands, wanted[i] < 0 ? defaults.sh_bands : (uint32_t)wanted[i]);
         /* A position-only model still samples and evaluates (no SH rows in its input). */
-        nf_context ctx = {{0.1f, 0.2f, 0.3f}, {0.0f, 0.0f, 1.0f}, {0.0f, 1.0f, 0.0f}};
+        nf_context ctx = {{0.1f, 0.2f, 0.3f}, {0.0f, 0.0f, 1.0f}, {0.0f, 1.0f, 0.0f}, 0.0f};
         float u[2] = {0.3f, 0.7f}, dir[3], pdf = 0.0f, back = 0.0f;
         assert_int_equal(nf_sample(model, 1, &ctx, u, dir, &pdf), NF_OK);
         assert_int_equal(nf_pdf(model, 1, &ctx, dir, &back), NF_OK);
