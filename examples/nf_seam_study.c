@@ -16,8 +16,8 @@
  * direction by f / pdf and takes one nf_train_step.
  *
  * Output: a Markdown table, one row per prior, kappa and checkpoint, with the mean and
- * standard deviation over the seeds of both placements' KL and their ratio. Deterministic:
- * the random numbers are the program's own.
+ * standard deviation over the seeds of both placements' KL and their ratio, and the medians
+ * and theirs. Deterministic: the random numbers are the program's own.
  *
  * Usage: nf_seam_study [--steps A,B,C] [--seeds N] [--kappas K1,K2] [--help]
  */
@@ -229,6 +229,19 @@ static void mean_sd(const double *v, int n, double *mean, double *sd)
     *sd = n > 1 ? sqrt(q / (n - 1)) : 0.0;
 }
 
+/* The median: the means are set by the few seeds that stall, the medians by the typical run. */
+static double median(const double *v, int n)
+{
+    double s[64];
+    for (int i = 0; i < n; ++i) {
+        int j = i;
+        for (; j > 0 && s[j - 1] > v[i]; --j)
+            s[j] = s[j - 1];
+        s[j] = v[i];
+    }
+    return n % 2 ? s[n / 2] : 0.5 * (s[n / 2 - 1] + s[n / 2]);
+}
+
 int main(int argc, char **argv)
 {
     nf_config defaults;
@@ -265,8 +278,9 @@ int main(int argc, char **argv)
     }
     static const nf_prior_kind priors[2] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR_COSINE};
     static const char *prior_names[2] = {"uniform-direction", "cosine"};
-    printf("| prior | kappa | steps | KL, lobe on the seam | KL, lobe at phi = pi | seam / pi |\n");
-    printf("|---|---|---|---|---|---|\n");
+    printf("| prior | kappa | steps | KL, lobe on the seam | KL, lobe at phi = pi | seam / pi | "
+           "medians, seam / pi | seam / pi (medians) |\n");
+    printf("|---|---|---|---|---|---|---|---|\n");
     for (int p = 0; p < 2; ++p)
         for (int k = 0; k < o.nkappas; ++k) {
             double kl[2][64][MAX_LIST];
@@ -279,20 +293,21 @@ int main(int argc, char **argv)
                     }
             }
             for (int c = 0; c < o.nsteps; ++c) {
-                double v[2][64], mean[2], sd[2];
+                double v[2][64], mean[2], sd[2], med[2];
                 for (int place = 0; place < 2; ++place) {
                     for (int s = 0; s < o.seeds; ++s)
                         v[place][s] = kl[place][s][c];
                     mean_sd(v[place], o.seeds, &mean[place], &sd[place]);
+                    med[place] = median(v[place], o.seeds);
                 }
-                printf("| %s | %g | %ld | %.4f ± %.4f | %.4f ± %.4f | %.2f |\n", prior_names[p],
-                       o.kappas[k], o.steps[c], mean[0], sd[0], mean[1], sd[1],
-                       mean[0] / mean[1]);
+                printf("| %s | %g | %ld | %.4f ± %.4f | %.4f ± %.4f | %.2f | %.4f / %.4f | %.2f |\n",
+                       prior_names[p], o.kappas[k], o.steps[c], mean[0], sd[0], mean[1], sd[1],
+                       mean[0] / mean[1], med[0], med[1], med[0] / med[1]);
             }
             fflush(stdout);
         }
     printf("\nKL(f || model) in nats by quadrature on %d x %d cells of (cos theta, phi); mean ± "
-           "standard deviation over %d seeds; training online, %d samples per step, learning "
+           "standard deviation, and median, over %d seeds; training online, %d samples per step, learning "
            "rate %g, the small model, phi map %s. libnisflow %s.\n",
            GRID_Z, GRID_PHI, o.seeds, BATCH, (double)LEARNING_RATE,
            o.phi_map == NF_PHI_CIRCULAR ? "circular" : "interval", nf_version_string());

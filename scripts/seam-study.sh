@@ -10,12 +10,12 @@
 #      image is the same): the light, straight up (+y) from most shading points, then lies at
 #      phi = 0 (+x), across the seam. Guided renders (cosine prior, 200 iterations, then
 #      32 spp) at 128 x 128 with seeds 1 .. RENDER_SEEDS per phi map, their error against the
-#      scene's reference.
+#      scene's reference, and per map the means, standard deviations and turned / upright.
 #
-# It writes out/seam/unit-MAP.md and out/seam/render.md and prints them. About 9 minutes on
-# 2 cores with the defaults (16 seeds for the unit study, 3 renders per scene and map).
+# It writes out/seam/unit-MAP.md and out/seam/render.md and prints them. About 12 minutes on
+# 2 cores with the defaults (16 seeds for the unit study, 4 renders per scene and map).
 #
-#   scripts/seam-study.sh [SEEDS]        (default 16 for the unit study, 3 renders per scene)
+#   scripts/seam-study.sh [SEEDS]        (default 16 for the unit study, 4 renders per scene)
 #   scripts/seam-study.sh --smoke        one seed, short runs (CI: seconds)
 set -euo pipefail
 
@@ -24,7 +24,7 @@ ROOT=$(pwd)
 OUT=out/seam
 SMOKE=0
 SEEDS=16
-RENDER_SEEDS=3
+RENDER_SEEDS=4
 UNIT=()
 RENDER=(--width 128 --height 128 --iterations 200 --spp 32 --eval-every 0)
 if [ "${1:-}" = --smoke ]; then
@@ -63,21 +63,41 @@ grep -q 'origin="1, 0, 6.8"' "$TURNED/scene.xml" || { echo "the camera was not t
 {
     echo "| phi map | scene | seed | MAPE | relMSE |"
     echo "|---|---|---|---|---|"
-    for map in interval circular; do
-        for scene in "$SRC" "$TURNED"; do
-            name=$(basename "$scene")
-            # The paper's protocol, which section 8 of docs/results.md measured, with the map.
-            variant=paper
-            [ "$map" = interval ] && variant=paper,phi-interval
-            for ((s = 1; s <= RENDER_SEEDS; ++s)); do
-                build/examples/nf_tracer --scene "$scene/scene.xml" --prior cosine \
-                    --variant "$variant" "${RENDER[@]}" --seed "$s" --threads 2 \
-                    --out "$OUT/$map-$name-$s" > "$OUT/$map-$name-$s.log"
-                read -r mape relmse < <(build/examples/nf_compare "$SRC/reference-tungsten.exr" \
-                    "$OUT/$map-$name-$s.exr" | awk '/^MAPE/ { print $2, $4 }')
-                echo "| $map | $name | $s | $mape | $relmse |"
-            done
+} > "$OUT/render-rows.md"
+for map in interval circular; do
+    for scene in "$SRC" "$TURNED"; do
+        name=$(basename "$scene")
+        # The paper's protocol, which section 8 of docs/results.md measured, with the map.
+        variant=paper
+        [ "$map" = interval ] && variant=paper,phi-interval
+        for ((s = 1; s <= RENDER_SEEDS; ++s)); do
+            build/examples/nf_tracer --scene "$scene/scene.xml" --prior cosine \
+                --variant "$variant" "${RENDER[@]}" --seed "$s" --threads 2 \
+                --out "$OUT/$map-$name-$s" > "$OUT/$map-$name-$s.log"
+            read -r mape relmse < <(build/examples/nf_compare "$SRC/reference-tungsten.exr" \
+                "$OUT/$map-$name-$s.exr" | awk '/^MAPE/ { print $2, $4 }')
+            echo "| $map | $name | $s | $mape | $relmse |" >> "$OUT/render-rows.md"
         done
+    done
+done
+{
+    cat "$OUT/render-rows.md"
+    echo
+    echo "| phi map | upright relMSE | turned relMSE | turned / upright | upright MAPE | turned MAPE |"
+    echo "|---|---|---|---|---|---|"
+    for map in interval circular; do
+        awk -F'|' -v map="$map" -v turned="$(basename "$TURNED")" '
+            $2 ~ " " map " " {
+                k = ($3 ~ " " turned " ") ? 1 : 0
+                n[k]++; r[k] += $6; rr[k] += $6 * $6; e[k] += $5; ee[k] += $5 * $5
+            }
+            function sd(s, ss, c) { return c > 1 ? sqrt((ss - s * s / c) / (c - 1)) : 0 }
+            END {
+                printf "| %s | %.6f ± %.6f | %.6f ± %.6f | **%.3f** | %.5f ± %.5f | %.5f ± %.5f |\n",
+                    map, r[0] / n[0], sd(r[0], rr[0], n[0]), r[1] / n[1], sd(r[1], rr[1], n[1]),
+                    (r[1] / n[1]) / (r[0] / n[0]), e[0] / n[0], sd(e[0], ee[0], n[0]),
+                    e[1] / n[1], sd(e[1], ee[1], n[1])
+            }' "$OUT/render-rows.md"
     done
     echo
     echo "Guided renders (\`nf_tracer --prior cosine --variant paper[,phi-interval] ${RENDER[*]} --seed S\`) against" \
