@@ -38,7 +38,8 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
         nf_prior_point pp;
         nf_point_prior(&pt, &pp);
         if (pp.medium) {
-            /* the eps-mixed Henyey-Greenstein phase function around d (docs/theory.md 2.4) */
+            /* the eps-mixed Henyey-Greenstein phase function around d (docs/theory.md section 2,
+             * "Media") */
             const float *d = pp.axis;
             float base = nf_hg_base(d[0] * w[0] + d[1] * w[1] + d[2] * w[2], pp.g);
             float hg = (1.0f - pp.g) * (1.0f + pp.g) / (base * sqrtf(base)) * NF_INV_FOUR_PI;

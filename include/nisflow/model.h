@@ -60,7 +60,7 @@ typedef struct nf_model nf_model;
  * zeros, a value no unit normal produces, so one network tells media from surfaces; the
  * cosine prior is the phase function there (NF_PRIOR_COSINE). A normal that is not finite,
  * or non-zero but too short to normalize, is still refused. docs/integration.md, "Volume
- * vertices"; docs/theory.md section 2.4. */
+ * vertices"; docs/theory.md section 2, "Media". */
 typedef struct nf_context {
     float position[3];
     float normal[3];
@@ -83,7 +83,7 @@ typedef enum nf_prior_kind {
                                        in a medium the Henyey-Greenstein phase function
                                        (1 - g^2) / (4 pi (1 + g^2 - 2 g w.d)^(3/2)) around
                                        d = -wo/|wo|, g = phase_g, eps-mixed alike (g = 0:
-                                       uniform); docs/theory.md section 2.4               */
+                                       uniform); docs/theory.md section 2, "Media"      */
     NF_PRIOR_CUSTOM = 3             /* user callbacks (for example a BSDF lobe), eps-mixed    */
 } nf_prior_kind;
 /* Transmission. The cosine prior covers only the hemisphere of the context's normal: its

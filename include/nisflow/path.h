@@ -71,6 +71,9 @@ NF_EXTERN_C_BEGIN
  * (memset or = {0}): a zeroed vertex contributes nothing and learns nothing.
  *
  * Radiance fields (read on every vertex; finite and >= 0, else the call is refused):
+ *   (At a vertex in a participating medium, a context with a zero normal, read the phase
+ *   function for f_s |cos| and its density for the BSDF's: docs/integration.md, "Volume
+ *   vertices".)
  *   direct       RGB radiance: the MIS-weighted next-event estimate at this vertex, the
  *                light reflected towards wo, f_s |cos| L_e w_light / p_light summed over the
  *                vertex's light samples, *without* the path throughput before the vertex.

@@ -50,8 +50,8 @@ static inline void nf_cosine_direction(const float n[3], float u0, float u1, flo
 }
 
 /* A direction drawn from the Henyey-Greenstein phase function with asymmetry g (|g| < 1)
- * around the unit axis d (docs/theory.md section 2.4): u0 = 0 gives -d, u0 = 1 gives d, u1 the
- * azimuth. The inversion's usual form (1 + g^2 - s^2) / (2 g) cancels as g -> 0; here 1 - cos
+ * around the unit axis d (docs/theory.md section 2, "Media"): u0 = 0 gives -d, u0 = 1 gives d, u1
+ * the azimuth. The inversion's usual form (1 + g^2 - s^2) / (2 g) cancels as g -> 0; here 1 - cos
  * and 1 + cos come as products with no cancellation, so cos theta near either pole and
  * sin theta keep their relative precision and g = 0 is the uniform sphere exactly. Branch-free
  * and the same arithmetic wherever it is called, so points and batches agree to the bit. */

@@ -1,6 +1,7 @@
 /*
  * test_medium.c - contexts at points in a participating medium (normal exactly zero,
- * nisflow/model.h): the cosine prior's Henyey-Greenstein branch (docs/theory.md section 2.4).
+ * nisflow/model.h): the cosine prior's Henyey-Greenstein branch (docs/theory.md section 2,
+ * "Media").
  *   - a fresh model's density at a medium point is the analytic eps-mixed phase function to
  *     1e-3 relative, for g from -0.9 to 0.9, through every entry point (batches small and
  *     tiled, with surface contexts in the same tile, shading points, nf_prior_pdf);
