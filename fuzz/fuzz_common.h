@@ -51,7 +51,8 @@ static inline void nf_fuzz_fix_crc(unsigned char *buf, size_t size)
         buf[size - NF_FUZZ_TRAILER + (size_t)i] = (unsigned char)(crc >> (8 * i));
 }
 
-/* A cosine lobe around the context's normal, in solid-angle terms: p(w) = max(0, n.w) / pi.
+/* A cosine lobe around the context's normal (in a medium around -wo), in solid-angle terms:
+ * p(w) = max(0, n.w) / pi.
  * Sampling by Malley's method in a frame around n; it never returns a density <= 0. */
 static inline void nf_fuzz_unit(const float v[3], double out[3])
 {
@@ -61,11 +62,21 @@ static inline void nf_fuzz_unit(const float v[3], double out[3])
     out[2] = z / len;
 }
 
+/* The lobe's axis: the normal, or at a point in a medium (zero normal) -wo. */
+static inline void nf_fuzz_axis(const nf_context *ctx, double n[3])
+{
+    const float *v = ctx->normal;
+    nf_fuzz_unit(v[0] == 0.0f && v[1] == 0.0f && v[2] == 0.0f ? ctx->wo : v, n);
+    if (v[0] == 0.0f && v[1] == 0.0f && v[2] == 0.0f)
+        for (int k = 0; k < 3; ++k)
+            n[k] = -n[k];
+}
+
 static inline float nf_fuzz_cosine_pdf(void *user, const nf_context *ctx, const float dir[3])
 {
     (void)user;
     double n[3], w[3];
-    nf_fuzz_unit(ctx->normal, n);
+    nf_fuzz_axis(ctx, n);
     nf_fuzz_unit(dir, w);
     double c = n[0] * w[0] + n[1] * w[1] + n[2] * w[2];
     return c > 0.0 ? (float)(c / 3.14159265358979323846) : 0.0f;
@@ -76,7 +87,7 @@ static inline float nf_fuzz_cosine_sample(void *user, const nf_context *ctx, flo
 {
     (void)user;
     double n[3];
-    nf_fuzz_unit(ctx->normal, n);
+    nf_fuzz_axis(ctx, n);
     double sign = n[2] >= 0.0 ? 1.0 : -1.0, a = -1.0 / (sign + n[2]), b = n[0] * n[1] * a;
     double t[3] = {1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]};
     double bt[3] = {b, sign + n[1] * n[1] * a, -n[1]};

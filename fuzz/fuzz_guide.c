@@ -212,6 +212,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                     ctx[i].wo[a] = a == 2 ? 1.0f : next_float(&r);
                     dir[3 * i + (size_t)a] = next_float(&r);
                 }
+                /* Sometimes a point in a medium (zero normal) with a g of any value (mostly
+                 * within +-0.99, which the library accepts); on surfaces g is garbage. */
+                ctx[i].phase_g = next_float(&r);
+                if (next_byte(&r) % 4 == 0)
+                    ctx[i].normal[0] = ctx[i].normal[1] = ctx[i].normal[2] = 0.0f;
                 weight[i] = next_float(&r) * (next_byte(&r) % 2 ? 1.0f : 100.0f);
                 key[i] = next_u32(&r) % 7u;
             }

@@ -82,10 +82,13 @@ static int vector_ok(const float v[3])
     return len2 > 1e-30;
 }
 
+/* A zero normal is a point in a medium, whose phase_g must be finite within +-0.99. */
 static int context_ok(const nf_context *c)
 {
+    int medium = c->normal[0] == 0.0f && c->normal[1] == 0.0f && c->normal[2] == 0.0f;
     return isfinite(c->position[0]) && isfinite(c->position[1]) && isfinite(c->position[2]) &&
-           vector_ok(c->normal) && vector_ok(c->wo);
+           (medium ? fabsf(c->phase_g) <= NF_PHASE_G_MAX : vector_ok(c->normal)) &&
+           vector_ok(c->wo);
 }
 
 /* ---- slots ---------------------------------------------------------------------------------- */
@@ -216,6 +219,12 @@ static void op_prepare(machine *mc)
         c.normal[i] = rd_float(r);
     for (int i = 0; i < 3; ++i)
         c.wo[i] = rd_float(r);
+    /* Flag 8: a point in a medium (zero normal), g from 16 (within +-0.99) or any float;
+     * else a surface, whose g is garbage that must not matter. */
+    c.phase_g = (flags & 16u) ? ((float)rd_u8(r) / 255.0f * 2.0f - 1.0f) * NF_PHASE_G_MAX
+                              : rd_float(r);
+    if (flags & 8u)
+        c.normal[0] = c.normal[1] = c.normal[2] = 0.0f;
     /* Per-point callbacks: the fuzz prior's functions with a user pointer of their own (they
      * ignore it), so results still equal the batch calls'; or with a callback missing. */
     nf_prior_callbacks cb = nf_fuzz_callbacks();

@@ -61,7 +61,14 @@ NF_EXTERN_C_BEGIN
 /* ---- The path policy --------------------------------------------------------------------- */
 
 /* How a renderer mixes the flow with its BSDF at a guided vertex (docs/integration.md, "The
- * recipe"). The defaults are what docs/equal-time.md found best; one place holds them. */
+ * recipe"). The defaults are what docs/equal-time.md found best; one place holds them.
+ *
+ * Volume vertices. At a scattering event in a participating medium (a context with a zero
+ * normal, nisflow/model.h) the phase function plays the BSDF's role everywhere in this
+ * header: "p_bsdf" is the phase function's density of the direction (per steradian), "BSDF
+ * sampling" is phase-function sampling, and f_s |cos| becomes the phase function's value (no
+ * cosine in a medium). The same guide, store and model take surface and volume vertices.
+ * min_roughness is a surface notion (docs/integration.md, "Volume vertices"). */
 typedef struct nf_guide_policy {
     float mixture_prob;       /* probability of sampling the flow at a guided vertex, [0, 1);
                                * default 0.7                                                  */

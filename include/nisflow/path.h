@@ -71,6 +71,9 @@ NF_EXTERN_C_BEGIN
  * (memset or = {0}): a zeroed vertex contributes nothing and learns nothing.
  *
  * Radiance fields (read on every vertex; finite and >= 0, else the call is refused):
+ *   (At a vertex in a participating medium, a context with a zero normal, read the phase
+ *   function for f_s |cos| and its density for the BSDF's: docs/integration.md, "Volume
+ *   vertices".)
  *   direct       RGB radiance: the MIS-weighted next-event estimate at this vertex, the
  *                light reflected towards wo, f_s |cos| L_e w_light / p_light summed over the
  *                vertex's light samples, *without* the path throughput before the vertex.
@@ -92,7 +95,8 @@ NF_EXTERN_C_BEGIN
  *                the path ended here), yet its radiance fields above still carry the light
  *                it passes back to the vertices before it.
  *   ctx          the vertex's context, as passed to nf_point_prepare / nf_sample: finite,
- *                normal and wo of squared length > 1e-30.
+ *                normal and wo of squared length > 1e-30, or a normal exactly (0, 0, 0) at
+ *                a vertex in a medium, whose phase_g is then within +-NF_PHASE_G_MAX.
  *   dir          the sampled direction w_j, finite with squared length > 1e-30 (any length).
  *   f_over_p     RGB, finite and >= 0: f_s(wo, w_j) |cos| / p_mix(w_j), the density the
  *                direction was really drawn with, *without* the roulette's 1/q.
