@@ -40,7 +40,10 @@
 #define SPP 1024
 #endif
 
-static const char *furnace_xml(int camera_inside)
+/* boundary: the material of the medium's sphere, "null" or "dielectric" (glass conserves
+ * energy too: the radiance inside is eta^2 times larger, uniformly, and scaled back on the
+ * way out, so the furnace still holds; it takes the medium change on refraction). */
+static const char *furnace_xml(int camera_inside, const char *boundary)
 {
     static char xml[4096];
     snprintf(xml, sizeof xml,
@@ -59,10 +62,10 @@ static const char *furnace_xml(int camera_inside)
         "  <bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0\"/></bsdf>\n"
         "  <emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter>\n"
         "</shape>\n"
-        "<shape type=\"sphere\"><float name=\"radius\" value=\"2\"/><bsdf type=\"null\"/><ref name=\"interior\" id=\"fog\"/></shape>\n"
+        "<shape type=\"sphere\"><float name=\"radius\" value=\"2\"/><bsdf type=\"%s\"/><ref name=\"interior\" id=\"fog\"/></shape>\n"
         "</scene>\n",
         camera_inside ? "0, 0, 0" : "0.3, 0.2, 4", SIZE, SIZE,
-        camera_inside ? "<ref id=\"fog\"/>" : "");
+        camera_inside ? "<ref id=\"fog\"/>" : "", boundary);
     return xml;
 }
 
@@ -82,11 +85,11 @@ static void channel_stats(const image *img, int c, double *mean, double *se)
 }
 
 static void furnace(const char *label, int camera_inside, int guided, guide_prior prior,
-                    int spp)
+                    int spp, const char *boundary)
 {
     scene s;
     tr_error err;
-    if (!scene_load_string(furnace_xml(camera_inside), TRACER_TEST_TMP_DIR, &s, &err))
+    if (!scene_load_string(furnace_xml(camera_inside, boundary), TRACER_TEST_TMP_DIR, &s, &err))
         fail_msg("%s", err.msg);
     assert_true(s.has_media);
     assert_int_equal(s.camera_medium, camera_inside ? 0 : -1);
@@ -136,37 +139,43 @@ static void furnace(const char *label, int camera_inside, int guided, guide_prio
 static void test_furnace_plain_inside(void **state)
 {
     (void)state;
-    furnace("plain, camera in the medium", 1, 0, GUIDE_PRIOR_COSINE, SPP);
+    furnace("plain, camera in the medium", 1, 0, GUIDE_PRIOR_COSINE, SPP, "null");
 }
 
 static void test_furnace_plain_outside(void **state)
 {
     (void)state;
-    furnace("plain, camera outside", 0, 0, GUIDE_PRIOR_COSINE, SPP);
+    furnace("plain, camera outside", 0, 0, GUIDE_PRIOR_COSINE, SPP, "null");
+}
+
+static void test_furnace_plain_glass(void **state)
+{
+    (void)state;
+    furnace("plain, medium in glass", 0, 0, GUIDE_PRIOR_COSINE, 4 * SPP, "dielectric");
 }
 
 static void test_furnace_guided_cosine(void **state)
 {
     (void)state;
-    furnace("guided, cosine (HG in media)", 1, 1, GUIDE_PRIOR_COSINE, SPP);
+    furnace("guided, cosine (HG in media)", 1, 1, GUIDE_PRIOR_COSINE, SPP, "null");
 }
 
 static void test_furnace_guided_uniform_direction(void **state)
 {
     (void)state;
-    furnace("guided, uniform-direction", 1, 1, GUIDE_PRIOR_UNIFORM_DIRECTION, SPP);
+    furnace("guided, uniform-direction", 1, 1, GUIDE_PRIOR_UNIFORM_DIRECTION, SPP, "null");
 }
 
 static void test_furnace_guided_uniform_angle(void **state)
 {
     (void)state;
-    furnace("guided, uniform-angle", 1, 1, GUIDE_PRIOR_UNIFORM_ANGLE, SPP);
+    furnace("guided, uniform-angle", 1, 1, GUIDE_PRIOR_UNIFORM_ANGLE, SPP, "null");
 }
 
 static void test_furnace_guided_bsdf(void **state)
 {
     (void)state;
-    furnace("guided, bsdf (HG in media)", 0, 1, GUIDE_PRIOR_BSDF, SPP);
+    furnace("guided, bsdf (HG in media)", 0, 1, GUIDE_PRIOR_BSDF, SPP, "null");
 }
 
 /* The HG sampler draws from its own density: E[cos] = g for HG, and the density it reports
@@ -271,6 +280,7 @@ int main(void)
         cmocka_unit_test(test_bad_media),
         cmocka_unit_test(test_furnace_plain_inside),
         cmocka_unit_test(test_furnace_plain_outside),
+        cmocka_unit_test(test_furnace_plain_glass),
         cmocka_unit_test(test_furnace_guided_cosine),
         cmocka_unit_test(test_furnace_guided_uniform_direction),
         cmocka_unit_test(test_furnace_guided_uniform_angle),
