@@ -206,12 +206,25 @@ typedef struct nf_blob {
 } nf_blob;
 
 /* What a prior needs of a shading point: the context its callbacks receive, the callbacks,
- * and the unit normal (the cosine prior). */
+ * the unit normal (the cosine prior on surfaces; zero in a medium), and at a point in a
+ * medium the propagation direction and the phase function's g (the cosine prior's
+ * Henyey-Greenstein branch, docs/theory.md section 2). On surfaces medium is 0 and axis and g
+ * are zero, never the caller's phase_g. */
 typedef struct nf_prior_point {
     const nf_context *user;
     const nf_prior_callbacks *prior;
     float normal[3];
+    uint32_t medium; /* 1 at a point in a participating medium           */
+    float axis[3];   /* in a medium: d = -wo / |wo|, where light travels  */
+    float g;         /* in a medium: the Henyey-Greenstein asymmetry      */
 } nf_prior_point;
+
+/* A context whose normal is exactly (0, 0, 0) is a point in a participating medium
+ * (nisflow/model.h). Negative zeros count as zero. */
+static inline int nf_context_in_medium(const nf_context *c)
+{
+    return (c->normal[0] == 0.0f) & (c->normal[1] == 0.0f) & (c->normal[2] == 0.0f);
+}
 
 /* A validated, normalized shading context and everything the conditioners share. */
 typedef struct nf_point {

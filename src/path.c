@@ -59,7 +59,14 @@ static nf_status check_vertex(size_t j, const nf_path_vertex *v)
     if (!nf_all_finite(v->ctx.position, 3))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: vertices[%zu].ctx.position is not finite",
                        fn, j);
-    if ((st = check_vector(j, "ctx.normal", v->ctx.normal)) != NF_OK ||
+    /* A zero normal marks a vertex in a medium (validate.c's rule), whose phase_g is read. */
+    int medium = nf_context_in_medium(&v->ctx);
+    if (medium && !(fabsf(v->ctx.phase_g) <= NF_PHASE_G_MAX))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: vertices[%zu].ctx.phase_g = %g at a point in a medium is not finite "
+                       "or beyond +-%g",
+                       fn, j, (double)v->ctx.phase_g, (double)NF_PHASE_G_MAX);
+    if ((!medium && (st = check_vector(j, "ctx.normal", v->ctx.normal)) != NF_OK) ||
         (st = check_vector(j, "ctx.wo", v->ctx.wo)) != NF_OK ||
         (st = check_vector(j, "dir", v->dir)) != NF_OK)
         return st;

@@ -35,13 +35,22 @@ float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
         return nf_prior_clamp(1.0f / (NF_TWO_PI_SQUARED *
                                       nf_maxf(sqrtf(w[0] * w[0] + w[1] * w[1]), NF_SIN_THETA_MIN)));
     case NF_PRIOR_COSINE: {
+        nf_prior_point pp;
+        nf_point_prior(&pt, &pp);
+        if (pp.medium) {
+            /* the eps-mixed Henyey-Greenstein phase function around d (docs/theory.md 2.4) */
+            const float *d = pp.axis;
+            float base = nf_hg_base(d[0] * w[0] + d[1] * w[1] + d[2] * w[2], pp.g);
+            float hg = (1.0f - pp.g) * (1.0f + pp.g) / (base * sqrtf(base)) * NF_INV_FOUR_PI;
+            return nf_prior_clamp((1.0f - eps) * hg + eps * NF_INV_FOUR_PI);
+        }
         const float *n = pt.ctx.normal;
         float c = nf_maxf(n[0] * w[0] + n[1] * w[1] + n[2] * w[2], 0.0f);
         return nf_prior_clamp((1.0f - eps) * c / NF_PI + eps * NF_INV_FOUR_PI);
     }
     case NF_PRIOR_CUSTOM: {
         float pc = 0.0f;
-        nf_prior_point pp = {pt.user, pt.prior, {0.0f, 0.0f, 0.0f}};
+        nf_prior_point pp = {pt.user, pt.prior, {0.0f, 0.0f, 0.0f}, 0u, {0.0f, 0.0f, 0.0f}, 0.0f};
         if (nf_custom_pdf(&pp, w, &pc) != NF_OK)
             return -1.0f;
         return nf_prior_clamp((1.0f - eps) * pc + eps * NF_INV_FOUR_PI);

@@ -33,19 +33,23 @@ nf_status nf_validate_contexts(const char *fn, size_t n, const nf_context *ctx)
     for (size_t i = 0; i < n; ++i) {
         if (!nf_all_finite(ctx[i].position, 3))
             return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: ctx[%zu].position is not finite", fn, i);
-        if (!nf_vector_usable(ctx[i].normal))
+        /* A zero normal marks a point in a medium; any other normal must normalize. */
+        int medium = nf_context_in_medium(&ctx[i]);
+        if (!medium && !nf_vector_usable(ctx[i].normal))
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: ctx[%zu].normal is zero-length or not finite", fn, i);
+                           "%s: ctx[%zu].normal is not finite or too short to normalize "
+                           "(exactly zero marks a point in a medium)",
+                           fn, i);
         if (!nf_vector_usable(ctx[i].wo))
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                            "%s: ctx[%zu].wo is zero-length or not finite", fn, i);
-        /* phase_g is read only in a medium (a zero normal): on surfaces, contexts filled
-         * before 0.5.0, which leave it uninitialized, stay valid. */
-        if (ctx[i].normal[0] == 0.0f && ctx[i].normal[1] == 0.0f && ctx[i].normal[2] == 0.0f &&
-            !(fabsf(ctx[i].phase_g) <= NF_PHASE_G_MAX))
+        /* phase_g is read only in a medium: on surfaces, contexts filled before 0.5.0, which
+         * leave it uninitialized, stay valid. */
+        if (medium && !(fabsf(ctx[i].phase_g) <= NF_PHASE_G_MAX))
             return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: ctx[%zu].phase_g = %g is not finite or beyond +-%g", fn, i,
-                           (double)ctx[i].phase_g, (double)NF_PHASE_G_MAX);
+                           "%s: ctx[%zu].phase_g = %g at a point in a medium is not finite or "
+                           "beyond +-%g",
+                           fn, i, (double)ctx[i].phase_g, (double)NF_PHASE_G_MAX);
     }
     return NF_OK;
 }

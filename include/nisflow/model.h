@@ -51,7 +51,16 @@ typedef struct nf_model nf_model;
  * and clamped to them). `normal` is the shading normal and `wo` the direction towards the
  * previous vertex (pointing away from the surface). Both must be finite and non-zero (a
  * squared length above 1e-30); they are normalized by the library, so unit length is expected
- * but not required. */
+ * but not required.
+ *
+ * A point in a participating medium (a volume vertex) has no surface: its normal is exactly
+ * (0, 0, 0) (negative zeros too) and phase_g holds the medium's Henyey-Greenstein g there.
+ * Every entry point takes such contexts, mixed freely with surface contexts in one batch.
+ * The encodings see the position and wo as on surfaces and the normal's SH block as all
+ * zeros, a value no unit normal produces, so one network tells media from surfaces; the
+ * cosine prior is the phase function there (NF_PRIOR_COSINE). A normal that is not finite,
+ * or non-zero but too short to normalize, is still refused. docs/integration.md, "Volume
+ * vertices"; docs/theory.md section 2.4. */
 typedef struct nf_context {
     float position[3];
     float normal[3];
@@ -70,7 +79,11 @@ typedef struct nf_context {
 typedef enum nf_prior_kind {
     NF_PRIOR_UNIFORM_DIRECTION = 0, /* 1/(4 pi) per steradian                                */
     NF_PRIOR_UNIFORM_ANGLE = 1,     /* uniform on the (theta, phi) square                     */
-    NF_PRIOR_COSINE = 2,            /* max(0, n.w)/pi around the context's normal, eps-mixed  */
+    NF_PRIOR_COSINE = 2,            /* max(0, n.w)/pi around the context's normal, eps-mixed;
+                                       in a medium the Henyey-Greenstein phase function
+                                       (1 - g^2) / (4 pi (1 + g^2 - 2 g w.d)^(3/2)) around
+                                       d = -wo/|wo|, g = phase_g, eps-mixed alike (g = 0:
+                                       uniform); docs/theory.md section 2.4               */
     NF_PRIOR_CUSTOM = 3             /* user callbacks (for example a BSDF lobe), eps-mixed    */
 } nf_prior_kind;
 /* Transmission. The cosine prior covers only the hemisphere of the context's normal: its

@@ -92,7 +92,8 @@ NF_EXTERN_C_BEGIN
  *                the path ended here), yet its radiance fields above still carry the light
  *                it passes back to the vertices before it.
  *   ctx          the vertex's context, as passed to nf_point_prepare / nf_sample: finite,
- *                normal and wo of squared length > 1e-30.
+ *                normal and wo of squared length > 1e-30, or a normal exactly (0, 0, 0) at
+ *                a vertex in a medium, whose phase_g is then within +-NF_PHASE_G_MAX.
  *   dir          the sampled direction w_j, finite with squared length > 1e-30 (any length).
  *   f_over_p     RGB, finite and >= 0: f_s(wo, w_j) |cos| / p_mix(w_j), the density the
  *                direction was really drawn with, *without* the roulette's 1/q.

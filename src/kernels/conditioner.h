@@ -39,7 +39,16 @@ static inline void nf_context_features(const nf_model *m, const nf_context *ctx,
     pt->ctx.position[0] = ctx->position[0];
     pt->ctx.position[1] = ctx->position[1];
     pt->ctx.position[2] = ctx->position[2];
-    nf_normalize3(ctx->normal, pt->ctx.normal);
+    /* A zero normal marks a point in a medium (nisflow/model.h): it stays zero, and phase_g
+     * is taken there only, so that a surface's is never read. */
+    const int medium = nf_context_in_medium(ctx);
+    if (medium) {
+        pt->ctx.normal[0] = pt->ctx.normal[1] = pt->ctx.normal[2] = 0.0f;
+        pt->ctx.phase_g = ctx->phase_g;
+    } else {
+        nf_normalize3(ctx->normal, pt->ctx.normal);
+        pt->ctx.phase_g = 0.0f;
+    }
     nf_normalize3(ctx->wo, pt->ctx.wo);
     /* three one-blob slots per axis (zero-valued where outside the encoding) */
     pt->row_count = 9;
@@ -50,8 +59,26 @@ static inline void nf_context_features(const nf_model *m, const nf_context *ctx,
     }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {
-        nf_sh_unit(pt->ctx.normal, cfg->sh_bands, pt->sh);
+        /* A medium's normal block is all zeros (as tile.h): no unit normal encodes so. */
+        if (medium)
+            memset(pt->sh, 0, sizeof(float) * sh);
+        else
+            nf_sh_unit(pt->ctx.normal, cfg->sh_bands, pt->sh);
         nf_sh_unit(pt->ctx.wo, cfg->sh_bands, pt->sh + sh);
+    }
+}
+
+/* The prior's view of a point's features (prior.h): the unit normal on surfaces; in a medium
+ * the propagation direction d = -wo and the phase function's g. */
+static inline void nf_point_prior(const nf_point *pt, nf_prior_point *pp)
+{
+    pp->user = pt->user;
+    pp->prior = pt->prior;
+    pp->medium = (uint32_t)nf_context_in_medium(&pt->ctx);
+    pp->g = pt->ctx.phase_g; /* zero on surfaces (nf_context_features) */
+    for (uint32_t a = 0; a < 3; ++a) {
+        pp->normal[a] = pt->ctx.normal[a];
+        pp->axis[a] = pp->medium ? -pt->ctx.wo[a] : 0.0f;
     }
 }
 

@@ -88,8 +88,8 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
         inv_det /= nf_layer_inverse(m, pt, i, x, sc, &bin);
     }
     float q, g[2] = {0.0f, 0.0f};
-    nf_prior_point pp = {
-        pt->user, pt->prior, {pt->ctx.normal[0], pt->ctx.normal[1], pt->ctx.normal[2]}};
+    nf_prior_point pp;
+    nf_point_prior(pt, &pp);
     nf_status st = nf_prior_density(m, &pp, x, &q, grad ? g : NULL);
     if (st != NF_OK)
         return st;

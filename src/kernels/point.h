@@ -288,14 +288,27 @@ static inline void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
 }
 
 /* The prior's view of the point (nf_prior_sample and nf_prior_density read the unit normal,
- * the context handed to callbacks and the callbacks). */
+ * the context handed to callbacks and the callbacks; in a medium the axis d = -wo / |wo| and
+ * g, from the point's own copy of the context, with tile.h's arithmetic so that points and
+ * batches agree to the bit). */
 static inline void nf_point_prior_view(const nf_shading_point *p, const nf_context *user,
                                        nf_prior_point *view)
 {
     view->user = user;
     view->prior = &p->prior_;
-    for (uint32_t a = 0; a < 3; ++a)
+    view->medium = (uint32_t)nf_context_in_medium(&p->context_);
+    view->g = 0.0f;
+    for (uint32_t a = 0; a < 3; ++a) {
         view->normal[a] = p->frame_[a];
+        view->axis[a] = 0.0f;
+    }
+    if (view->medium) {
+        float wo[3];
+        nf_normalize3(p->context_.wo, wo);
+        view->g = p->context_.phase_g;
+        for (uint32_t a = 0; a < 3; ++a)
+            view->axis[a] = -wo[a];
+    }
 }
 
 /* Writes the point for a validated context; prior NULL keeps the model's callbacks. */

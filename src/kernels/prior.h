@@ -49,6 +49,54 @@ static inline void nf_cosine_direction(const float n[3], float u0, float u1, flo
         w[a] = lx * t[a] + ly * b[a] + lz * n[a];
 }
 
+/* A direction drawn from the Henyey-Greenstein phase function with asymmetry g (|g| < 1)
+ * around the unit axis d (docs/theory.md section 2.4): u0 = 0 gives -d, u0 = 1 gives d, u1 the
+ * azimuth. The inversion's usual form (1 + g^2 - s^2) / (2 g) cancels as g -> 0; here 1 - cos
+ * and 1 + cos come as products with no cancellation, so cos theta near either pole and
+ * sin theta keep their relative precision and g = 0 is the uniform sphere exactly. Branch-free
+ * and the same arithmetic wherever it is called, so points and batches agree to the bit. */
+static inline void nf_hg_direction(const float d[3], float g, float u0, float u1, float w[3])
+{
+    float t = 1.0f - g + 2.0f * g * u0; /* in [1 - |g|, 1 + |g|] */
+    float inv_t2 = 1.0f / (t * t);
+    float lo = (1.0f - g) * (1.0f - g), hi = (1.0f + g) * (1.0f + g);
+    float one_minus = 2.0f * lo * (1.0f - u0) * (1.0f + g * u0) * inv_t2;
+    float one_plus = 2.0f * hi * u0 * (1.0f - g + g * u0) * inv_t2;
+    float cos_theta = one_minus < one_plus ? 1.0f - one_minus : one_plus - 1.0f;
+    float sin_theta = sqrtf(nf_maxf(one_minus * one_plus, 0.0f));
+    float t_axis[3], b_axis[3], sin_phi, cos_phi;
+    nf_frame(d, t_axis, b_axis);
+    nf_fast_sincos_turns(u1, &sin_phi, &cos_phi);
+    float lx = sin_theta * cos_phi, ly = sin_theta * sin_phi;
+    for (int a = 0; a < 3; ++a)
+        w[a] = lx * t_axis[a] + ly * b_axis[a] + cos_theta * d[a];
+}
+
+/* The cosine prior's solid-angle density times 2 pi^2 (the square's Jacobian without
+ * sin theta) at n.w = c: (1 - eps) 2 pi max(0, c) + eps pi / 2. */
+static inline float nf_cosine_lobe(float c, float eps)
+{
+    return (1.0f - eps) * NF_TWO_PI * nf_maxf(c, 0.0f) + eps * NF_HALF_PI;
+}
+
+/* 1 + g^2 - 2 g c, the Henyey-Greenstein denominator's base, as (1 - |g|)^2 + 2 |g| (1 - c')
+ * with c' = c sign(g): 1 - c' is exact near the peak (c' -> 1), where the plain form loses
+ * the low bits of (1 - |g|)^2. */
+static inline float nf_hg_base(float c, float g)
+{
+    float a = fabsf(g), s = g < 0.0f ? -c : c;
+    return (1.0f - a) * (1.0f - a) + 2.0f * a * (1.0f - s);
+}
+
+/* The eps-mixed Henyey-Greenstein density times 2 pi^2 at d.w = c:
+ * 2 pi^2 ((1 - eps) (1 - g^2) / (4 pi base^(3/2)) + eps / (4 pi))
+ *   = pi / 2 ((1 - eps) (1 - g^2) / base^(3/2) + eps). */
+static inline float nf_hg_lobe(float c, float g, float eps)
+{
+    float base = nf_hg_base(c, g);
+    return NF_HALF_PI * ((1.0f - eps) * (1.0f - g) * (1.0f + g) / (base * sqrtf(base)) + eps);
+}
+
 /* The solid-angle density of the custom prior's callbacks at w, checked. */
 static inline nf_status nf_custom_pdf(const nf_prior_point *pt, const float w[3], float *pdf)
 {
@@ -117,21 +165,31 @@ static inline nf_status nf_prior_density(const nf_model *m, const nf_prior_point
         }
         return NF_OK;
     }
-    /* cosine: q_s = sin(theta) ((1 - eps) 2 pi max(0, n.w) + eps pi / 2) */
-    const float eps = m->cfg.prior_epsilon, *n = pt->normal;
+    /* cosine: q_s = sin(theta) ((1 - eps) 2 pi max(0, n.w) + eps pi / 2) on surfaces; in a
+     * medium the eps-mixed Henyey-Greenstein lobe around d (nf_hg_lobe). */
+    const float eps = m->cfg.prior_epsilon, *n = pt->medium ? pt->axis : pt->normal;
     float c = n[0] * w[0] + n[1] * w[1] + n[2] * w[2];
-    float g = (1.0f - eps) * NF_TWO_PI * nf_maxf(c, 0.0f) + eps * NF_HALF_PI;
+    float g = pt->medium ? nf_hg_lobe(c, pt->g, eps) : nf_cosine_lobe(c, eps);
     *q = sin_theta * g;
     if (grad) {
         grad[0] = dlog_sin;
         grad[1] = 0.0f;
-        if (c > 0.0f) {
+        /* d log(lobe) / dc: the cosine's is (1 - eps) 2 pi / lobe where c > 0; the phase
+         * function's (1 - eps) pi/2 (1 - g^2) 3 g base^(-5/2) / lobe. */
+        float k = 0.0f;
+        if (pt->medium) {
+            float hg = pt->g, base = nf_hg_base(c, hg);
+            k = NF_HALF_PI * (1.0f - eps) * (1.0f - hg) * (1.0f + hg) * 3.0f * hg /
+                (base * base * sqrtf(base) * g);
+        } else if (c > 0.0f) {
+            k = (1.0f - eps) * NF_TWO_PI / g;
+        }
+        if (k != 0.0f) {
             /* dw/dz0 = pi (cos t cos p, cos t sin p, -sin t), dw/dz1 = 2 pi (-w_y, w_x, 0) */
             float cos_phi = sin_raw > 0.0f ? w[0] / sin_raw : 1.0f;
             float sin_phi = sin_raw > 0.0f ? w[1] / sin_raw : 0.0f;
             float dc0 = NF_PI * (w[2] * cos_phi * n[0] + w[2] * sin_phi * n[1] - sin_raw * n[2]);
             float dc1 = NF_TWO_PI * (-w[1] * n[0] + w[0] * n[1]);
-            float k = (1.0f - eps) * NF_TWO_PI / g;
             grad[0] += k * dc0;
             grad[1] += k * dc1;
         }
@@ -155,8 +213,11 @@ static inline nf_status nf_prior_sample(const nf_model *m, const nf_prior_point 
     case NF_PRIOR_COSINE:
         /* u0 picks the mixture component and is rescaled, so u -> z stays deterministic. */
         if (u0 < 1.0f - eps) {
-            float w[3];
-            nf_cosine_direction(pt->normal, nf_clamp_unit(u0 / (1.0f - eps)), u1, w);
+            float w[3], uc = nf_clamp_unit(u0 / (1.0f - eps));
+            if (pt->medium)
+                nf_hg_direction(pt->axis, pt->g, uc, u1, w);
+            else
+                nf_cosine_direction(pt->normal, uc, u1, w);
             nf_to_square(w, z);
         } else {
             nf_uniform_sphere_square(nf_clamp_unit((u0 - (1.0f - eps)) / eps), u1, z);

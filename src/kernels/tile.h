@@ -21,7 +21,11 @@ typedef struct nf_tile {
     uint32_t count;                   /* real samples, 1..NF_TILE                       */
     const nf_context *user[NF_TILE];  /* the caller's contexts, for custom priors       */
     const nf_prior_callbacks *prior;  /* the model's custom prior callbacks             */
-    float normal[3][NF_TILE];         /* unit normals                                   */
+    float normal[3][NF_TILE];         /* unit normals; zero at points in a medium       */
+    uint32_t media;                   /* lanes at points in a medium (0: arrays below unset) */
+    uint32_t medium[NF_TILE];         /* 1 where the lane's point is in a medium        */
+    float axis[3][NF_TILE];           /* in a medium: d = -wo / |wo|; else zero         */
+    float phase_g[NF_TILE];           /* in a medium: the context's phase_g; else zero  */
     nf_tile_blob position[3];         /* one-blob of each position axis                 */
     float sh[2 * NF_MAX_SH][NF_TILE]; /* SH of the normal (S^2 rows), then of wo        */
 } nf_tile;
@@ -33,6 +37,7 @@ static inline void nf_tile_prepare_from(const nf_model *m, const nf_context *con
 {
     const nf_config *cfg = &m->cfg;
     float position[3][NF_TILE], normal[3][NF_TILE], wo[3][NF_TILE];
+    uint32_t media = 0;
     tile->count = count;
     tile->prior = &cfg->custom_prior;
     for (uint32_t i = 0; i < NF_TILE; ++i) {
@@ -43,7 +48,10 @@ static inline void nf_tile_prepare_from(const nf_model *m, const nf_context *con
             normal[a][i] = c->normal[a];
             wo[a][i] = c->wo[a];
         }
+        tile->medium[i] = (uint32_t)nf_context_in_medium(c);
+        media += tile->medium[i];
     }
+    tile->media = media;
     for (uint32_t i = 0; i < NF_TILE; ++i) {
         float n[3] = {normal[0][i], normal[1][i], normal[2][i]};
         float w[3] = {wo[0][i], wo[1][i], wo[2][i]};
@@ -61,10 +69,28 @@ static inline void nf_tile_prepare_from(const nf_model *m, const nf_context *con
             t[i] = (position[a][i] - lo) / extent;
         nf_tile_oneblob(t, cfg->oneblob_bins, (a + 1) * cfg->oneblob_bins, 0, &tile->position[a]);
     }
+    if (media) {
+        /* Points in a medium: the normal (0/0 above) becomes zero, the phase prior gets its
+         * axis and g; surface lanes take g = 0 by a select, never their phase_g. */
+        for (uint32_t i = 0; i < NF_TILE; ++i) {
+            const nf_context *c = tile->user[i];
+            uint32_t in = tile->medium[i];
+            for (uint32_t a = 0; a < 3; ++a) {
+                tile->normal[a][i] = in ? 0.0f : tile->normal[a][i];
+                tile->axis[a][i] = in ? -wo[a][i] : 0.0f;
+            }
+            tile->phase_g[i] = in ? c->phase_g : 0.0f;
+        }
+    }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {
         nf_tile_sh((const float(*)[NF_TILE])tile->normal, cfg->sh_bands, tile->sh);
         nf_tile_sh((const float(*)[NF_TILE])wo, cfg->sh_bands, tile->sh + sh);
+        /* A medium's normal block is all zeros, a value no unit normal's SH takes (its band 0
+         * is a non-zero constant): the network can tell media from surfaces. */
+        for (uint32_t k = 0; media && k < sh; ++k)
+            for (uint32_t i = 0; i < NF_TILE; ++i)
+                tile->sh[k][i] = tile->medium[i] ? 0.0f : tile->sh[k][i];
     }
 }
 

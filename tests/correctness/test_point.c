@@ -105,8 +105,9 @@ static void check_refusal(nf_status got, nf_status expected, const char *fn, con
 /* ---- a custom prior that counts its calls -------------------------------------------------- */
 
 /* A normalized cosine-power lobe around the context's normal in solid-angle terms,
- * p(w) = (e + 1) / (2 pi) max(0, n.w)^e, sampled by inversion. The callbacks count their
- * calls in their user data and check the context they receive. */
+ * p(w) = (e + 1) / (2 pi) max(0, n.w)^e, sampled by inversion; at a point in a medium (zero
+ * normal) around the propagation direction -wo. The callbacks count their calls in their
+ * user data and check the context they receive. */
 typedef struct lobe {
     double exponent;
     const nf_context *want; /* not NULL: every ctx must hold these values (bitwise)         */
@@ -133,9 +134,18 @@ static void lobe_check_ctx(lobe *l, const nf_context *ctx)
         l->bad_ctx++;
 }
 
+/* The lobe's axis (any length): the normal, or -wo in a medium. */
+static void lobe_axis(const nf_context *ctx, double n[3])
+{
+    int medium = ctx->normal[0] == 0.0f && ctx->normal[1] == 0.0f && ctx->normal[2] == 0.0f;
+    for (int k = 0; k < 3; ++k)
+        n[k] = medium ? -(double)ctx->wo[k] : (double)ctx->normal[k];
+}
+
 static double lobe_density(double e, const nf_context *ctx, const float dir[3])
 {
-    double n[3] = {ctx->normal[0], ctx->normal[1], ctx->normal[2]};
+    double n[3];
+    lobe_axis(ctx, n);
     double w[3] = {dir[0], dir[1], dir[2]};
     double c = nft_dot3(n, w) / sqrt(nft_dot3(n, n) * nft_dot3(w, w));
     if (!(c > 0.0))
@@ -158,7 +168,8 @@ static float lobe_sample(void *user, const nf_context *ctx, float u0, float u1, 
     lobe *l = user;
     l->samples++;
     lobe_check_ctx(l, ctx);
-    double axis[3] = {ctx->normal[0], ctx->normal[1], ctx->normal[2]}, t[3], b[3], n[3];
+    double axis[3], t[3], b[3], n[3];
+    lobe_axis(ctx, axis);
     nft_frame(axis, t, b, n);
     /* cos a in [1e-3, 1]: the density stays clearly above 0, as the library requires. */
     double c = pow(fmin(fmax(1.0 - (double)u0, 0.0), 1.0), 1.0 / (l->exponent + 1.0));
@@ -272,6 +283,19 @@ static void make_contexts(uint64_t seed, nf_context *ctx, int count)
         ctx[4].wo[a] = -ctx[4].wo[a]; /* wo below the surface */
     for (int a = 0; a < 3; ++a)
         ctx[5].normal[a] *= 3.7f;
+    /* A surface's phase_g is never read: garbage there changes nothing. */
+    ctx[5].phase_g = NAN;
+    /* Points in a medium (normal exactly zero) between surfaces, so that tiles mix both, with
+     * g over its whole range (the cosine prior's Henyey-Greenstein branch). The first eight
+     * contexts, which test_sample_pdf_agree compares at 1e-4, stop at g = 0.9: at |g| = 0.99
+     * the prior's log-density changes by ~1e3 per unit of the square near its peak, so the
+     * flow's round trip error (~1e-6) alone moves it by ~1e-3 (test_medium.c checks there). */
+    static const float g[] = {0.0f, 0.3f, -0.99f, 0.9f, 0.99f, -0.5f, -0.9f};
+    for (int i = 6; i < count; i += 2) {
+        for (int a = 0; a < 3; ++a)
+            ctx[i].normal[a] = i % 4 == 0 ? -0.0f : 0.0f;
+        ctx[i].phase_g = g[(i / 2) % 7];
+    }
 }
 
 /* K pairs u and K directions: random, plus the corners of [0, 1)^2, values to be clamped

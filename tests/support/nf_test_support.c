@@ -142,12 +142,18 @@ void nft_frame(const double axis[3], double t[3], double b[3], double n[3])
 
 static float nft_phong_exponent_value = NFT_PHONG_EXPONENT;
 
-/* The lobe axis: the mirror direction of wo about the normal, in double. */
+/* The lobe axis: the mirror direction of wo about the normal, in double; at a point in a
+ * medium (zero normal) the propagation direction -wo, a forward-scattering lobe. */
 static void phong_axis(const nf_context *ctx, double axis[3])
 {
     double n[3], wo[3];
-    to_unit_double(ctx->normal, n);
     to_unit_double(ctx->wo, wo);
+    if (ctx->normal[0] == 0.0f && ctx->normal[1] == 0.0f && ctx->normal[2] == 0.0f) {
+        for (int k = 0; k < 3; ++k)
+            axis[k] = -wo[k];
+        return;
+    }
+    to_unit_double(ctx->normal, n);
     double d = nft_dot3(n, wo);
     for (int k = 0; k < 3; ++k)
         axis[k] = 2.0 * d * n[k] - wo[k];
@@ -288,8 +294,15 @@ double nft_prior_density(nf_prior_kind prior, float eps, const nf_context *ctx,
     }
     case NF_PRIOR_COSINE: {
         double n[3], w[3];
-        to_unit_double(ctx->normal, n);
         to_unit_double(dir, w);
+        if (ctx->normal[0] == 0.0f && ctx->normal[1] == 0.0f && ctx->normal[2] == 0.0f) {
+            /* a point in a medium: Henyey-Greenstein around d = -wo (docs/theory.md 2.4) */
+            double wo[3], g = ctx->phase_g;
+            to_unit_double(ctx->wo, wo);
+            double base = 1.0 + g * g + 2.0 * g * nft_dot3(wo, w); /* -2 g d.w, d = -wo */
+            return (1.0 - e) * (1.0 - g * g) / (4.0 * NFT_PI * base * sqrt(base)) + e * uniform;
+        }
+        to_unit_double(ctx->normal, n);
         return (1.0 - e) * fmax(0.0, nft_dot3(n, w)) / NFT_PI + e * uniform;
     }
     case NF_PRIOR_CUSTOM:
@@ -732,8 +745,12 @@ nf_context nft_bad_context(const nf_context *good, int which, char *what, size_t
         float *f = k % 2 == 0 ? c.normal : c.wo;
         const float v[3] = {0.0f, 1e-16f, 1e-38f};
         f[0] = f[1] = f[2] = v[k / 2];
-        snprintf(what, size, "%s of components %g", k % 2 == 0 ? "normal" : "wo",
-                 (double)v[k / 2]);
+        /* A zero normal is a point in a medium, bad only with a bad phase_g. */
+        int medium = k == 0;
+        if (medium)
+            c.phase_g = NAN;
+        snprintf(what, size, "%s of components %g%s", k % 2 == 0 ? "normal" : "wo",
+                 (double)v[k / 2], medium ? " (a medium) with phase_g NaN" : "");
     }
     return c;
 }

@@ -217,7 +217,9 @@ int nft_untouched(const float *v, size_t n);
 /* The contexts nf_sample, nf_pdf and nf_point_prepare must refuse, made from a valid one:
  * `which` < NFT_BAD_CONTEXTS picks NaN, +Inf or -Inf in each component of position, normal and
  * wo (27), or a normal or wo whose components are all 0, 1e-16 or 1e-38 (squared lengths at
- * most 3e-32, below the 1e-30 the library requires). `what` receives a description. */
+ * most 3e-32, below the 1e-30 the library requires; a normal of zeros marks a point in a
+ * medium, and comes with phase_g NaN, which is what is refused there). `what` receives a
+ * description. */
 enum { NFT_BAD_CONTEXTS = 27 + 6 };
 nf_context nft_bad_context(const nf_context *good, int which, char *what, size_t size);
 
