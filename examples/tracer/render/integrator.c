@@ -40,9 +40,9 @@
 
 #define MAX_RECORDED_VERTICES 256
 
-/* Whether volume vertices are guided: they need a library that takes medium contexts (a
- * zero normal, nisflow/model.h). 0: volume vertices sample the phase function only. */
-#define TRACER_GUIDE_VOLUME 0
+/* Whether volume vertices are guided (libnisflow >= 0.5.0 takes medium contexts: a zero
+ * normal, nisflow/model.h). 0: volume vertices sample the phase function only, an ablation. */
+#define TRACER_GUIDE_VOLUME 1
 
 void record_buffer_free(record_buffer *b)
 {
@@ -485,8 +485,8 @@ static int plan_light_and_scatter(const tracer *t, path_state *ps, rng *r, path_
 
 /* Plans a vertex where free flight stopped in a medium of asymmetry phase_g, at p, the ray
  * travelling along d: its context has the normal (0, 0, 0) (a medium point, nisflow/model.h)
- * and the phase function's g; the phase function is its "BSDF" (guided as surface vertices
- * are once the library takes medium contexts). */
+ * and the phase function's g; the phase function is its "BSDF", guided as surface vertices
+ * are (docs/integration.md, section 5b). */
 static int volume_plan(const tracer *t, path_state *ps, rng *r, path_stats *st, vec3 p, vec3 d,
                        float phase_g, vertex_plan *vp)
 {
