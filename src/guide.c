@@ -299,6 +299,10 @@ nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key, const
         } else {
             nf_guide_entry *e = &g->stage[slot];
             e->ctx = ctx[i];
+            /* A surface's phase_g is never read and may be garbage: stored as 0, so that the
+             * store's order (equal keys sort by their bytes) does not depend on it. */
+            if (!nf_context_in_medium(&e->ctx))
+                e->ctx.phase_g = 0.0f;
             memcpy(e->dir, dir + 3 * i, sizeof e->dir);
             e->weight = weight[i];
             e->key = key ? key[i] : 0u;
