@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "medium.h"
 #include "parallel.h"
 #include "ranks.h"
 
@@ -135,9 +136,30 @@ static const guide_point *point_of(void *user, const nf_context *ctx)
     return user ? (const guide_point *)user : find_point(ctx);
 }
 
+/* A context in a medium (normal exactly zero, nisflow/model.h): the BSDF prior is then the
+ * medium's phase function, Henyey-Greenstein with the context's g around the propagation
+ * direction -wo, as the library's cosine prior is there. */
+static int in_medium(const nf_context *ctx)
+{
+    return ctx->normal[0] == 0.0f && ctx->normal[1] == 0.0f && ctx->normal[2] == 0.0f;
+}
+
+static vec3 propagation(const nf_context *ctx)
+{
+    return v3_normalize(v3(-ctx->wo[0], -ctx->wo[1], -ctx->wo[2]));
+}
+
 static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
                                float dir[3])
 {
+    if (in_medium(ctx)) {
+        float pdf;
+        vec3 w = phase_hg_sample(ctx->phase_g, propagation(ctx), u0, u1, &pdf);
+        dir[0] = w.x;
+        dir[1] = w.y;
+        dir[2] = w.z;
+        return pdf;
+    }
     vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
     frame f = frame_from_normal(n);
     vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
@@ -159,6 +181,9 @@ static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, floa
 
 static float bsdf_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
 {
+    if (in_medium(ctx))
+        return phase_hg(ctx->phase_g,
+                        v3_dot(propagation(ctx), v3_normalize(v3(dir[0], dir[1], dir[2]))));
     vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
     frame f = frame_from_normal(n);
     vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));

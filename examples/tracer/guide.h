@@ -13,6 +13,10 @@
  * by the context's index in it (guide_begin_batch). The training calls may run on several
  * threads (sharded gradients); they only read.
  *
+ * At a point in a participating medium (a context whose normal is (0, 0, 0)) the BSDF prior
+ * is the medium's Henyey-Greenstein phase function with the context's phase_g, around the
+ * propagation direction -wo: it needs no material.
+ *
  * A context outside the published batch (which no caller here allows to happen) falls back
  * to a cosine lobe, counted by guide_lookup_failures: the callbacks never fail.
  */

@@ -40,6 +40,10 @@
 
 #define MAX_RECORDED_VERTICES 256
 
+/* Whether volume vertices are guided (libnisflow >= 0.5.0 takes medium contexts: a zero
+ * normal, nisflow/model.h). 0: volume vertices sample the phase function only, an ablation. */
+#define TRACER_GUIDE_VOLUME 1
+
 void record_buffer_free(record_buffer *b)
 {
     free(b->data);
@@ -259,6 +263,15 @@ typedef struct flow_questions {
 typedef struct vertex_plan {
     shading sh;
     vec3 p;
+    /* A vertex in a medium (volume = 1) has no shading: the phase function with asymmetry
+     * phase_g around the propagation direction d plays the BSDF's role (no cosine). */
+    int volume;
+    float phase_g;
+    vec3 d;
+    /* Surface vertices in scenes with media: the shape and its geometric normal, for the
+     * medium a transmitted direction enters (scene_medium_after). */
+    int shape;
+    vec3 ng_geom;
     guide_point gp; /* the BSDF prior's material, read by the point's callbacks */
     float g;        /* the vertex's guiding probability; 0: not guided          */
     /* next-event estimation: an unoccluded light sample waiting for its MIS weight */
@@ -275,6 +288,24 @@ typedef struct vertex_plan {
     flow_questions q;
 } vertex_plan;
 
+/* The scattering function of a vertex for a world direction: f |cos| on surfaces, the phase
+ * function in a medium. */
+static rgb vertex_eval(const vertex_plan *vp, vec3 wi)
+{
+    if (vp->volume)
+        return rgb_gray(phase_hg(vp->phase_g, v3_dot(vp->d, wi)));
+    vec3 wi_l;
+    return shading_eval(&vp->sh, wi, &wi_l);
+}
+
+/* The density with which the vertex's own technique (BSDF or phase sampling) gives wi. */
+static float vertex_pdf(const vertex_plan *vp, vec3 wi)
+{
+    if (vp->volume)
+        return phase_hg(vp->phase_g, v3_dot(vp->d, wi));
+    return bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, frame_to_local(&vp->sh.fr, wi));
+}
+
 /* Whether light-sampling MIS at a vertex `depth` segments deep weighs with the mixture's
  * density, which asks the flow (the policy's light_mis_depth; light_mis_bsdf: never). Both
  * sides of one vertex ask this with the same depth, so the two weights still sum to one. */
@@ -283,15 +314,57 @@ static int light_mis_uses_flow(const tracer *t, int depth)
     return !t->light_mis_bsdf && nf_guide_light_mis_uses_flow(&t->policy, (uint32_t)depth);
 }
 
+/* The medium a direction wi leaving the vertex travels in: a surface that bounds media
+ * switches it when wi crosses to the other side than wo's. */
+static int medium_towards(const scene *s, const vertex_plan *vp, const path_state *ps, vec3 wi)
+{
+    if (vp->volume || !s->shapes[vp->shape].media_boundary)
+        return ps->medium;
+    vec3 wo = v3_neg(vp->d);
+    if (v3_dot(wi, vp->ng_geom) * v3_dot(wo, vp->ng_geom) >= 0.0f)
+        return ps->medium; /* reflected: the medium stays */
+    return scene_medium_after(s, vp->shape, vp->ng_geom, wi, ps->medium);
+}
+
+/* nee_plan in a scene with media: the light sample's transmittance through media and null
+ * surfaces (scene_transmittance), the phase function at volume vertices. */
+static int nee_plan_media(const tracer *t, vertex_plan *vp, const path_state *ps,
+                          const light_sample *ls, path_stats *st)
+{
+    const scene *s = t->s;
+    rgb f = vertex_eval(vp, ls->wi);
+    if (rgb_is_black(f) || rgb_is_black(ls->radiance))
+        return 0;
+    ray shadow;
+    shadow.o = vp->volume ? vp->p : offset_origin(vp->p, vp->sh.ng, ls->wi);
+    shadow.d = ls->wi;
+    shadow.tmax = isinf(ls->dist) ? INFINITY : ls->dist * (1.0f - 1e-4f);
+    if (!scene_ray_valid(&shadow)) { /* never within the loader's world range */
+        st->invalid_rays++;
+        return 0;
+    }
+    rgb tr = scene_transmittance(s, &shadow, medium_towards(s, vp, ps, ls->wi), &st->rays);
+    if (rgb_is_black(tr))
+        return 0;
+    vp->nee_value = rgb_mul(rgb_mul(f, tr), ls->radiance);
+    vp->nee_light_pdf = ls->pdf;
+    vp->nee_p_bsdf = vertex_pdf(vp, ls->wi);
+    vp->q.light_wi = ls->wi;
+    return 1;
+}
+
 /* One light sample towards an unoccluded light, weighed later against the scattering
  * density (vertex_finish). Returns 0 when it contributes nothing. */
-static int nee_plan(const tracer *t, vertex_plan *vp, rng *r, path_stats *st)
+static int nee_plan(const tracer *t, vertex_plan *vp, const path_state *ps, rng *r,
+                    path_stats *st)
 {
     const scene *s = t->s;
     light_sample ls;
     float u_pick = rng_next(r), u0 = rng_next(r), u1 = rng_next(r);
     if (!light_sample_from(s, vp->p, u_pick, u0, u1, &ls))
         return 0;
+    if (s->has_media)
+        return nee_plan_media(t, vp, ps, &ls, st);
     vec3 wi_l;
     rgb f = shading_eval(&vp->sh, ls.wi, &wi_l);
     if (rgb_is_black(f) || rgb_is_black(ls.radiance))
@@ -326,6 +399,11 @@ static int scatter_plan(vertex_plan *vp, rng *r)
         vp->q.u[0] = u0;
         vp->q.u[1] = u1;
         return 1;
+    }
+    if (vp->volume) {
+        vp->q.wi = phase_hg_sample(vp->phase_g, vp->d, u0, u1, &vp->p_bsdf);
+        vp->q.pdf = g > 0.0f;
+        return vp->p_bsdf > 0.0f;
     }
     bsdf_sample bs;
     if (!bsdf_sample_dir(&vp->sh.bp, vp->sh.wo_l, u_lobe, u0, u1, &bs))
@@ -374,6 +452,81 @@ static void emission_weights(const path_state *ps, float light_pdf, float *w, fl
                                                : 1.0f;
 }
 
+/* The rest of a vertex's plan once its scattering function is set up (vertex_plan_next,
+ * volume_plan): next-event estimation, roulette and the scattered direction's technique. */
+static int plan_light_and_scatter(const tracer *t, path_state *ps, rng *r, path_stats *st,
+                                  vertex_plan *vp, int smooth, int depth)
+{
+    const scene *s = t->s;
+    /* Next-event estimation: balance mode weighs the light sample against p_mix, which
+     * needs the flow's density of its direction. */
+    if (smooth && s->has_lights && nee_plan(t, vp, ps, r, st)) {
+        vp->nee = 1;
+        vp->q.light = vp->g > 0.0f && light_mis_uses_flow(t, depth);
+    }
+
+    /* Russian roulette, before scattering, so that a vertex either scatters fully or not at
+     * all (a recorded direction always gets its radiance). */
+    vp->rr = 1.0f;
+    if (depth >= s->rr_depth) {
+        float q = nf_guide_roulette_survival(&t->policy, rgb_max(ps->throughput), ps->boost);
+        if (!(rng_next(r) < q))
+            return 1; /* scatters = 0: the light sample still counts */
+        vp->rr = 1.0f / q;
+        if (ps->guided)
+            nf_plain_moment_roulette(&ps->plain, &t->policy, rgb_max(ps->throughput), q);
+    }
+    vp->scatters = scatter_plan(vp, r);
+    if (!vp->scatters)
+        vp->q.sample = vp->q.pdf = 0;
+    return 1;
+}
+
+
+/* Plans a vertex where free flight stopped in a medium of asymmetry phase_g, at p, the ray
+ * travelling along d: its context has the normal (0, 0, 0) (a medium point, nisflow/model.h)
+ * and the phase function's g; the phase function is its "BSDF", guided as surface vertices
+ * are (docs/integration.md, section 5b). */
+static int volume_plan(const tracer *t, path_state *ps, rng *r, path_stats *st, vec3 p, vec3 d,
+                       float phase_g, vertex_plan *vp)
+{
+    const int max_depth = t->s->max_depth < 0 ? 1 << 30 : t->s->max_depth;
+    const int depth = ps->depth;
+    if (depth >= max_depth)
+        return 0;
+    vp->g = 0.0f;
+    vp->nee = vp->scatters = vp->flow_chosen = vp->delta = 0;
+    vp->p_bsdf = 0.0f;
+    vp->q.light = vp->q.sample = vp->q.pdf = vp->q.failed = 0;
+    vp->q.light_p_flow = vp->q.p_flow = 0.0f;
+    vp->volume = 1;
+    vp->phase_g = phase_g;
+    vp->d = d;
+    vp->p = p;
+    vp->shape = -1;
+    nf_context *ctx = &vp->q.ctx;
+    ctx->position[0] = vp->gp.position[0] = p.x;
+    ctx->position[1] = vp->gp.position[1] = p.y;
+    ctx->position[2] = vp->gp.position[2] = p.z;
+    ctx->normal[0] = ctx->normal[1] = ctx->normal[2] = 0.0f;
+    ctx->wo[0] = -d.x;
+    ctx->wo[1] = -d.y;
+    ctx->wo[2] = -d.z;
+    /* The library takes |g| <= NF_PHASE_G_MAX; the loader allows (-1, 1). The flow's prior
+     * then differs a little from the phase function, which the mixture's weights absorb. */
+    ctx->phase_g = clampf(phase_g, -NF_PHASE_G_MAX, NF_PHASE_G_MAX);
+    memset(&vp->gp.bp, 0, sizeof vp->gp.bp); /* no material: the phase function */
+    memset(&vp->sh.bp, 0, sizeof vp->sh.bp);
+    const float g = t->model ? t->policy.mixture_prob : 0.0f;
+    const int guided = TRACER_GUIDE_VOLUME && g > 0.0f &&
+                       (t->guide_depth == 0 || depth <= t->guide_depth);
+    if (guided) {
+        vp->g = nf_guide_mixture_prob(&t->policy, ps->boost);
+        st->guided_vertices += vp->g > 0.0f;
+    }
+    return plan_light_and_scatter(t, ps, r, st, vp, 1, depth);
+}
+
 /* Traces the path's next segment and plans the vertex it finds: emission found there is
  * added (and handed to the previous record), then next-event estimation, roulette and the
  * choice of the scattered direction draw their random numbers, and the flow's questions are
@@ -383,15 +536,44 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
 {
     const scene *s = t->s;
     const int max_depth = s->max_depth < 0 ? 1 << 30 : s->max_depth;
-    const ray ry = ps->ry;
+    ray ry = ps->ry;
     const int depth = ++ps->depth;
     hit h;
-    if (!scene_ray_valid(&ry)) { /* never within the loader's world range */
-        st->invalid_rays++;
-        return 0;
+    float travelled = 0.0f; /* from the previous vertex to ry.o, across null surfaces */
+    int found;
+    for (;;) {
+        if (!scene_ray_valid(&ry)) { /* never within the loader's world range */
+            st->invalid_rays++;
+            return 0;
+        }
+        st->rays++;
+        found = scene_intersect(s, &ry, &h);
+        if (!s->has_media)
+            break;
+        if (ps->medium >= 0) {
+            const medium *m = &s->media[ps->medium];
+            float u_channel = rng_next(r), u = rng_next(r), tm;
+            rgb w;
+            int scattered = medium_sample_distance(m, ps->throughput, found ? h.t : INFINITY,
+                                                   u_channel, u, &tm, &w);
+            ps->throughput = rgb_mul(ps->throughput, w);
+            if (rgb_is_black(ps->throughput) || !rgb_is_finite(ps->throughput))
+                return 0;
+            if (scattered)
+                return volume_plan(t, ps, r, st, v3_add(ry.o, v3_scale(ry.d, tm)), ry.d, m->g,
+                                   vp);
+        }
+        if (!found || !s->shapes[h.shape].null_surface)
+            break;
+        /* A null surface: the ray goes on, maybe into another medium, and no vertex is made. */
+        surface nf;
+        scene_surface(s, &h, &ry, &nf);
+        ps->medium = scene_medium_after(s, h.shape, nf.ng, ry.d, ps->medium);
+        travelled += h.t;
+        ry.o = offset_origin(nf.p, nf.ng, ry.d);
+        ry.tmax = INFINITY;
     }
-    st->rays++;
-    if (!scene_intersect(s, &ry, &h)) {
+    if (!found) {
         rgb le = env_eval(s, ry.d);
         if (!rgb_is_black(le)) {
             float w = 1.0f, w_plain = 1.0f;
@@ -414,8 +596,8 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     if (shp->emissive && v3_dot(wo, sf.ng) > 0.0f) {
         float w = 1.0f, w_plain = 1.0f;
         if (ps->prev_pdf > 0.0f || ps->prev_p_bsdf > 0.0f)
-            emission_weights(ps, light_pdf_area(s, h.shape, h.prim, ry.d, h.t, sf.ng), &w,
-                             &w_plain);
+            emission_weights(ps, light_pdf_area(s, h.shape, h.prim, ry.d, travelled + h.t,
+                                                sf.ng), &w, &w_plain);
         if (!(depth == 1 && s->hide_emitters))
             path_add(ps, shp->radiance, w, w_plain);
         if (prev) {
@@ -433,6 +615,12 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     vp->p_bsdf = 0.0f;
     vp->q.light = vp->q.sample = vp->q.pdf = vp->q.failed = 0;
     vp->q.light_p_flow = vp->q.p_flow = 0.0f;
+    vp->volume = 0;
+    if (s->has_media) {
+        vp->d = ry.d;
+        vp->shape = h.shape;
+        vp->ng_geom = sf.ng;
+    }
     if (!setup_shading(s, &h, &sf, wo, &vp->sh)) {
         st->camera_backfaces += depth == 1;
         return 0;
@@ -454,34 +642,14 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     ctx->wo[0] = wo.x;
     ctx->wo[1] = wo.y;
     ctx->wo[2] = wo.z;
+    ctx->phase_g = 0.0f;
     vp->gp.bp = vp->sh.bp;
     if (guided) {
         vp->g = nf_guide_mixture_prob(&t->policy, ps->boost);
         st->guided_vertices += vp->g > 0.0f;
     }
 
-    /* Next-event estimation: balance mode weighs the light sample against p_mix, which
-     * needs the flow's density of its direction. */
-    if (smooth && s->has_lights && nee_plan(t, vp, r, st)) {
-        vp->nee = 1;
-        vp->q.light = vp->g > 0.0f && light_mis_uses_flow(t, depth);
-    }
-
-    /* Russian roulette, before scattering, so that a vertex either scatters fully or not at
-     * all (a recorded direction always gets its radiance). */
-    vp->rr = 1.0f;
-    if (depth >= s->rr_depth) {
-        float q = nf_guide_roulette_survival(&t->policy, rgb_max(ps->throughput), ps->boost);
-        if (!(rng_next(r) < q))
-            return 1; /* scatters = 0: the light sample still counts */
-        vp->rr = 1.0f / q;
-        if (ps->guided)
-            nf_plain_moment_roulette(&ps->plain, &t->policy, rgb_max(ps->throughput), q);
-    }
-    vp->scatters = scatter_plan(vp, r);
-    if (!vp->scatters)
-        vp->q.sample = vp->q.pdf = 0;
-    return 1;
+    return plan_light_and_scatter(t, ps, r, st, vp, smooth, depth);
 }
 
 static int flow_asks(const flow_questions *q) { return q->light || q->sample || q->pdf; }
@@ -555,9 +723,8 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         }
     } else {
         if (vp->flow_chosen)
-            p_bsdf = bsdf_pdf(&vp->sh.bp, vp->sh.wo_l, frame_to_local(&vp->sh.fr, wi));
-        vec3 wi_l;
-        rgb f = shading_eval(&vp->sh, wi, &wi_l);
+            p_bsdf = vertex_pdf(vp, wi);
+        rgb f = vertex_eval(vp, wi);
         float p_weight = g * p_flow + (1.0f - g) * p_bsdf; /* what the throughput divides by */
         /* the density light MIS weighs with, as the light sample's side above */
         pdf = light_mis_uses_flow(t, ps->depth) ? p_weight : p_bsdf;
@@ -579,11 +746,20 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
             put_rgb(v->f_over_p, weight);
             v->ctx = q->ctx;
             put_vec3(v->dir, wi);
-            vx->bp = vp->sh.bp;
+            vx->bp = vp->sh.bp; /* volume vertices: bp.b is NULL (the phase function) */
         }
     }
     ps->prev_pdf = pdf;
     ps->prev_p_bsdf = vp->delta ? 0.0f : p_bsdf;
+    if (t->s->has_media) {
+        ps->medium = medium_towards(t->s, vp, ps, wi);
+        if (vp->volume) {
+            ps->ry.o = vp->p;
+            ps->ry.d = wi;
+            ps->ry.tmax = INFINITY;
+            return 1;
+        }
+    }
     ps->ry.o = offset_origin(vp->p, vp->sh.ng, wi);
     ps->ry.d = wi;
     ps->ry.tmax = INFINITY;
@@ -610,6 +786,7 @@ static void path_start(const tracer *t, float px, float py, path_state *ps)
     ps->prev_p_bsdf = 0.0f;
     ps->depth = 0;
     ps->boost = 1.0f;
+    ps->medium = s->camera_medium;
     nf_plain_moment_start(&ps->plain);
 }
 

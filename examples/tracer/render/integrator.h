@@ -83,6 +83,7 @@ typedef struct path_state {
                         * the throughput over BSDF sampling's, read by the policy's boost cap
                         * and roulette (nf_guide_mixture_prob, nf_guide_roulette_survival)  */
     int guided;        /* the tracer has a model: the path may be guided                  */
+    int medium;        /* the medium the ray ry travels in (scene.media); -1: vacuum      */
     nf_plain_moment plain; /* what a guided path says of plain path tracing's second moment
                             * (nisflow/guide.h), which budget.h's choice of passes reads   */
 } path_state;

@@ -33,7 +33,7 @@ void bsdf_point_init(bsdf_point *bp, const bsdf *b, float u, float v)
 
 int bsdf_has_smooth_part(const bsdf *b)
 {
-    return b->type != BSDF_CONDUCTOR && b->type != BSDF_DIELECTRIC;
+    return b->type != BSDF_CONDUCTOR && b->type != BSDF_DIELECTRIC && b->type != BSDF_NULL;
 }
 
 int bsdf_has_delta_part(const bsdf *b)

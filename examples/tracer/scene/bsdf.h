@@ -29,7 +29,9 @@ typedef enum bsdf_type {
     BSDF_ROUGHCONDUCTOR,
     BSDF_DIELECTRIC,     /* smooth: delta reflection and refraction            */
     BSDF_PLASTIC,        /* delta coating over a diffuse base                  */
-    BSDF_ROUGHPLASTIC    /* microfacet coating over a diffuse base             */
+    BSDF_ROUGHPLASTIC,   /* microfacet coating over a diffuse base             */
+    BSDF_NULL            /* no surface: the boundary of a medium. The integrator passes
+                          * rays through it and never asks it anything below */
 } bsdf_type;
 
 typedef struct bsdf {

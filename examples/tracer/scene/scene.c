@@ -24,6 +24,7 @@ void scene_free(scene *s)
     }
     free(s->shapes);
     free(s->bsdfs);
+    free(s->media);
     for (int i = 0; i < s->ntextures; ++i) {
         texture_free(s->textures[i]);
         free(s->textures[i]);
@@ -432,4 +433,52 @@ float light_pdf_env(const scene *s, vec3 wi)
         return 0.0f;
     float pick = (float)distrib1d_pmf(&s->lights, s->nlights - 1);
     return pick * env_pdf_direction(&s->env, wi);
+}
+
+/* ---- Media along rays -------------------------------------------------------------------- */
+
+int scene_medium_after(const scene *s, int shape, vec3 ng, vec3 d, int med)
+{
+    const struct shape *sh = &s->shapes[shape];
+    if (!sh->media_boundary)
+        return med;
+    return v3_dot(d, ng) < 0.0f ? sh->interior : sh->exterior;
+}
+
+rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays)
+{
+    if (!s->has_media) {
+        ++*rays;
+        return rgb_gray(scene_occluded(s, r) ? 0.0f : 1.0f);
+    }
+    rgb tr = rgb_gray(1.0f);
+    ray seg = *r;
+    for (int crossings = 0; crossings <= 64; ++crossings) {
+        hit h;
+        if (!scene_ray_valid(&seg))
+            return rgb_gray(0.0f);
+        ++*rays;
+        if (!scene_intersect(s, &seg, &h)) {
+            if (med >= 0)
+                tr = rgb_mul(tr, medium_transmittance(&s->media[med], seg.tmax));
+            return tr;
+        }
+        if (!s->shapes[h.shape].null_surface)
+            return rgb_gray(0.0f);
+        if (med >= 0)
+            tr = rgb_mul(tr, medium_transmittance(&s->media[med], h.t));
+        if (rgb_is_black(tr))
+            return tr;
+        surface sf;
+        scene_surface(s, &h, &seg, &sf);
+        med = scene_medium_after(s, h.shape, sf.ng, seg.d, med);
+        /* Continue just past the boundary (the offset grows with the coordinates, as the
+         * integrator's does) for the rest of the distance. */
+        float eps = 1e-5f * (1.0f + v3_max_abs(sf.p));
+        seg.o = v3_add(sf.p, v3_scale(sf.ng, v3_dot(seg.d, sf.ng) > 0.0f ? eps : -eps));
+        seg.tmax = isinf(seg.tmax) ? INFINITY : seg.tmax - h.t;
+        if (!(seg.tmax > 0.0f))
+            return tr;
+    }
+    return rgb_gray(0.0f); /* more null crossings than any scene here has: treat as blocked */
 }

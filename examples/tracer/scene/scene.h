@@ -14,6 +14,7 @@
 #include "distrib.h"
 #include "error.h"
 #include "image.h"
+#include "medium.h"
 #include "mesh.h"
 #include "texture.h"
 #include "transform.h"
@@ -31,6 +32,12 @@ typedef struct shape {
     rgb radiance;
     uint32_t first_light;       /* index of its first triangle in scene.lights              */
     float *tri_area;            /* emissive shapes: the area of each triangle              */
+    int interior, exterior;     /* media (indices into scene.media) behind and in front of
+                                 * the geometric normal; -1: vacuum. A shape that names
+                                 * neither (both -1, media_boundary 0) leaves the medium of
+                                 * a ray crossing it unchanged                              */
+    int media_boundary;         /* names an interior or exterior medium                    */
+    int null_surface;           /* the null BSDF: rays pass straight through               */
 } shape;
 
 typedef enum env_kind { ENV_NONE, ENV_CONSTANT, ENV_ENVMAP } env_kind;
@@ -62,6 +69,13 @@ typedef struct scene {
     texture **textures;         /* owned; bsdfs point into them                            */
     int ntextures;
     environment env;
+
+    /* Participating media (scene_media.c, docs/tracer.md "Participating media"). */
+    medium *media;
+    int nmedia;
+    int camera_medium;          /* the sensor's medium; -1: vacuum                          */
+    int has_media;              /* media or null surfaces exist: the integrator tracks the
+                                 * medium along paths (0: surfaces only, as before)         */
 
     /* Light selection: one entry per emissive triangle (all shapes, in order), then the
      * environment if there is one. Weights: emitted power (luminance x area) of a
@@ -139,6 +153,17 @@ typedef struct hit {
 
 int scene_intersect(const scene *s, const ray *r, hit *h);
 int scene_occluded(const scene *s, const ray *r);
+
+/* The transmittance along a shadow ray that starts in medium `med` (-1: vacuum) and ends at
+ * r->tmax: zero when a surface other than a null one is in the way; null surfaces are
+ * crossed (at most 64 of them), switching the medium as a path does (scene_medium_after).
+ * *rays counts the rays traced. Scenes without media: scene_occluded's answer. */
+rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays);
+
+/* The medium a ray travelling along d is in after crossing shape `shape` whose geometric
+ * normal there is ng, coming from medium `med`: the shape's interior when d goes against
+ * ng, its exterior otherwise; `med` for shapes that name no medium. */
+int scene_medium_after(const scene *s, int shape, vec3 ng, vec3 d, int med);
 
 /* The differential geometry of a hit. */
 typedef struct surface {

@@ -159,10 +159,28 @@ static int parse_shape(loader *L, xml_node *n)
     if (!ok)
         return fail_at(L, n, "%s", e.msg);
 
-    /* Nested objects: one material, at most one area emitter. */
+    /* Nested objects: one material, at most one area emitter, an interior and an exterior
+     * medium (<medium name="interior"> or <ref name="interior" id="...">). */
+    sh.interior = sh.exterior = -1;
     for (int i = 0; i < n->nchildren && ok; ++i) {
         xml_node *c = n->children[i];
-        if (!strcmp(c->name, "bsdf") || !strcmp(c->name, "ref")) {
+        const char *role = xml_attr(c, "name");
+        if (!strcmp(c->name, "medium") ||
+            (!strcmp(c->name, "ref") && role &&
+             (!strcmp(role, "interior") || !strcmp(role, "exterior")))) {
+            if (!role || (strcmp(role, "interior") && strcmp(role, "exterior"))) {
+                ok = fail_at(L, c, "a medium in a shape needs name=\"interior\" or "
+                             "name=\"exterior\"");
+                break;
+            }
+            int *slot = role[0] == 'i' ? &sh.interior : &sh.exterior;
+            if (*slot >= 0) {
+                ok = fail_at(L, c, "the shape's %s medium is given twice", role);
+                break;
+            }
+            ok = nested_medium(L, c, slot);
+            sh.media_boundary = 1;
+        } else if (!strcmp(c->name, "bsdf") || !strcmp(c->name, "ref")) {
             if (sh.bsdf >= 0) {
                 ok = fail_at(L, c, "a shape takes one material");
                 break;
@@ -191,6 +209,11 @@ static int parse_shape(loader *L, xml_node *n)
         }
         if (ok && !mesh_finish(&sh.m, face_normals, flip, &e))
             ok = fail_at(L, n, "%s", e.msg);
+        /* Which side of a boundary a ray is on is only defined for a closed surface. The
+         * built-in sphere is closed by construction (its seam's vertices differ by a float
+         * rounding, which a check by position would call open). */
+        if (ok && sh.media_boundary && strcmp(type, "sphere"))
+            ok = check_closed(L, n, &sh.m);
     }
     if (ok && sh.bsdf < 0) { /* Mitsuba's default material: diffuse, reflectance 0.5 */
         bsdf b;
@@ -206,6 +229,12 @@ static int parse_shape(loader *L, xml_node *n)
             sh.bsdf = L->s->nbsdfs;
             L->s->bsdfs[L->s->nbsdfs++] = b;
         }
+    }
+    if (ok && L->s->bsdfs[sh.bsdf].type == BSDF_NULL) {
+        if (sh.emissive)
+            ok = fail_at(L, n, "a shape with the null material cannot emit");
+        sh.null_surface = 1;
+        L->s->has_media = 1;
     }
     shape *grown = ok ? realloc(L->s->shapes, (size_t)(L->s->nshapes + 1) * sizeof *grown) : NULL;
     if (!grown) {
@@ -255,6 +284,7 @@ static int parse_sensor(loader *L, xml_node *n)
     if (strcmp(type, "perspective"))
         return fail_at(L, n, "unsupported sensor type '%s' (perspective)", type);
     L->have_sensor = 1;
+    L->s->camera_medium = -1;
     L->s->width = 768;
     L->s->height = 576;
     if (!get_float(L, n, "fov", 0.0f, &L->s->fov_degrees) ||
@@ -290,6 +320,12 @@ static int parse_sensor(loader *L, xml_node *n)
                 return 0;
         } else if (!strcmp(c->name, "sampler")) {
             accept_ignored(c); /* we draw independent samples; --spp sets their number */
+        } else if (!strcmp(c->name, "medium") || !strcmp(c->name, "ref")) {
+            /* the medium the camera is in (Mitsuba: any medium nested in the sensor) */
+            if (L->s->camera_medium >= 0)
+                return fail_at(L, c, "the sensor takes one medium");
+            if (!nested_medium(L, c, &L->s->camera_medium))
+                return 0;
         }
     }
     return check_all_used(L, n);
@@ -377,6 +413,7 @@ static int load_tree(loader *L, xml_node *root)
     s->max_depth = -1;
     s->rr_depth = 5;
     s->camera_to_world = mat4_identity();
+    s->camera_medium = -1;
 
     /* <default> parameters first, then substitute them everywhere. */
     parameter *params = calloc((size_t)root->nchildren + 1, sizeof *params);
@@ -421,6 +458,8 @@ static int load_tree(loader *L, xml_node *root)
             ok = parse_shape(L, c);
         else if (!strcmp(c->name, "emitter"))
             ok = parse_environment(L, c);
+        else if (!strcmp(c->name, "medium"))
+            ok = parse_medium(L, c, &index);
         else
             ok = fail_at(L, c, "unknown or unsupported element <%s> in <scene>", c->name);
     }

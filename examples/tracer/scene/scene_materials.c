@@ -296,9 +296,11 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
              get_bool(L, n, "nonlinear", 0, &b.nonlinear) &&
              (b.type == BSDF_PLASTIC || get_roughness(L, n, &b));
         b.ior = ok ? int_ior / ext_ior : 1.0f;
+    } else if (!strcmp(type, "null")) {
+        b.type = BSDF_NULL; /* the invisible boundary of a medium (integrator.c) */
     } else {
         return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, conductor, "
-                       "roughconductor, dielectric, plastic, roughplastic)", type);
+                       "roughconductor, dielectric, plastic, roughplastic, null)", type);
     }
     if (!ok || !check_all_used(L, n))
         return 0;

@@ -4,6 +4,7 @@
  *   scene_props.c      errors, attributes, numbers, ids, and the typed parameters of an
  *                      element (<float>, <rgb>, <transform>, ...)
  *   scene_materials.c  textures and BSDFs
+ *   scene_media.c      participating media and the closed shapes that bound them
  *   scene_load.c       shapes, emitters, sensor, integrator, $parameters, the whole scene
  *
  * Every element is either interpreted or refused: each function that consumes an element
@@ -18,13 +19,14 @@
 #include "scene.h"
 #include "xml.h"
 
-typedef enum object_kind { OBJ_BSDF, OBJ_TEXTURE, OBJ_OTHER } object_kind;
+typedef enum object_kind { OBJ_BSDF, OBJ_TEXTURE, OBJ_MEDIUM, OBJ_OTHER } object_kind;
 
 /* An element with an id, for <ref id="..."/>. */
 typedef struct named_object {
     const char *id;
     object_kind kind;
-    int index;              /* OBJ_BSDF: into scene.bsdfs; OBJ_TEXTURE: into scene.textures */
+    int index;              /* OBJ_BSDF: into scene.bsdfs; OBJ_TEXTURE: into scene.textures;
+                             * OBJ_MEDIUM: into scene.media                                */
     const xml_node *node;
 } named_object;
 
@@ -105,5 +107,17 @@ int get_texture(loader *L, xml_node *plugin, const char *name, rgb def, const te
 int parse_bsdf(loader *L, xml_node *n, int *index);
 /* The material nested in a shape or a twosided BSDF: <bsdf> or <ref>. */
 int nested_bsdf(loader *L, xml_node *c, int *index);
+
+/* ---- scene_media.c ------------------------------------------------------------------------- */
+
+/* <medium type="homogeneous">, appended to scene.media (*index its position) and registered
+ * under its id. */
+int parse_medium(loader *L, xml_node *n, int *index);
+/* A medium nested in a shape or the sensor: <medium> or <ref> to one. */
+int nested_medium(loader *L, xml_node *c, int *index);
+/* Whether a shape that bounds a medium is closed: every edge (by vertex position) shared by
+ * exactly two of its triangles. Returns 0 with an error on element n naming the first open
+ * edge otherwise. */
+int check_closed(loader *L, const xml_node *n, const mesh *m);
 
 #endif /* TRACER_SCENE_XML_H */

@@ -23,15 +23,17 @@
 
 #include "test_policy.h"
 
-static void load_cornell(scene *s)
+static void load_scene(scene *s, const char *name)
 {
     tr_error err;
     char path[1024];
-    snprintf(path, sizeof path, "%s/cornell-box/scene.xml", TRACER_SCENES_DIR);
+    snprintf(path, sizeof path, "%s/%s/scene.xml", TRACER_SCENES_DIR, name);
     if (!scene_load(path, s, &err))
         fail_msg("%s", err.msg);
     scene_set_resolution(s, 24, 24);
 }
+
+static void load_cornell(scene *s) { load_scene(s, "cornell-box"); }
 
 /* Trains a fresh model for 3 iterations and renders 2 spp with it. */
 static void train_and_render(const scene *s, guide_prior prior, int threads, uint64_t seed,
@@ -148,11 +150,12 @@ static void assert_same_records(const record_buffer *a, const record_buffer *b)
  * (no_batching), and with the questions of TRACE_BATCH paths batched (trace_paths), with
  * records (a training pass) and without. 37 x 23 pixels leave partial tiles and partial
  * batches. */
-static void check_batched_pass(guide_prior prior, uint32_t light_mis_depth, int light_mis_bsdf)
+static void check_batched_pass_in(const char *scene_name, guide_prior prior,
+                                  uint32_t light_mis_depth, int light_mis_bsdf)
 {
     scene s;
     tr_error err;
-    load_cornell(&s);
+    load_scene(&s, scene_name);
     scene_set_resolution(&s, 37, 23);
     nf_model *m;
     image trained, one, batched, recorded, other;
@@ -206,6 +209,11 @@ static void check_batched_pass(guide_prior prior, uint32_t light_mis_depth, int 
     scene_free(&s);
 }
 
+static void check_batched_pass(guide_prior prior, uint32_t light_mis_depth, int light_mis_bsdf)
+{
+    check_batched_pass_in("cornell-box", prior, light_mis_depth, light_mis_bsdf);
+}
+
 static void test_batched_pass_equals_one_path_at_a_time(void **state)
 {
     (void)state;
@@ -213,6 +221,9 @@ static void test_batched_pass_equals_one_path_at_a_time(void **state)
     check_batched_pass(GUIDE_PRIOR_COSINE, 1, 0); /* deeper light samples ask nothing */
     check_batched_pass(GUIDE_PRIOR_COSINE, 0, 1); /* light samples ask nothing */
     check_batched_pass(GUIDE_PRIOR_BSDF, 0, 0); /* asked at shading points in both passes */
+    /* a dense medium: volume vertices, free flight, null boundaries */
+    check_batched_pass_in("cornell-box-smoke", GUIDE_PRIOR_COSINE, 0, 0);
+    check_batched_pass_in("cornell-box-smoke", GUIDE_PRIOR_BSDF, 0, 0);
 }
 
 int main(void)

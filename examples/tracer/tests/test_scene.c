@@ -247,8 +247,11 @@ static void test_error_unknown_element(void **state)
     (void)state;
     expect_error(HEAD "<volume type=\"grid\"/>\n</scene>", "<string>:4:", "<volume",
                  "unknown or unsupported element", NULL);
+    expect_error(HEAD "<shape type=\"cube\">\n  <phase type=\"hg\"/>\n</shape>\n</scene>",
+                 "<string>:5:", "<phase", "unexpected element inside <shape type=\"cube\">", NULL);
+    /* media are read (test_media.c), but a shape's must say which side it fills */
     expect_error(HEAD "<shape type=\"cube\">\n  <medium type=\"homogeneous\"/>\n</shape>\n</scene>",
-                 "<string>:5:", "<medium", "unexpected element inside <shape type=\"cube\">", NULL);
+                 "<string>:5:", "<medium", "needs name=\"interior\" or name=\"exterior\"", NULL);
     expect_error(HEAD "<bsdf type=\"hair\"/>\n</scene>", "<string>:4:", "unsupported BSDF type 'hair'",
                  NULL);
     expect_error(HEAD "<bsdf type=\"diffuse\">\n<float name=\"roughness\" value=\"1\"/>\n</bsdf>\n</scene>",
