@@ -29,7 +29,7 @@
 
 #include "nf_test_support.h"
 
-/* The asymmetries the issue names, the range a renderer's media use. */
+/* Asymmetries from strongly backward to strongly forward, the range a renderer's media use. */
 static const float all_g[] = {-0.9f, -0.5f, 0.0f, 0.5f, 0.9f};
 #define G_COUNT (sizeof all_g / sizeof all_g[0])
 
@@ -52,10 +52,10 @@ static double rel(double a, double b) { return fabs(a - b) / b; }
 
 /* ---- a fresh model is the phase function ----------------------------------------------------- */
 
-/* The issue's target: the HG prior alone equals the analytic phase function to 1e-3. The
+/* The contract: the HG prior alone equals the analytic phase function to 1e-3. The
  * float path carries the direction through the square (theta/pi, phi/2pi) with ~1e-6 rad of
  * rounding; the log-density's slope 3 |g| sin(a) / (1 + g^2 - 2 g cos a) is at most ~14 per
- * radian at |g| = 0.9, so ~2e-5 is expected (measured 1.6e-5) and 1e-3 is the target. */
+ * radian at |g| = 0.9, so ~2e-5 is expected (measured 1.6e-5) and 1e-3 is the bound. */
 #define FRESH_TOLERANCE 1e-3
 
 static void test_fresh_model_is_the_phase_function(void **state)

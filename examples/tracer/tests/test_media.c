@@ -122,7 +122,7 @@ static void furnace(const char *label, int camera_inside, int guided, guide_prio
         channel_stats(&img, c, &mean, &se);
         printf("  %-34s channel %d: mean %.5f +- %.5f\n", label, c, mean, se);
         /* Unbiased: within 4 standard errors of 1 (an unbiased estimator fails with
-         * probability 6e-5; the seeds are fixed). The issue's target is 0.5%: the test must
+         * probability 6e-5; the seeds are fixed). A 0.5 % bias must show: the test must
          * resolve it, so 4 standard errors must stay below 0.5% (sanitizer builds, with 8x
          * fewer samples, only check the first part). */
         if (!(fabs(mean - 1.0) < 4.0 * se))
