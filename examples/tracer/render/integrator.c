@@ -40,10 +40,6 @@
 
 #define MAX_RECORDED_VERTICES 256
 
-/* Whether volume vertices are guided (libnisflow >= 0.5.0 takes medium contexts: a zero
- * normal, nisflow/model.h). 0: volume vertices sample the phase function only, an ablation. */
-#define TRACER_GUIDE_VOLUME 1
-
 void record_buffer_free(record_buffer *b)
 {
     free(b->data);
@@ -518,7 +514,7 @@ static int volume_plan(const tracer *t, path_state *ps, rng *r, path_stats *st, 
     memset(&vp->gp.bp, 0, sizeof vp->gp.bp); /* no material: the phase function */
     memset(&vp->sh.bp, 0, sizeof vp->sh.bp);
     const float g = t->model ? t->policy.mixture_prob : 0.0f;
-    const int guided = TRACER_GUIDE_VOLUME && g > 0.0f &&
+    const int guided = g > 0.0f &&
                        (t->guide_depth == 0 || depth <= t->guide_depth);
     if (guided) {
         vp->g = nf_guide_mixture_prob(&t->policy, ps->boost);
