@@ -479,6 +479,18 @@ static int plan_light_and_scatter(const tracer *t, path_state *ps, rng *r, path_
 }
 
 
+/* Clears what a vertex's plan decides, field by field rather than a memset of the whole
+ * plan, which cost plain path tracing 7% in Veach Ajar. */
+static void vertex_plan_reset(vertex_plan *vp, int volume)
+{
+    vp->g = 0.0f;
+    vp->nee = vp->scatters = vp->flow_chosen = vp->delta = 0;
+    vp->p_bsdf = 0.0f;
+    vp->q.light = vp->q.sample = vp->q.pdf = vp->q.failed = 0;
+    vp->q.light_p_flow = vp->q.p_flow = 0.0f;
+    vp->volume = volume;
+}
+
 /* Plans a vertex where free flight stopped in a medium of asymmetry phase_g, at p, the ray
  * travelling along d: its context has the normal (0, 0, 0) (a medium point, nisflow/model.h)
  * and the phase function's g; the phase function is its "BSDF", guided as surface vertices
@@ -490,12 +502,7 @@ static int volume_plan(const tracer *t, path_state *ps, rng *r, path_stats *st, 
     const int depth = ps->depth;
     if (depth >= max_depth)
         return 0;
-    vp->g = 0.0f;
-    vp->nee = vp->scatters = vp->flow_chosen = vp->delta = 0;
-    vp->p_bsdf = 0.0f;
-    vp->q.light = vp->q.sample = vp->q.pdf = vp->q.failed = 0;
-    vp->q.light_p_flow = vp->q.p_flow = 0.0f;
-    vp->volume = 1;
+    vertex_plan_reset(vp, 1);
     vp->phase_g = phase_g;
     vp->d = d;
     vp->p = p;
@@ -604,14 +611,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     if (depth >= max_depth)
         return 0;
 
-    /* Field by field rather than a memset of the whole plan, which cost plain path tracing
-     * 7% in Veach Ajar. */
-    vp->g = 0.0f;
-    vp->nee = vp->scatters = vp->flow_chosen = vp->delta = 0;
-    vp->p_bsdf = 0.0f;
-    vp->q.light = vp->q.sample = vp->q.pdf = vp->q.failed = 0;
-    vp->q.light_p_flow = vp->q.p_flow = 0.0f;
-    vp->volume = 0;
+    vertex_plan_reset(vp, 0);
     if (s->has_media) {
         vp->d = ry.d;
         vp->shape = h.shape;
