@@ -67,7 +67,9 @@ typedef struct nf_context {
     float wo[3];
     /* The Henyey-Greenstein asymmetry of the medium at a point in a participating medium:
      * finite, |phase_g| <= NF_PHASE_G_MAX. On surfaces it is never read (any value, so that
-     * contexts filled before 0.5.0 stay valid); zero-initialise it. (Added in 0.5.0.) */
+     * contexts filled before 0.5.0 stay valid); zero-initialise it. (Added in 0.5.0: a brace
+     * initializer of the three members before it leaves it 0, and gcc's -Wextra asks for it by
+     * name.) */
     float phase_g;
 } nf_context;
 

@@ -19,7 +19,7 @@ int main(void)
     }
 
     /* One sample, so that the flow code (and libm, for static builds) is linked too. */
-    nf_context ctx = {{0.5f, 0.5f, 0.5f}, {0.0f, 0.0f, 1.0f}, {0.0f, 0.0f, 1.0f}};
+    nf_context ctx = {{0.5f, 0.5f, 0.5f}, {0.0f, 0.0f, 1.0f}, {0.0f, 0.0f, 1.0f}, 0.0f};
     const float u[2] = {0.25f, 0.75f};
     float dir[3], pdf;
     s = nf_sample(model, 1, &ctx, u, dir, &pdf);
