@@ -93,8 +93,12 @@ static int vertex_ok(const nf_path_vertex *v)
         return 0;
     if (!v->learn)
         return 1;
+    /* A zero normal (either sign of zero) is a point in a medium, whose phase_g counts. */
+    const float *n = v->ctx.normal;
+    int medium = n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f;
+    int normal_ok = medium ? fabsf(v->ctx.phase_g) <= NF_PHASE_G_MAX : vector_ok(n);
     return isfinite(v->ctx.position[0]) && isfinite(v->ctx.position[1]) &&
-           isfinite(v->ctx.position[2]) && vector_ok(v->ctx.normal) && vector_ok(v->ctx.wo) &&
+           isfinite(v->ctx.position[2]) && normal_ok && vector_ok(v->ctx.wo) &&
            vector_ok(v->dir) && rgb_ok(v->f_over_p);
 }
 
@@ -172,6 +176,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             for (int c = 0; c < 3; ++c)
                 fields[f][c] = next_value(&r);
         v[j].emitted_mis = next_value(&r);
+        v[j].ctx.phase_g = next_value(&r);
         valid = valid && vertex_ok(&v[j]);
     }
 
