@@ -17,9 +17,10 @@
  *     clone is refused;
  *   - a refused call writes nothing, and a refused nf_point_prepare leaves the slot's bytes;
  *   - an accepted call gives unit directions (within 2e-6, as
- *     tests/robustness/test_numeric_robustness) and finite positive densities, the same bits
- *     as nf_sample / nf_pdf on the point's context (as one call of n, tiled for n >= 3, and
- *     as calls of 1).
+ *     tests/robustness/test_numeric_robustness) and finite positive densities, the same
+ *     result (same_result: today the same bits) as nf_sample / nf_pdf on the point's context,
+ *     as one call of n (tiled for n >= 3) or as calls of 1: a bit of the program chooses
+ *     which, per operation.
  * Bytes of a point outside its header (reserved, cache) are flipped too; the library does not
  * promise to detect that, so such a point must only not crash the library or trip a
  * sanitizer. Its prior callbacks are never flipped: calling a corrupted function pointer would
@@ -30,7 +31,7 @@
 
 #include "fuzz_common.h"
 
-enum { SLOTS = 4, MAX_N = 20, MAX_OPS = 32 };
+enum { SLOTS = 4, MAX_N = 20, MAX_OPS = 32, MAX_TRAININGS = 1, MAX_WRITES = 1, MAX_EDITS = 3 };
 
 /* ---- reading the program --------------------------------------------------------------------- */
 
@@ -166,12 +167,23 @@ static int status_allowed(nf_status st, const expect *e)
 
 /* ---- the machine ----------------------------------------------------------------------------- */
 
+/* What the cached models of a shape (shape_models, below) still hold, so that copies between
+ * them are made only when something changed: the work model equals `seeded` (the reset at the
+ * start of an input can be skipped), `other` equals the work model (op_clone's copy can be
+ * skipped). Only op_change and the reset write to the work model. */
+typedef struct model_flags {
+    int work_is_seeded, other_is_work;
+} model_flags;
+
 typedef struct machine {
     nf_model *m;
-    nf_model *other; /* a second model of the same configuration, for op_clone */
+    model_flags *flags; /* m's shape's (models_for) */
+    nf_model **other;   /* a second model of m's configuration, for op_clone; built there */
     float *buf;      /* nf_param_count floats of scratch */
     nf_prior_kind prior;
     uint64_t epoch; /* counts accepted changes of the parameters */
+    int trainings;  /* training steps tried, against MAX_TRAININGS */
+    int writes;     /* nf_set_params / nf_apply_gradient tried, against MAX_WRITES */
     slot slots[SLOTS];
     reader in;
 } machine;
@@ -247,52 +259,73 @@ static void op_prepare(machine *mc)
     s->epoch = mc->epoch;
 }
 
-/* nf_sample's bits for n u pairs at the points' contexts: one call of n, n calls of 1. */
-static void check_against_batch(const nf_model *m, const nf_context *rep, size_t n, const float *u,
-                                const float *dir, const float *pdf)
+/* The oracle's verdict on one value of an accepted point call (a direction component or a
+ * density) against the batch call's value for the same input: today the same bits. Every
+ * comparison with nf_sample / nf_pdf goes through here, so that a stated tolerance replaces
+ * the bit equality in this one place. */
+static int same_result(float point_value, float batch_value)
 {
-    float d[3 * MAX_N], p[MAX_N];
-    NF_FUZZ_CHECK(nf_sample(m, n, rep, u, d, p) == NF_OK, "nf_sample");
-    for (size_t i = 0; i < n; ++i)
-        NF_FUZZ_CHECK(memcmp(d + 3 * i, dir + 3 * i, 3 * sizeof *d) == 0 &&
-                          memcmp(p + i, pdf + i, sizeof *p) == 0,
-                      "point sample %zu of %zu differs from nf_sample: u (%a, %a), point (%a, "
-                      "%a, %a) %a, nf_sample (%a, %a, %a) %a",
-                      i, n, (double)u[2 * i], (double)u[2 * i + 1], (double)dir[3 * i],
-                      (double)dir[3 * i + 1], (double)dir[3 * i + 2], (double)pdf[i],
-                      (double)d[3 * i], (double)d[3 * i + 1], (double)d[3 * i + 2], (double)p[i]);
-    for (size_t i = 0; i < n; ++i) {
-        NF_FUZZ_CHECK(nf_sample(m, 1, &rep[i], u + 2 * i, d, p) == NF_OK, "nf_sample n = 1");
-        NF_FUZZ_CHECK(memcmp(d, dir + 3 * i, 3 * sizeof *d) == 0 && memcmp(p, pdf + i, 4) == 0,
-                      "point sample %zu differs from nf_sample n = 1", i);
-    }
+    return memcmp(&point_value, &batch_value, sizeof point_value) == 0;
 }
 
-static void check_against_pdf(const nf_model *m, const nf_context *rep, size_t n, const float *dir,
-                              const float *pdf)
+/* The batch calls a point call is checked against: one call of all n entries (tiled for
+ * n >= 3, as kernel.c tiles) or n calls of 1 (never tiled). Each check makes one of them,
+ * chosen by a bit of the program, rather than both: the oracle cost as much as the calls it
+ * checks, and a bit the fuzzer can flip still reaches both forms on every input. */
+enum { ORACLE_ONE_CALL, ORACLE_CALLS_OF_ONE };
+
+/* nf_sample's results for n u pairs at the points' contexts, in the chosen form, against the
+ * point call's. */
+static void check_against_batch(const nf_model *m, int form, const nf_context *rep, size_t n,
+                                const float *u, const float *dir, const float *pdf)
+{
+    float d[3 * MAX_N], p[MAX_N];
+    if (form == ORACLE_ONE_CALL)
+        NF_FUZZ_CHECK(nf_sample(m, n, rep, u, d, p) == NF_OK, "nf_sample");
+    else
+        for (size_t i = 0; i < n; ++i)
+            NF_FUZZ_CHECK(nf_sample(m, 1, &rep[i], u + 2 * i, d + 3 * i, p + i) == NF_OK,
+                          "nf_sample n = 1");
+    for (size_t i = 0; i < n; ++i)
+        NF_FUZZ_CHECK(same_result(dir[3 * i], d[3 * i]) &&
+                          same_result(dir[3 * i + 1], d[3 * i + 1]) &&
+                          same_result(dir[3 * i + 2], d[3 * i + 2]) && same_result(pdf[i], p[i]),
+                      "point sample %zu of %zu differs from nf_sample (%s): u (%a, %a), point "
+                      "(%a, %a, %a) %a, nf_sample (%a, %a, %a) %a",
+                      i, n, form == ORACLE_ONE_CALL ? "one call" : "calls of 1",
+                      (double)u[2 * i], (double)u[2 * i + 1], (double)dir[3 * i],
+                      (double)dir[3 * i + 1], (double)dir[3 * i + 2], (double)pdf[i],
+                      (double)d[3 * i], (double)d[3 * i + 1], (double)d[3 * i + 2], (double)p[i]);
+}
+
+static void check_against_pdf(const nf_model *m, int form, const nf_context *rep, size_t n,
+                              const float *dir, const float *pdf)
 {
     float p[MAX_N];
-    NF_FUZZ_CHECK(nf_pdf(m, n, rep, dir, p) == NF_OK, "nf_pdf");
+    if (form == ORACLE_ONE_CALL)
+        NF_FUZZ_CHECK(nf_pdf(m, n, rep, dir, p) == NF_OK, "nf_pdf");
+    else
+        for (size_t i = 0; i < n; ++i)
+            NF_FUZZ_CHECK(nf_pdf(m, 1, &rep[i], dir + 3 * i, p + i) == NF_OK, "nf_pdf n = 1");
     for (size_t i = 0; i < n; ++i)
-        NF_FUZZ_CHECK(memcmp(p + i, pdf + i, sizeof *p) == 0,
-                      "point pdf %zu of %zu differs from nf_pdf: dir (%a, %a, %a), point %a, "
-                      "nf_pdf %a",
-                      i, n, (double)dir[3 * i], (double)dir[3 * i + 1], (double)dir[3 * i + 2],
+        NF_FUZZ_CHECK(same_result(pdf[i], p[i]),
+                      "point pdf %zu of %zu differs from nf_pdf (%s): dir (%a, %a, %a), point "
+                      "%a, nf_pdf %a",
+                      i, n, form == ORACLE_ONE_CALL ? "one call" : "calls of 1",
+                      (double)dir[3 * i], (double)dir[3 * i + 1], (double)dir[3 * i + 2],
                       (double)pdf[i], (double)p[i]);
-    for (size_t i = 0; i < n; ++i) {
-        NF_FUZZ_CHECK(nf_pdf(m, 1, &rep[i], dir + 3 * i, p) == NF_OK, "nf_pdf n = 1");
-        NF_FUZZ_CHECK(memcmp(p, pdf + i, sizeof *p) == 0, "point pdf %zu differs from nf_pdf n = 1",
-                      i);
-    }
 }
 
 /* The points of a call: one slot for nf_point_* (returned), or a slot per entry for
- * nf_points_* (copied into arr); their contexts go to ctx and their states into *e. */
+ * nf_points_* (copied into arr); their contexts go to ctx and their states into *e. The
+ * slot byte's next bit (unused before) chooses the oracle's form, *form. */
 static slot *pick_points(machine *mc, int batch, size_t n, nf_shading_point *arr, nf_context *ctx,
-                         expect *e)
+                         expect *e, int *form)
 {
     reader *r = &mc->in;
-    slot *one = &mc->slots[rd_u8(r) % SLOTS];
+    unsigned pick = rd_u8(r);
+    slot *one = &mc->slots[pick % SLOTS];
+    *form = (pick / SLOTS) & 1u ? ORACLE_CALLS_OF_ONE : ORACLE_ONE_CALL;
     for (size_t i = 0; i < n; ++i) {
         slot *s = batch ? &mc->slots[rd_u8(r) % SLOTS] : one;
         arr[i] = s->sp;
@@ -309,7 +342,8 @@ static void op_sample(machine *mc, int batch)
     expect e = {0, 0, 1, 1};
     nf_shading_point arr[MAX_N];
     nf_context ctx[MAX_N];
-    slot *one = pick_points(mc, batch, n, arr, ctx, &e);
+    int form;
+    slot *one = pick_points(mc, batch, n, arr, ctx, &e, &form);
     float u[2 * MAX_N], dir[3 * MAX_N], pdf[MAX_N];
     for (size_t i = 0; i < 2 * n; ++i) {
         u[i] = rd_float(r);
@@ -332,7 +366,7 @@ static void op_sample(machine *mc, int batch)
     if (!with_pdf)
         NF_FUZZ_CHECK(untouched(pdf, n), "%s: pdf written although NULL was passed", fn);
     if (e.exact && with_pdf)
-        check_against_batch(mc->m, ctx, n, u, dir, pdf);
+        check_against_batch(mc->m, form, ctx, n, u, dir, pdf);
 }
 
 static void op_pdf(machine *mc, int batch)
@@ -342,7 +376,8 @@ static void op_pdf(machine *mc, int batch)
     expect e = {0, 0, 1, 1};
     nf_shading_point arr[MAX_N];
     nf_context ctx[MAX_N];
-    slot *one = pick_points(mc, batch, n, arr, ctx, &e);
+    int form;
+    slot *one = pick_points(mc, batch, n, arr, ctx, &e, &form);
     float dir[3 * MAX_N], pdf[MAX_N];
     for (size_t i = 0; i < n; ++i) {
         for (int a = 0; a < 3; ++a)
@@ -362,7 +397,7 @@ static void op_pdf(machine *mc, int batch)
     }
     check_unit_and_pdfs(n, NULL, pdf, fn);
     if (e.exact)
-        check_against_pdf(mc->m, ctx, n, dir, pdf);
+        check_against_pdf(mc->m, form, ctx, n, dir, pdf);
 }
 
 /* Flips the bits of `mask` in one byte of a slot's point, never in its callbacks. */
@@ -394,7 +429,21 @@ static nf_context training_context(int i)
     return c;
 }
 
-/* Changes the parameters (or tries to: refused changes leave points valid). */
+static void work_changes(machine *mc)
+{
+    mc->flags->work_is_seeded = 0;
+    mc->flags->other_is_work = 0;
+}
+
+/* Changes the parameters (or tries to: refused changes leave points valid). An input makes
+ * at most MAX_TRAININGS training steps (kind 0) and MAX_WRITES nf_set_params /
+ * nf_apply_gradient calls (kinds 1 and 2); past that an operation still reads its bytes, so
+ * that the rest of the program means the same, but calls nothing. Each of these calls goes
+ * over every parameter (a step is a forward and backward pass and Adam: about 200 us with the
+ * large preset under the fuzz build's sanitizers, a point call of 16 samples about 40), and
+ * what a point call must do after a change (STALE, then valid again once prepared) shows
+ * after the first; more changes only move the parameters further, which the scale and raw
+ * edits of the model's bytes already do. Kind 3 only validates, and is not capped. */
 static void op_change(machine *mc)
 {
     reader *r = &mc->in;
@@ -413,23 +462,32 @@ static void op_change(machine *mc)
                 dir[3 * i + a] = a == i % 3 ? 1.0f : 0.25f;
             w[i] = 0.5f + (float)(rd_u8(r) % 4u);
         }
+        if (mc->trainings++ >= MAX_TRAININGS)
+            return;
+        work_changes(mc);
         st = nf_train_step(mc->m, B, ctx, dir, w, NULL);
         NF_FUZZ_CHECK(st == NF_OK || st == NF_ERROR_NUMERIC, "nf_train_step %d", (int)st);
         changes = st == NF_OK;
     } else if (kind == 1) {
-        NF_FUZZ_CHECK(nf_get_params(mc->m, buf) == NF_OK, "nf_get_params");
         float v = rd_float(r);
         size_t at = rd_u32(r) % count;
+        if (mc->writes++ >= MAX_WRITES)
+            return;
+        work_changes(mc);
+        NF_FUZZ_CHECK(nf_get_params(mc->m, buf) == NF_OK, "nf_get_params");
         buf[at] = v;
         st = nf_set_params(mc->m, buf);
         changes = isfinite(v) != 0;
         NF_FUZZ_CHECK(st == (changes ? NF_OK : NF_ERROR_INVALID_ARGUMENT), "nf_set_params %d",
                       (int)st);
     } else if (kind == 2) {
-        for (size_t i = 0; i < count; ++i)
-            buf[i] = 0.0f;
         float v = rd_float(r);
-        buf[rd_u32(r) % count] = v;
+        size_t at = rd_u32(r) % count;
+        if (mc->writes++ >= MAX_WRITES)
+            return;
+        work_changes(mc);
+        memset(buf, 0, count * sizeof *buf); /* all bits zero is 0.0f in IEEE 754 */
+        buf[at] = v;
         int all_finite = isfinite(v) != 0;
         st = nf_apply_gradient(mc->m, buf);
         if (!all_finite)
@@ -438,7 +496,8 @@ static void op_change(machine *mc)
             NF_FUZZ_CHECK(st == NF_OK || st == NF_ERROR_NUMERIC, "nf_apply_gradient %d", (int)st);
         changes = st == NF_OK;
     } else {
-        /* Calls that change nothing. */
+        /* Calls that change no parameter (the learning rate is state nf_model_copy resets). */
+        work_changes(mc);
         NF_FUZZ_CHECK(nf_set_learning_rate(mc->m, 1e-4f) == NF_OK, "nf_set_learning_rate");
         nf_context c = training_context(1);
         float zero_w = 0.0f, d[3] = {0.0f, 0.0f, 1.0f};
@@ -449,13 +508,17 @@ static void op_change(machine *mc)
         mc->epoch++;
 }
 
-/* A clone refuses every point of the original, and the original every point of the clone. */
 /* Another model with the same state (nf_model_copy into the cached second model: a clone
- * without the allocation), which must refuse the points of the first and vice versa. */
+ * without the allocation; copied again only when the work model changed since), which must
+ * refuse the points of the first and vice versa. */
 static void op_clone(machine *mc)
 {
-    nf_model *clone = mc->other;
-    NF_FUZZ_CHECK(nf_model_copy(clone, mc->m) == NF_OK, "nf_model_copy");
+    if (!*mc->other)
+        NF_FUZZ_CHECK(nf_model_clone(mc->m, mc->other) == NF_OK, "nf_model_clone");
+    else if (!mc->flags->other_is_work)
+        NF_FUZZ_CHECK(nf_model_copy(*mc->other, mc->m) == NF_OK, "nf_model_copy");
+    mc->flags->other_is_work = 1;
+    nf_model *clone = *mc->other;
     float u[2] = {0.25f, 0.75f}, dir[3], pdf[1];
     for (int i = 0; i < SLOTS; ++i) {
         fill(dir, 3);
@@ -486,40 +549,53 @@ static void op_copy(machine *mc)
 
 /* ---- the model ------------------------------------------------------------------------------- */
 
+/* The parameters a program asks for: a scale index and seed, then up to MAX_EDITS raw values
+ * (index bits, float bits). All fields are uint32_t, so two keys compare with memcmp. */
+typedef struct params_key {
+    uint32_t scale, seed, edits;
+    uint32_t at[MAX_EDITS], value[MAX_EDITS];
+} params_key;
+
 /* The models of one shape (the program's first byte, all 256 of them), built once per process
- * on first use and kept: a pristine one, the one a program works on (reset at the start of
- * every input with nf_model_copy, so that an input replays alone), a second one for op_clone,
- * a parameter buffer, and `seeded`, the pristine model with the random parameters of the
- * last (scale, seed) pair a program asked for. Building models per input cost most of an
+ * on first use and kept: `seeded`, the fresh model with the parameters (random ones and raw
+ * edits) of the last key a program asked for (nf_set_params keeps its optimizer state, which
+ * stays the fresh one), the fresh model's parameters, the model a program works on (reset
+ * from `seeded` at the start of every input with nf_model_copy, so that an input replays
+ * alone), a second one for op_clone (built on the shape's first op_clone: a quarter of the
+ * shapes' memory, which is fresh pages early in a run) and a parameter buffer. Building
+ * models per input cost most of an
  * execution (megabytes of fresh pages); drawing and checking every parameter per input cost
  * most of the rest under the sanitizers' instrumentation, and consecutive inputs (mutations
- * of one program) mostly share the pair, so the parameters are drawn again only when it
- * changes. Every path gives the work model the same state for the same input. */
+ * of one program) mostly share the key, so the parameters are set again only when it
+ * changes; `flags` says which copies still hold (model_flags). Every path gives the work model
+ * (and `other`, when op_clone uses it) the same state for the same input. */
 typedef struct shape_models {
     nf_prior_kind prior;
-    nf_model *pristine, *work, *other, *seeded;
-    float *buf;
+    nf_model *seeded, *work, *other;
+    float *fresh_params, *buf;
     int seeded_valid;
-    unsigned seeded_scale;
-    uint32_t seeded_seed;
+    model_flags flags;
+    params_key key;
 } shape_models;
 
 static shape_models *models_for(unsigned a)
 {
     static shape_models cache[256];
     shape_models *c = &cache[a & 255u];
-    if (c->pristine)
+    if (c->seeded)
         return c;
     nf_config cfg;
     nf_config_init(&cfg, (a & 1u) ? NF_PRESET_LARGE : NF_PRESET_SMALL);
     switch ((a >> 1) & 3u) {
     case 1:
-        /* Too large for the point's cache (6 layers of 40 units, padded to 48: 288 floats of
-         * context sums), with as few parameters as that allows (fewer one-blob bins and SH
-         * bands than the presets), so that a program on it costs about what one on a preset
-         * costs. */
-        cfg.coupling_layers = 6;
-        cfg.hidden_width = 40;
+        /* Too large for the point's cache (9 layers of 17 units, padded to 32: 288 floats of
+         * context sums, above NF_SHADING_POINT_CACHE_FLOATS), with as few parameters as that
+         * allows (fewer one-blob bins and SH bands than the presets; the smallest product of
+         * layers and width that passes 256 floats with a full and a partial chunk of units):
+         * 10,323 parameters (16,965 on the large preset), where 6 layers of 40 units had 15,990
+         * (31,734). Every training step, reset and parameter change goes over all of them. */
+        cfg.coupling_layers = 9;
+        cfg.hidden_width = 17;
         cfg.oneblob_bins = 8;
         cfg.sh_bands = 2;
         break;
@@ -542,45 +618,54 @@ static shape_models *models_for(unsigned a)
     cfg.custom_prior = nf_fuzz_callbacks();
     cfg.isa = (nf_isa)((a >> 5) & 3u);
     cfg.phi_map = (a >> 7) & 1u ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR;
-    if (nf_model_create(&cfg, &c->pristine) != NF_OK) {
+    if (nf_model_create(&cfg, &c->seeded) != NF_OK) {
         /* Kernels this CPU lacks: the best ones instead. */
         NF_FUZZ_CHECK(cfg.isa != NF_ISA_AUTO && cfg.isa != NF_ISA_GENERIC, "nf_model_create");
         cfg.isa = NF_ISA_AUTO;
-        NF_FUZZ_CHECK(nf_model_create(&cfg, &c->pristine) == NF_OK, "nf_model_create");
+        NF_FUZZ_CHECK(nf_model_create(&cfg, &c->seeded) == NF_OK, "nf_model_create");
     }
-    NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->work) == NF_OK, "nf_model_clone");
-    NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->other) == NF_OK, "nf_model_clone");
-    NF_FUZZ_CHECK(nf_model_clone(c->pristine, &c->seeded) == NF_OK, "nf_model_clone");
-    c->buf = (float *)malloc(nf_param_count(c->pristine) * sizeof *c->buf);
-    NF_FUZZ_CHECK(c->buf != NULL, "malloc");
+    NF_FUZZ_CHECK(nf_model_clone(c->seeded, &c->work) == NF_OK, "nf_model_clone");
+    size_t count = nf_param_count(c->seeded);
+    c->fresh_params = (float *)malloc(count * sizeof *c->fresh_params);
+    c->buf = (float *)malloc(count * sizeof *c->buf);
+    NF_FUZZ_CHECK(c->fresh_params != NULL && c->buf != NULL, "malloc");
+    NF_FUZZ_CHECK(nf_get_params(c->seeded, c->fresh_params) == NF_OK, "nf_get_params");
     c->prior = cfg.prior;
     c->seeded_valid = 0;
+    c->flags.work_is_seeded = 0;
+    c->flags.other_is_work = 0;
     return c;
 }
 
-/* c->seeded as the pristine model with parameters uniform in [-scale, scale] from `seed`
- * (scale index 0: the pristine parameters). */
-static void seed_params(shape_models *c, unsigned scale_index, uint32_t seed_bits)
+/* c->seeded as the fresh model with parameters uniform in [-scale, scale] from the key's
+ * seed (scale index 0: the fresh parameters), then its finite raw edits. */
+static void seed_params(shape_models *c, const params_key *key)
 {
-    if (c->seeded_valid && c->seeded_scale == scale_index && c->seeded_seed == seed_bits)
+    if (c->seeded_valid && memcmp(&c->key, key, sizeof *key) == 0)
         return;
     static const float scales[8] = {0.0f, 0.1f, 0.3f, 1.0f, 10.0f, 1e6f, 1e30f, FLT_MAX};
-    float scale = scales[scale_index];
-    NF_FUZZ_CHECK(nf_model_copy(c->seeded, c->pristine) == NF_OK, "nf_model_copy");
+    float scale = scales[key->scale];
+    c->flags.work_is_seeded = 0;
+    size_t count = nf_param_count(c->seeded);
+    float *p = c->buf;
     if (scale > 0.0f) {
-        uint64_t seed = seed_bits | 1u;
-        size_t count = nf_param_count(c->seeded);
-        float *p = c->buf;
+        uint64_t seed = key->seed | 1u;
         for (size_t i = 0; i < count; ++i) {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
             p[i] = scale * ((float)(seed >> 40) * 0x1p-23f - 1.0f);
         }
-        NF_FUZZ_CHECK(nf_set_params(c->seeded, p) == NF_OK, "nf_set_params");
+    } else {
+        memcpy(p, c->fresh_params, count * sizeof *p);
     }
-    c->seeded_scale = scale_index;
-    c->seeded_seed = seed_bits;
+    for (uint32_t k = 0; k < key->edits; ++k) {
+        float v = bits_to_float(key->value[k]);
+        if (isfinite(v))
+            p[key->at[k] % count] = v;
+    }
+    NF_FUZZ_CHECK(nf_set_params(c->seeded, p) == NF_OK, "nf_set_params");
+    c->key = *key;
     c->seeded_valid = 1;
 }
 
@@ -588,26 +673,27 @@ static void make_model(reader *r, machine *mc)
 {
     unsigned a = rd_u8(r), b = rd_u8(r);
     shape_models *c = models_for(a);
-    seed_params(c, b & 7u, rd_u32(r));
-    NF_FUZZ_CHECK(nf_model_copy(c->work, c->seeded) == NF_OK, "nf_model_copy");
+    params_key key;
+    memset(&key, 0, sizeof key);
+    key.scale = b & 7u;
+    key.seed = rd_u32(r);
+    key.edits = (b >> 3) & 3u;
+    for (uint32_t k = 0; k < key.edits; ++k) {
+        key.at[k] = rd_u32(r);
+        float v = rd_float(r);
+        memcpy(&key.value[k], &v, sizeof v);
+    }
+    seed_params(c, &key);
+    if (!c->flags.work_is_seeded) {
+        NF_FUZZ_CHECK(nf_model_copy(c->work, c->seeded) == NF_OK, "nf_model_copy");
+        c->flags.work_is_seeded = 1;
+        c->flags.other_is_work = 0;
+    }
+    mc->flags = &c->flags;
     mc->m = c->work;
-    mc->other = c->other;
+    mc->other = &c->other;
     mc->buf = c->buf;
     mc->prior = c->prior;
-    /* Then a few raw values. */
-    unsigned edits = (b >> 3) & 3u;
-    if (edits == 0)
-        return;
-    size_t count = nf_param_count(mc->m);
-    float *p = mc->buf;
-    NF_FUZZ_CHECK(nf_get_params(mc->m, p) == NF_OK, "nf_get_params");
-    for (unsigned k = 0; k < edits; ++k) {
-        size_t at = rd_u32(r) % count;
-        float v = rd_float(r);
-        if (isfinite(v))
-            p[at] = v;
-    }
-    NF_FUZZ_CHECK(nf_set_params(mc->m, p) == NF_OK, "nf_set_params");
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
