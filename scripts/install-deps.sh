@@ -4,7 +4,8 @@
 #
 #   ./scripts/install-deps.sh           what the build, the tests and the tracer need
 #   ./scripts/install-deps.sh --study   also gnuplot and python3, for scripts/paper-study.sh
-#                                       and scripts/equal-time.sh
+#                                       and scripts/equal-time.sh, and patch, for
+#                                       scripts/point-cost-study.sh
 set -euo pipefail
 
 # Add packages here as the project grows.
@@ -29,7 +30,7 @@ NF_DEB_PACKAGES=(
 
 case "${1:-}" in
     "") ;;
-    --study) NF_DEB_PACKAGES+=(gnuplot-nox python3) ;;
+    --study) NF_DEB_PACKAGES+=(gnuplot-nox python3 patch) ;;
     *) echo "usage: $0 [--study]" >&2; exit 2 ;;
 esac
 
