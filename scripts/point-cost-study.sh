@@ -79,6 +79,7 @@ for r in $(seq "$ROUNDS"); do
             "${REPS[@]}" --retries 0 --json "$TMP/b$m.json" 2>&1)
         for op in point-sample point-pdf vertex; do
             v=$(echo "$out" | awk -v op="$op" '$1 == "small" && $2 == op && $3 == "1T:" { print $4 }')
+            [ -n "$v" ] || { echo "point-cost-study.sh: no $op figure from NF_EXP=$m:" >&2; echo "$out" >&2; exit 1; }
             key="$m/$op"
             if [ -z "${BEST[$key]:-}" ] || awk -v a="$v" -v b="${BEST[$key]}" 'BEGIN { exit !(a < b) }'; then
                 BEST[$key]=$v
