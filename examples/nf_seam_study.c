@@ -12,14 +12,20 @@
  * once with the same configuration turned by pi about z (mu at phi = pi, far from the seam),
  * and reports the KL divergence from the normalized integrand to the model, by quadrature on
  * a grid of (cos theta, phi) cells, after each checkpoint of training. Training is online, as
- * in a renderer and nf_demo: each step draws a batch from the current model, weights each
- * direction by f / pdf and takes one nf_train_step.
+ * in a guided renderer: each step draws a batch of directions, each from the flow with the
+ * guide's default mixture probability (nf_guide_policy_init) and otherwise from a diffuse
+ * BSDF's cosine lobe about the normal, weights each by f over the mixture's density and takes
+ * one nf_train_step. `--training flow` draws every direction from the flow and weights it by
+ * f / pdf, as nf_demo does: there a batch's weights have no bound, and a direction the flow
+ * makes too rare (a lobe's tail) can carry 20 to 50 times the batch's mean weight and throw a
+ * run off for a few dozen steps, in either placement (docs/results.md section 8).
  *
  * Output: a Markdown table, one row per prior, kappa and checkpoint, with the mean and
  * standard deviation over the seeds of both placements' KL and their ratio, and the medians
  * and theirs. Deterministic: the random numbers are the program's own.
  *
- * Usage: nf_seam_study [--steps A,B,C] [--seeds N] [--kappas K1,K2] [--help]
+ * Usage: nf_seam_study [--steps A,B,C] [--seeds N] [--kappas K1,K2] [--phi-map MAP]
+ *                      [--training mixture|flow] [--help]
  */
 #include <math.h>
 #include <stdint.h>
@@ -62,6 +68,23 @@ static integrand make_integrand(double kappa, double phi0)
     /* kappa / (2 pi (1 - e^{-2 kappa})) times e^{kappa (mu.w - 1)}: no overflow. */
     f.vmf_norm = kappa / (2.0 * PI * (1.0 - exp(-2.0 * kappa)));
     return f;
+}
+
+/* A direction from the cosine lobe about the unit normal n (a diffuse BSDF's sampling). */
+static void cosine_sample(const double n[3], double u0, double u1, double w[3])
+{
+    double s = n[2] >= 0.0 ? 1.0 : -1.0, a = -1.0 / (s + n[2]), c = n[0] * n[1] * a;
+    double t[3] = {1.0 + s * n[0] * n[0] * a, s * c, -s * n[0]};
+    double b[3] = {c, s + n[1] * n[1] * a, -n[1]};
+    double r = sqrt(u0), x = r * cos(2.0 * PI * u1), y = r * sin(2.0 * PI * u1), z = sqrt(1.0 - u0);
+    for (int k = 0; k < 3; ++k)
+        w[k] = x * t[k] + y * b[k] + z * n[k];
+}
+
+static double cosine_pdf(const double n[3], const double w[3])
+{
+    double c = n[0] * w[0] + n[1] * w[1] + n[2] * w[2];
+    return c > 0.0 ? c / PI : 0.0;
 }
 
 static double integrand_eval(const integrand *f, const double w[3])
@@ -143,6 +166,7 @@ typedef struct options {
     double kappas[MAX_LIST];
     int nkappas;
     nf_phi_map phi_map;
+    float flow_prob; /* the share of training directions the flow draws (1: all) */
 } options;
 
 /* Trains a fresh model with `prior` on f at one context; kl[c] after options' step c. */
@@ -175,9 +199,23 @@ static int run(nf_prior_kind prior, const integrand *f, uint64_t seed, const opt
             for (int i = 0; i < 2 * BATCH; ++i)
                 u[i] = pcg32_float(&r);
             ok = nf_sample(m, BATCH, ctx, u, dir, pdf) == NF_OK;
+            /* The mixture: the BSDF's directions replace the flow's where the draw says so, and
+             * every direction is weighted by f over the mixture's density at it. */
+            int mixed = o->flow_prob < 1.0f;
+            for (int i = 0; ok && mixed && i < BATCH; ++i)
+                if (pcg32_float(&r) >= o->flow_prob) {
+                    double w[3];
+                    cosine_sample(f->n, pcg32_float(&r), pcg32_float(&r), w);
+                    for (int a = 0; a < 3; ++a)
+                        dir[3 * i + a] = (float)w[a];
+                }
+            ok = ok && (!mixed || nf_pdf(m, BATCH, ctx, dir, pdf) == NF_OK);
             for (int i = 0; ok && i < BATCH; ++i) {
                 double w[3] = {dir[3 * i], dir[3 * i + 1], dir[3 * i + 2]};
-                weight[i] = (float)(integrand_eval(f, w) / (double)pdf[i]);
+                double p = mixed ? o->flow_prob * (double)pdf[i] +
+                                       (1.0 - o->flow_prob) * cosine_pdf(f->n, w)
+                                 : (double)pdf[i];
+                weight[i] = (float)(integrand_eval(f, w) / p);
             }
             ok = ok && nf_train_step(m, BATCH, ctx, dir, weight, NULL) == NF_OK;
         }
@@ -214,7 +252,9 @@ static void usage(FILE *out)
                  "100,500,2000)\n"
                  "  --seeds    seeds per configuration (default 3)\n"
                  "  --kappas   vMF concentrations (default 20,200)\n"
-                 "  --phi-map  circular (the library's default) or interval\n",
+                 "  --phi-map  circular (the library's default) or interval\n"
+                 "  --training mixture (default: the guide's mixture of the flow and a\n"
+                 "             diffuse BSDF) or flow (every direction from the flow)\n",
             BATCH);
 }
 
@@ -246,7 +286,9 @@ int main(int argc, char **argv)
 {
     nf_config defaults;
     nf_config_init(&defaults, NF_PRESET_SMALL);
-    options o = {{100, 500, 2000}, 3, 3, {20.0, 200.0}, 2, defaults.phi_map};
+    nf_guide_policy policy;
+    nf_guide_policy_init(&policy);
+    options o = {{100, 500, 2000}, 3, 3, {20.0, 200.0}, 2, defaults.phi_map, policy.mixture_prob};
     for (int i = 1; i < argc; ++i) {
         double list[MAX_LIST];
         int n = 0;
@@ -270,6 +312,9 @@ int main(int argc, char **argv)
         } else if (!strcmp(argv[i], "--phi-map") && i + 1 < argc &&
                    (!strcmp(argv[i + 1], "circular") || !strcmp(argv[i + 1], "interval"))) {
             o.phi_map = !strcmp(argv[++i], "circular") ? NF_PHI_CIRCULAR : NF_PHI_INTERVAL;
+        } else if (!strcmp(argv[i], "--training") && i + 1 < argc &&
+                   (!strcmp(argv[i + 1], "mixture") || !strcmp(argv[i + 1], "flow"))) {
+            o.flow_prob = !strcmp(argv[++i], "flow") ? 1.0f : policy.mixture_prob;
         } else {
             fprintf(stderr, "nf_seam_study: bad option '%s'\n", argv[i]);
             usage(stderr);
@@ -307,9 +352,12 @@ int main(int argc, char **argv)
             fflush(stdout);
         }
     printf("\nKL(f || model) in nats by quadrature on %d x %d cells of (cos theta, phi); mean ± "
-           "standard deviation, and median, over %d seeds; training online, %d samples per step, learning "
-           "rate %g, the small model, phi map %s. libnisflow %s.\n",
-           GRID_Z, GRID_PHI, o.seeds, BATCH, (double)LEARNING_RATE,
-           o.phi_map == NF_PHI_CIRCULAR ? "circular" : "interval", nf_version_string());
+           "standard deviation, and median, over %d seeds; training online, %d samples per step, "
+           "drawn %s; learning rate %g, the small model, phi map %s. libnisflow %s.\n",
+           GRID_Z, GRID_PHI, o.seeds, BATCH,
+           o.flow_prob < 1.0f ? "from the guide's mixture (the flow, else a diffuse BSDF)"
+                              : "from the flow alone",
+           (double)LEARNING_RATE, o.phi_map == NF_PHI_CIRCULAR ? "circular" : "interval",
+           nf_version_string());
     return 0;
 }

@@ -5,15 +5,18 @@
 #   1. nf_seam_study: the small model trained online on a vMF lobe times the cosine, centred on
 #      the seam against the same configuration turned to phi = pi; KL by quadrature after
 #      100, 500 and 2000 steps, uniform-direction and cosine priors, kappa 20 and 200, SEEDS
-#      seeds; once per phi map.
+#      seeds; once per phi map with the training directions drawn as a guided renderer draws
+#      them (the guide's mixture of the flow and a diffuse BSDF), and once with the circular
+#      map and every training direction drawn from the flow (--training flow).
 #   2. The Cornell box and a copy turned by -90 degrees about the z axis, camera included (the
 #      image is the same): the light, straight up (+y) from most shading points, then lies at
 #      phi = 0 (+x), across the seam. Guided renders (cosine prior, 200 iterations, then
 #      32 spp) at 128 x 128 with seeds 1 .. RENDER_SEEDS per phi map, their error against the
 #      scene's reference, and per map the means, standard deviations and turned / upright.
 #
-# It writes out/seam/unit-MAP.md and out/seam/render.md and prints them. About 12 minutes on
-# 2 cores with the defaults (16 seeds for the unit study, 4 renders per scene and map).
+# It writes out/seam/unit-MAP.md, out/seam/unit-circular-flow.md and out/seam/render.md and
+# prints them. About 15 minutes on 2 cores with the defaults (16 seeds for the unit study, 4
+# renders per scene and map).
 #
 #   scripts/seam-study.sh [SEEDS]        (default 16 for the unit study, 4 renders per scene)
 #   scripts/seam-study.sh --smoke        one seed, short runs (CI: seconds)
@@ -42,9 +45,13 @@ done
 mkdir -p "$OUT"
 
 # ---- 1. The unit study ---------------------------------------------------------------------
-for map in interval circular; do
-    build/examples/nf_seam_study --seeds "$SEEDS" --phi-map "$map" "${UNIT[@]}" > "$OUT/unit-$map.md"
-    cat "$OUT/unit-$map.md"
+for run in interval:mixture circular:mixture circular:flow; do
+    map=${run%:*} training=${run#*:}
+    name=unit-$map
+    [ "$training" = flow ] && name=unit-$map-flow
+    build/examples/nf_seam_study --seeds "$SEEDS" --phi-map "$map" --training "$training" \
+        "${UNIT[@]}" > "$OUT/$name.md"
+    cat "$OUT/$name.md"
     echo
 done
 

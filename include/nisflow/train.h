@@ -6,6 +6,14 @@
  * estimate of f_s(wo, x, w) L_i(x, w) |cos| divided by the density it sampled w with. The
  * loss of a batch is  - sum_i f_i log p(w_i | ctx_i) / sum_i f_i  (docs/theory.md section 6).
  *
+ * Where the directions come from decides how steady training is. Drawn from the flow alone,
+ * a weight f / p has no bound: a direction the flow has made too rare (a lobe's tail) can
+ * carry 20 to 50 times its batch's mean weight, and the step it dominates can throw the model
+ * off for dozens of steps. Drawn from the mixture a guided renderer samples with (the flow
+ * with probability g, the BSDF otherwise; nisflow/guide.h's policy) and weighted by f over
+ * the mixture's density, a weight is at most f / ((1 - g) p_bsdf). docs/results.md section 8
+ * measures both.
+ *
  * Sharded training (several threads or machines): each shard k calls nf_loss_gradient on a
  * const model with its own gradient buffer g_k and knows its weight sum F_k = sum of its
  * weights. The gradient of the whole batch is  g = sum_k F_k g_k / sum_k F_k , which one
