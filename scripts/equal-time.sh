@@ -74,7 +74,7 @@ ABLATION=(
     "only the first two vertices guided|--variant guide-depth=2"
     "normal and outgoing direction in the flow's input (4 SH bands)|--variant sh-bands=4"
     "smooth conductors guided too|--variant guide-min-roughness=0"
-    "training weights not clamped|--variant clamp-quantile=0"
+    "training weights clamped at the running 99th percentile|--variant clamp-quantile=0.99"
     "train up to 30 % of the budget|--variant train-fraction=0.3"
     "trained on all the emission found, not its MIS-weighted part|--variant all-emission"
     "passes one path at a time, the flow asked at shading points|--variant no-batching"

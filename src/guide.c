@@ -19,7 +19,7 @@ void nf_guide_config_init(nf_guide_config *gc)
     gc->steps_per_pass = 64;
     gc->groups = 16;
     gc->patience = 6;
-    gc->clamp_quantile = 0.99f;
+    gc->clamp_quantile = 0.0f;
     gc->train_fraction = 0.15f;
     gc->learning_rate = 5e-3f;
     gc->seed = 1;

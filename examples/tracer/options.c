@@ -186,7 +186,7 @@ static const variant variants[] = {
     {"steps-per-pass", 1.0, 4096.0, 1, v_steps_per_pass,
      "optimizer steps after a training pass (64)"},
     {"clamp-quantile", 0.0, 0.999, 0, v_clamp,
-     "training weights clamped at this running quantile, 0 none (0.99)"},
+     "training weights clamped at this running quantile, 0 none (0)"},
     {"sh-bands", 0.0, (double)NF_MAX_SH_BANDS, 1, v_sh_bands,
      "spherical-harmonic bands of the normal and wo in the flow's input (0)"},
     {"prior-epsilon", 1e-6, 1.0, 0, v_epsilon,

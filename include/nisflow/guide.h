@@ -8,9 +8,9 @@
  *     newest samples are kept, as a replay buffer);
  *   - the training schedule that docs/equal-time.md measured: after each training pass, one
  *     step on the pass's new samples (its loss, before the step, is a held-out loss), then
- *     steps on samples drawn from the store; the weights clamped at a running quantile;
- *     training stops when the held-out loss stops improving (patience) or at a share of the
- *     budget;
+ *     steps on samples drawn from the store (weights optionally clamped at a running
+ *     quantile); training stops when the held-out loss stops improving (patience) or at a
+ *     share of the budget;
  *   - training steps sharded over the renderer's own threads through a parallel-for that the
  *     caller supplies (the library starts no threads), summed exactly in fixed point, so that
  *     the model has the same bits for any number of threads; with a caller-supplied allreduce
@@ -165,7 +165,9 @@ typedef struct nf_guide_config {
     uint32_t patience;       /* training passes without a 1 % better held-out loss before
                               * nf_guide_keep_training says stop; 0 never; default 6      */
     float clamp_quantile;    /* training weights clamped at a running quantile of each
-                              * pass's weights, (0, 1), or 0 for none; default 0.99       */
+                              * pass's weights, (0, 1), or 0 for none; default 0: a
+                              * clamp hides the rare bright paths the flow must learn
+                              * (docs/equal-time.md)                                     */
     float train_fraction;    /* share of a time budget to train, [0, 1]; default 0.15     */
     float learning_rate;     /* AdamW rate set on the model; default 5e-3                  */
     uint64_t seed;           /* the draws from the store; default 1                        */
