@@ -8,7 +8,7 @@
  *
  * Where the directions come from decides how steady training is. Drawn from the flow alone,
  * a weight f / p has no bound: a direction the flow has made too rare (a lobe's tail) can
- * carry 20 to 50 times its batch's mean weight, and the step it dominates can throw the model
+ * carry 15 to 50 times its batch's mean weight, and the step it dominates can throw the model
  * off for dozens of steps. Drawn from the mixture a guided renderer samples with (the flow
  * with probability g, the BSDF otherwise; nisflow/guide.h's policy) and weighted by f over
  * the mixture's density, a weight is at most f / ((1 - g) p_bsdf). docs/results.md section 8
