@@ -5,9 +5,13 @@
  * von Mises-Fisher lobes (a sharp one and a broad one, think "a light source and a bright
  * wall") times the cosine of the angle to the surface normal, zero below the surface.
  *
- * Training is online, as in a path tracer: every iteration draws a batch of directions from
- * the current model, weights each by target(w) / pdf(w), and takes one nf_train_step. Every
- * 50 iterations the program reports, on a fixed held-out set of directions,
+ * Training is online, as in a guided path tracer: every iteration draws a batch of directions,
+ * each from the current model with the guide's default probability (nf_guide_policy_init) and
+ * otherwise from a diffuse BSDF's cosine lobe about the normal, weights each by target(w) over
+ * the mixture's density, and takes one nf_train_step. The mixture bounds every weight; drawn
+ * from the model alone, a direction the model has made too rare can outweigh its whole batch
+ * (nisflow/train.h). Every 50 iterations the program reports, on a fixed held-out set of
+ * directions,
  *
  *   KL        the Kullback-Leibler divergence from the normalized target to the model
  *             (nats; 0 when the model is exactly proportional to the target), and
@@ -311,18 +315,32 @@ int main(int argc, char **argv)
     now = before;
 
     static float u[2 * BATCH_SIZE], dir[3 * BATCH_SIZE], pdf[BATCH_SIZE], weight[BATCH_SIZE];
+    nf_guide_policy policy;
+    nf_guide_policy_init(&policy);
+    const float flow_prob = policy.mixture_prob;
     double loss_sum = 0.0;
     int loss_count = 0;
     for (long it = 1; it <= opt.iterations; ++it) {
-        /* 1. Draw directions from the current model. */
+        /* 1. Draw directions from the mixture: the model's, some replaced by the BSDF's
+         *    (a cosine lobe about the normal), as a guided renderer samples. */
         for (int i = 0; i < 2 * BATCH_SIZE; ++i)
             u[i] = pcg32_float(&rng);
         if (failed(nf_sample(model, BATCH_SIZE, ctx, u, dir, pdf), "nf_sample"))
             goto done;
-
-        /* 2. Weight each by target / pdf: the usual one-sample Monte Carlo weight. */
         for (int i = 0; i < BATCH_SIZE; ++i)
-            weight[i] = pdf[i] > 0.0f ? target_eval(&tgt, &dir[3 * i]) / pdf[i] : 0.0f;
+            if (pcg32_float(&rng) >= flow_prob) {
+                float u0 = pcg32_float(&rng), u1 = pcg32_float(&rng);
+                around_axis(tgt.normal, sqrtf(1.0f - u0), 2.0f * PI * u1, &dir[3 * i]);
+            }
+        /* 2. The model's density at every direction, then each weight: target over the
+         *    mixture's density, the one-sample Monte Carlo weight of the mixture. */
+        if (failed(nf_pdf(model, BATCH_SIZE, ctx, dir, pdf), "nf_pdf"))
+            goto done;
+        for (int i = 0; i < BATCH_SIZE; ++i) {
+            float bsdf = fmaxf(0.0f, dot3(tgt.normal, &dir[3 * i])) / PI;
+            float mix = flow_prob * pdf[i] + (1.0f - flow_prob) * bsdf;
+            weight[i] = mix > 0.0f ? target_eval(&tgt, &dir[3 * i]) / mix : 0.0f;
+        }
 
         /* 3. One optimisation step on the weighted negative log-likelihood. */
         float loss = 0.0f;

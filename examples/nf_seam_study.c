@@ -16,9 +16,9 @@
  * guide's default mixture probability (nf_guide_policy_init) and otherwise from a diffuse
  * BSDF's cosine lobe about the normal, weights each by f over the mixture's density and takes
  * one nf_train_step. `--training flow` draws every direction from the flow and weights it by
- * f / pdf, as nf_demo does: there a batch's weights have no bound, and a direction the flow
- * makes too rare (a lobe's tail) can carry 15 to 50 times the batch's mean weight and throw a
- * run off for a few dozen steps, in either placement (docs/results.md section 8).
+ * f / pdf: there a batch's weights have no bound, and a direction the flow makes too rare (a
+ * lobe's tail) can carry 15 to 50 times the batch's mean weight and throw a run off for a
+ * few dozen steps, in either placement (docs/results.md section 8).
  *
  * Output: a Markdown table, one row per prior, kappa and checkpoint, with the mean and
  * standard deviation over the seeds of both placements' KL and their ratio, and the medians
