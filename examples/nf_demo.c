@@ -315,6 +315,8 @@ int main(int argc, char **argv)
     now = before;
 
     static float u[2 * BATCH_SIZE], dir[3 * BATCH_SIZE], pdf[BATCH_SIZE], weight[BATCH_SIZE];
+    static float bsdf_dir[3 * BATCH_SIZE], bsdf_pdf[BATCH_SIZE];
+    static int bsdf_at[BATCH_SIZE];
     nf_guide_policy policy;
     nf_guide_policy_init(&policy);
     const float flow_prob = policy.mixture_prob;
@@ -327,15 +329,20 @@ int main(int argc, char **argv)
             u[i] = pcg32_float(&rng);
         if (failed(nf_sample(model, BATCH_SIZE, ctx, u, dir, pdf), "nf_sample"))
             goto done;
+        int nbsdf = 0;
         for (int i = 0; i < BATCH_SIZE; ++i)
             if (pcg32_float(&rng) >= flow_prob) {
                 float u0 = pcg32_float(&rng), u1 = pcg32_float(&rng);
                 around_axis(tgt.normal, sqrtf(1.0f - u0), 2.0f * PI * u1, &dir[3 * i]);
+                memcpy(&bsdf_dir[3 * nbsdf], &dir[3 * i], 3 * sizeof(float));
+                bsdf_at[nbsdf++] = i;
             }
-        /* 2. The model's density at every direction, then each weight: target over the
-         *    mixture's density, the one-sample Monte Carlo weight of the mixture. */
-        if (failed(nf_pdf(model, BATCH_SIZE, ctx, dir, pdf), "nf_pdf"))
+        /* 2. The model's density where the BSDF drew (nf_sample gave it for the rest), then
+         *    each weight: target over the mixture's density, the mixture's one-sample weight. */
+        if (nbsdf > 0 && failed(nf_pdf(model, (size_t)nbsdf, ctx, bsdf_dir, bsdf_pdf), "nf_pdf"))
             goto done;
+        for (int k = 0; k < nbsdf; ++k)
+            pdf[bsdf_at[k]] = bsdf_pdf[k];
         for (int i = 0; i < BATCH_SIZE; ++i) {
             float bsdf = fmaxf(0.0f, dot3(tgt.normal, &dir[3 * i])) / PI;
             float mix = flow_prob * pdf[i] + (1.0f - flow_prob) * bsdf;
