@@ -4,7 +4,9 @@
 # replacing it with a trivial stand-in, and what three faster alternatives that change the
 # results' bits would save.
 #
-# It exports HEAD into a temporary directory, applies docs/results/point-cost/point-cost.patch
+# It exports the commit the patch was written for, BASE below (the single-direction code
+# before nf_point_sample_and_pdf walked two directions in step, whose per-direction steps are
+# the same operations), into a temporary directory, applies docs/results/point-cost/point-cost.patch
 # (an NF_EXP bit mask selects the stand-ins and alternatives at compile time), builds nf_bench
 # once per mask and times the small preset's point-sample, point-pdf and vertex on one thread,
 # ROUNDS rounds of every mask back to back, reporting each mask's fastest round. The stand-ins'
@@ -57,9 +59,16 @@ else
     trap 'rm -rf "$TMP"' EXIT
 fi
 SRC=$TMP/src-tree
-REV=$(git rev-parse --short HEAD)
+BASE=2e73996
+if ! git cat-file -e "$BASE^{commit}" 2>/dev/null; then
+    echo "point-cost-study.sh: commit $BASE, which the patch applies to, is not in this clone" \
+        "(a shallow clone?): fetch the history first"
+    [ "$ROUNDS" = 1 ] && [ "${REPS[0]}" = --quick ] && exit 0 # the smoke run: nothing to check
+    exit 1
+fi
+REV=$(git rev-parse --short "$BASE")
 rm -rf "$SRC.new" && mkdir -p "$SRC.new"
-git archive HEAD | tar -x -C "$SRC.new"
+git archive "$BASE" | tar -x -C "$SRC.new"
 patch -s -d "$SRC.new" -p1 < "$ROOT/docs/results/point-cost/point-cost.patch"
 # An unchanged tree keeps its files' times, so that kept builds stay up to date.
 if [ -d "$SRC" ] && diff -r -q "$SRC" "$SRC.new" > /dev/null; then
