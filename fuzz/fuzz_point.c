@@ -343,6 +343,38 @@ static slot *pick_points(machine *mc, int batch, size_t n, nf_shading_point *arr
     return one;
 }
 
+/* nf_point_sample_and_pdf at one slot: u and a direction to evaluate, read from the input;
+ * the draw is checked against nf_sample and the density against nf_pdf. */
+static void sample_and_pdf(machine *mc, const slot *one, const nf_context *ctx, const float u[2],
+                           expect e, int with_pdf)
+{
+    static const char fn[] = "nf_point_sample_and_pdf";
+    reader *r = &mc->in;
+    float eval[3], dir[3], pdf[2];
+    for (int a = 0; a < 3; ++a)
+        eval[a] = rd_float(r);
+    e.inputs_ok = isfinite(u[0]) && isfinite(u[1]) && vector_ok(eval);
+    fill(dir, 3);
+    fill(pdf, 2);
+    nf_status st =
+        nf_point_sample_and_pdf(mc->m, &one->sp, u, dir, with_pdf ? &pdf[0] : NULL, eval, &pdf[1]);
+    NF_FUZZ_CHECK(status_allowed(st, &e), "%s: status %d (refused %d, stale %d, inputs %d)", fn,
+                  (int)st, e.refused, e.stale, e.inputs_ok);
+    if (st != NF_OK) {
+        NF_FUZZ_CHECK(nf_last_error_message()[0] != '\0', "%s: no message", fn);
+        NF_FUZZ_CHECK(untouched(dir, 3) && untouched(pdf, 2), "%s: a refused call wrote", fn);
+        return;
+    }
+    check_unit_and_pdfs(1, dir, with_pdf ? pdf : NULL, fn);
+    check_unit_and_pdfs(1, NULL, pdf + 1, fn);
+    if (!with_pdf)
+        NF_FUZZ_CHECK(untouched(pdf, 1), "%s: pdf written although NULL was passed", fn);
+    if (e.exact && with_pdf)
+        check_against_batch(mc->m, ORACLE_ONE_CALL, ctx, 1, u, dir, pdf);
+    if (e.exact)
+        check_against_pdf(mc->m, ORACLE_ONE_CALL, ctx, 1, eval, pdf + 1);
+}
+
 static void op_sample(machine *mc, int batch)
 {
     reader *r = &mc->in;
@@ -357,7 +389,12 @@ static void op_sample(machine *mc, int batch)
         u[i] = rd_float(r);
         e.inputs_ok &= isfinite(u[i]) != 0;
     }
-    int with_pdf = (rd_u8(r) & 7u) != 0;
+    unsigned how = rd_u8(r);
+    int with_pdf = (how & 7u) != 0;
+    if (!batch && (how & 0x18u) == 0x18u) { /* a quarter of one point's draws */
+        sample_and_pdf(mc, one, ctx, u, e, with_pdf);
+        return;
+    }
     fill(dir, 3 * n);
     fill(pdf, n);
     const char *fn = batch ? "nf_points_sample" : "nf_point_sample";

@@ -115,6 +115,26 @@ nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t 
                             m->kernels->point_pdf(m, point, n, 0, dir, pdf));
 }
 
+nf_status nf_point_sample_and_pdf(const nf_model *m, const nf_shading_point *point,
+                                  const float u[2], float dir[3], float *pdf,
+                                  const float eval_dir[3], float *eval_pdf)
+{
+    static const char fn[] = "nf_point_sample_and_pdf";
+    nf_status st;
+    if ((st = nf_check_pointers(fn, "m", m, "point", point, "u", u, "dir", dir)) != NF_OK ||
+        (st = nf_check_pointers(fn, "eval_dir", eval_dir, "eval_pdf", eval_pdf, NULL, NULL, NULL,
+                                NULL)) != NF_OK ||
+        (st = nf_point_usable(fn, m, point, SIZE_MAX)) != NF_OK)
+        return st;
+    if (!nf_all_finite(u, 2))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: u contains NaN or Inf", fn);
+    if ((st = nf_validate_directions(fn, "eval_dir", 1, eval_dir)) != NF_OK)
+        return st;
+    return nf_point_checked(
+        fn, m, point->generation_,
+        m->kernels->point_sample_and_pdf(m, point, u, dir, pdf, eval_dir, eval_pdf));
+}
+
 static nf_status nf_points_usable(const char *fn, const nf_model *m, size_t n,
                                   const nf_shading_point *points)
 {

@@ -11,13 +11,19 @@
  * splines and the map to the sphere. Results are bit-identical to nf_sample / nf_pdf for the
  * same model, context and inputs (on every instruction set: both paths share their code).
  *
- * The recipe of a guided vertex (docs/integration.md has it in full):
+ * The recipe of a guided vertex (docs/integration.md has it in full), two questions per call:
  *
  *     nf_shading_point sp;
- *     nf_point_prepare(model, &ctx, NULL, &sp);          once per vertex
- *     nf_point_sample(model, &sp, 1, u, dir, &pdf);      or the BSDF's direction and
- *     nf_point_pdf(model, &sp, 1, bsdf_dir, &pdf);       the flow's density of it
- *     nf_point_pdf(model, &sp, 1, light_dir, &p_light);  MIS of the light sample
+ *     nf_point_prepare(model, &ctx, NULL, &sp);              once per vertex
+ *     nf_point_sample_and_pdf(model, &sp, u, dir, &pdf,      a direction drawn, and the
+ *                             light_dir, &p_light);          light sample's density for MIS
+ *   or, when the BSDF drew the direction:
+ *     nf_point_pdf(model, &sp, 2, bsdf_and_light_dirs, p);   both densities
+ *
+ * One direction's walk through the flow is a chain of dependent arithmetic that leaves most
+ * of a core idle; with the AVX-512 kernels a call with two directions walks them in step,
+ * interleaved, and costs less than two calls (docs/performance.md has the figures; the other
+ * kernels walk them one after the other).
  *
  * Memory: an nf_shading_point is a plain struct (1,152 bytes on 64-bit targets) that the
  * caller owns (stack, arrays, anything). Nothing is allocated and nothing needs freeing.
@@ -44,11 +50,10 @@
  * is written by nf_point_prepare only; any number of threads may sample one prepared point at
  * once. Nothing here allocates.
  *
- * Stack: measured with GCC 12's -fstack-usage, each call uses at most 2.0 KiB of the
- * caller's stack with the AVX-512 kernels, 2.9 KiB with AVX2 and 3.4 KiB with the generic
- * ones for the presets' shapes; other shapes up to the configuration limits take up to
- * 4.4 KiB (nf_point_prepare: 2.3 KiB at most). Renderers that shade on fiber stacks should
- * allow 5 KiB per call; tests/correctness/test_point.c measures the calls against that bound.
+ * Stack: measured by tests/correctness/test_point.c (GCC 12 and clang 14, any shape up to the
+ * configuration limits), each call uses at most 4.6 KiB of the caller's stack, and
+ * nf_point_prepare 2.7 KiB. Renderers that shade on fiber stacks should allow 5 KiB per call;
+ * the test measures every call against that bound.
  */
 #ifndef NISFLOW_POINT_H
 #define NISFLOW_POINT_H
@@ -113,11 +118,25 @@ NF_API nf_status nf_point_sample(const nf_model *m, const nf_shading_point *poin
 
 /* The solid-angle densities of n directions at the prepared point: pdf[i] for dir[3i..3i+2],
  * which must be finite and non-zero (squared length above 1e-30) and is normalized by the
- * library. The same bits as nf_pdf for the point's context. n = 0 is a no-op.
+ * library. The same bits as nf_pdf for the point's context. n = 0 is a no-op. Directions go
+ * two at a time, walked in step (AVX-512 kernels): n = 2 costs less than two calls of n = 1.
  * Errors as nf_point_sample (a bad direction is NF_ERROR_INVALID_ARGUMENT, nothing written).
  * Thread-safe on a const model and point; never allocates. */
 NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n,
                               const float *dir, float *pdf);
+
+/* A guided vertex's two questions of the flow in one call: draws a direction for u (as
+ * nf_point_sample with n = 1: dir, and pdf if not NULL) and returns the density of another
+ * direction, eval_dir (as nf_point_pdf with n = 1: *eval_pdf), usually the light sample's,
+ * for MIS. With the AVX-512 kernels the two walks through the flow run interleaved, which
+ * costs less than the two calls (docs/performance.md); the results are the same bits as
+ * theirs.
+ * Errors: as the two calls; every input is checked before anything is written, and
+ * NF_ERROR_NUMERIC (a custom prior callback returned an invalid value) writes nothing either.
+ * Thread-safe on a const model and point; never allocates. */
+NF_API nf_status nf_point_sample_and_pdf(const nf_model *m, const nf_shading_point *point,
+                                         const float u[2], float dir[3], float *pdf,
+                                         const float eval_dir[3], float *eval_pdf);
 
 /* Batch forms for wavefront renderers: one direction per point. points[i] is prepared (each
  * with its own context); u, dir and pdf as in nf_sample. Every point and input is checked

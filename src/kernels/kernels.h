@@ -29,6 +29,9 @@ struct nf_kernels {
                               size_t stride, const float *u, float *dir, float *pdf);
     nf_status (*point_pdf)(const nf_model *m, const nf_shading_point *points, size_t n,
                            size_t stride, const float *dir, float *pdf);
+    nf_status (*point_sample_and_pdf)(const nf_model *m, const nf_shading_point *point,
+                                      const float u[2], float dir[3], float *pdf,
+                                      const float eval_dir[3], float *eval_pdf);
     /* One AdamW step from parameters p and moments m, v with gradient g into p_new, m_new,
      * v_new (count floats each, no overlap); returns 0 if any new value is not finite. */
     int (*adamw)(const nf_adamw_step *step, size_t count, const float *g, const float *p,

@@ -358,6 +358,7 @@ static void check_context(const nf_model *m, const nf_context *ctx, const float 
     static float p_dir[3 * K], p_pdf[K], p_eval[K]; /* the point, n = K                */
     static float q_dir[3 * K], q_pdf[K], q_eval[K]; /* the point, pieces of 1, 2, ...  */
     static float n_dir[3 * K];                      /* the point, pdf NULL             */
+    static float v_dir[3 * K], v_pdf[K], v_eval[K]; /* nf_point_sample_and_pdf         */
     for (int i = 0; i < K; ++i)
         rep[i] = *ctx;
     assert_int_equal(nf_sample(m, K, rep, u, b_dir, b_pdf), NF_OK);
@@ -382,6 +383,15 @@ static void check_context(const nf_model *m, const nf_context *ctx, const float 
         i += c;
     }
     assert_int_equal(nf_point_sample(m, &sp, K, u, n_dir, NULL), NF_OK);
+    /* Draw i beside the density of direction i + 1 (pdf NULL for odd i). */
+    for (int i = 0; i < K; ++i) {
+        int e = (i + 1) % K;
+        v_pdf[i] = b_pdf[i];
+        assert_int_equal(nf_point_sample_and_pdf(m, &sp, u + 2 * i, v_dir + 3 * i,
+                                                 i & 1 ? NULL : &v_pdf[i], dir_in + 3 * e,
+                                                 &v_eval[e]),
+                         NF_OK);
+    }
 
     same_bits(b_dir, o_dir, 3 * K, what, "nf_sample n = 1 vs n = 64: dir");
     same_bits(b_pdf, o_pdf, K, what, "nf_sample n = 1 vs n = 64: pdf");
@@ -393,6 +403,9 @@ static void check_context(const nf_model *m, const nf_context *ctx, const float 
     same_bits(q_pdf, b_pdf, K, what, "nf_point_sample in pieces: pdf");
     same_bits(q_eval, b_eval, K, what, "nf_point_pdf in pieces");
     same_bits(n_dir, b_dir, 3 * K, what, "nf_point_sample without pdf: dir");
+    same_bits(v_dir, b_dir, 3 * K, what, "nf_point_sample_and_pdf: dir");
+    same_bits(v_pdf, b_pdf, K, what, "nf_point_sample_and_pdf: pdf");
+    same_bits(v_eval, b_eval, K, what, "nf_point_sample_and_pdf: eval_pdf");
     /* The reference is meaningful: unit directions (1e-5 is ~80 ulps of 1, model.h's unit
      * vectors), finite positive densities. */
     for (int i = 0; i < K; ++i) {
@@ -728,6 +741,8 @@ static void assert_point_refused(const nf_model *m, const nf_shading_point *sp,
     EXPECT_STATUS(expected, "nf_point_sample", nf_point_sample(m, sp, N, u, dir, pdf));
     EXPECT_STATUS(expected, "nf_point_sample", nf_point_sample(m, sp, 1, u, dir, NULL));
     EXPECT_STATUS(expected, "nf_point_pdf", nf_point_pdf(m, sp, N, dir_in, pdf));
+    EXPECT_STATUS(expected, "nf_point_sample_and_pdf",
+                  nf_point_sample_and_pdf(m, sp, u, dir, pdf, dir_in, pdf + 1));
     EXPECT_STATUS(expected, "nf_points_sample", nf_points_sample(m, N, three, u, dir, pdf));
     EXPECT_STATUS(expected, "nf_points_pdf", nf_points_pdf(m, N, three, dir_in, pdf));
     assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
@@ -1048,6 +1063,18 @@ static void test_sample_pdf_bad_input(void **state)
     EXPECT_INVALID("nf_point_pdf", nf_point_pdf(m, NULL, N, din, pdf));
     EXPECT_INVALID("nf_point_pdf", nf_point_pdf(m, &sp, N, NULL, pdf));
     EXPECT_INVALID("nf_point_pdf", nf_point_pdf(m, &sp, N, din, NULL));
+    EXPECT_INVALID("nf_point_sample_and_pdf",
+                   nf_point_sample_and_pdf(NULL, &sp, u, dir, pdf, din, pdf + 1));
+    EXPECT_INVALID("nf_point_sample_and_pdf",
+                   nf_point_sample_and_pdf(m, NULL, u, dir, pdf, din, pdf + 1));
+    EXPECT_INVALID("nf_point_sample_and_pdf",
+                   nf_point_sample_and_pdf(m, &sp, NULL, dir, pdf, din, pdf + 1));
+    EXPECT_INVALID("nf_point_sample_and_pdf",
+                   nf_point_sample_and_pdf(m, &sp, u, NULL, pdf, din, pdf + 1));
+    EXPECT_INVALID("nf_point_sample_and_pdf",
+                   nf_point_sample_and_pdf(m, &sp, u, dir, pdf, NULL, pdf + 1));
+    EXPECT_INVALID("nf_point_sample_and_pdf",
+                   nf_point_sample_and_pdf(m, &sp, u, dir, pdf, din, NULL));
     EXPECT_INVALID("nf_points_sample", nf_points_sample(NULL, N, pts, u, dir, pdf));
     EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, NULL, u, dir, pdf));
     EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, NULL, dir, pdf));
@@ -1073,6 +1100,8 @@ static void test_sample_pdf_bad_input(void **state)
         bu[2 * (N - 1) + (k & 1)] = bad_u[k / 2];
         EXPECT_INVALID("nf_point_sample", nf_point_sample(m, &sp, N, bu, dir, pdf));
         EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, bu, dir, pdf));
+        EXPECT_INVALID("nf_point_sample_and_pdf",
+                       nf_point_sample_and_pdf(m, &sp, bu + 2 * (N - 1), dir, pdf, din, pdf + 1));
         assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     /* Bad directions in the last entry: NaN, +-Inf in any component, zero, too short. */
@@ -1087,7 +1116,9 @@ static void test_sample_pdf_bad_input(void **state)
         }
         EXPECT_INVALID("nf_point_pdf", nf_point_pdf(m, &sp, N, bd, pdf));
         EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, pts, bd, pdf));
-        assert_true(nft_untouched(pdf, N));
+        EXPECT_INVALID("nf_point_sample_and_pdf",
+                       nf_point_sample_and_pdf(m, &sp, u, dir, pdf, d, pdf + 1));
+        assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     /* No refused call reached the prior's callbacks. */
     assert_int_equal(model_lobe.samples + model_lobe.pdfs, calls);
@@ -1388,19 +1419,30 @@ static void test_per_point_prior(void **state)
     assert_int_equal(nf_point_prepare(m, &given, &bcb, &bp), NF_OK);
     float zero_u[2] = {0.0f, 0.5f}; /* u0 = 0 is in the custom share (1 - eps) */
     nf_shading_point two[2] = {pts[0], bp};
-    for (int k = 0; k < 3; ++k) {
+    for (int k = 0; k < 5; ++k) {
         prime();
         const char *primer = nf_last_error_message();
         char primed[256];
         snprintf(primed, sizeof primed, "%s", primer);
+        /* nf_point_sample_and_pdf with u in the callback's share (k = 3) and in the uniform
+         * share (k = 4), where the callback is asked only for densities: it fails either way
+         * and writes nothing. */
+        float fresh_dir[3], fresh_pdf[2];
+        nft_fill_sentinel(fresh_dir, 3);
+        nft_fill_sentinel(fresh_pdf, 2);
+        float flow_u[2] = {0.999f, 0.5f};
         nf_status st = k == 0   ? nf_point_sample(m, &bp, 1, zero_u, dir, pdf)
                        : k == 1 ? nf_point_pdf(m, &bp, 1, din, eval)
-                                : nf_points_pdf(m, 2, two, din, eval);
+                       : k == 2 ? nf_points_pdf(m, 2, two, din, eval)
+                                : nf_point_sample_and_pdf(m, &bp, k == 3 ? zero_u : flow_u,
+                                                          fresh_dir, &fresh_pdf[0], din,
+                                                          &fresh_pdf[1]);
         assert_int_equal(st, NF_ERROR_NUMERIC);
+        assert_true(nft_untouched(fresh_dir, 3) && nft_untouched(fresh_pdf, 2));
         assert_true(nf_last_error_message()[0] != '\0');
         assert_string_not_equal(nf_last_error_message(), primed);
     }
-    assert_true(broken.samples == 1 && broken.pdfs == 2);
+    assert_true(broken.samples >= 2 && broken.pdfs >= 3);
 
     nf_model_destroy(twin);
     nf_model_destroy(m);
@@ -1475,19 +1517,21 @@ typedef struct stack_job {
 static void *stack_thread(void *arg)
 {
     stack_job *j = arg;
-    float u[2] = {0.3f, 0.6f}, din[3] = {0.0f, 0.6f, 0.8f}, dir[3] = {0}, pdf[1] = {0};
+    float u[2] = {0.3f, 0.6f}, din[6] = {0.0f, 0.6f, 0.8f, 0.6f, 0.0f, 0.8f}, dir[3] = {0};
+    float pdf[2] = {0};
     nf_shading_point local;
     memset(&local, 0, sizeof local);
     switch (j->call) {
     case 1: j->status = nf_point_prepare(j->m, j->ctx, NULL, &local); break;
     case 2: j->status = nf_point_sample(j->m, j->sp, 1, u, dir, pdf); break;
-    case 3: j->status = nf_point_pdf(j->m, j->sp, 1, din, pdf); break;
+    case 3: j->status = nf_point_pdf(j->m, j->sp, 2, din, pdf); break; /* a pair, in step */
     case 4: j->status = nf_points_sample(j->m, 1, j->sp, u, dir, pdf); break;
     case 5: j->status = nf_points_pdf(j->m, 1, j->sp, din, pdf); break;
+    case 6: j->status = nf_point_sample_and_pdf(j->m, j->sp, u, dir, pdf, din, pdf + 1); break;
     default: j->status = NF_OK; break;
     }
     /* Keep the outputs and the local point alive (and the frame the same for every case). */
-    volatile float sink = dir[0] + pdf[0] + local.cache_[0];
+    volatile float sink = dir[0] + pdf[0] + pdf[1] + local.cache_[0];
     (void)sink;
     return NULL;
 }
@@ -1509,12 +1553,13 @@ static void test_stack_bound(void **state)
 #if !STACK_CHECK
     skip();
 #else
-    static const char *names[6] = {"-", "nf_point_prepare", "nf_point_sample", "nf_point_pdf",
-                                   "nf_points_sample", "nf_points_pdf"};
-    size_t worst[6] = {0, 0, 0, 0, 0, 0};
-    char where[6][96];
+    static const char *names[7] = {"-",           "nf_point_prepare", "nf_point_sample",
+                                   "nf_point_pdf", "nf_points_sample", "nf_points_pdf",
+                                   "nf_point_sample_and_pdf"};
+    size_t worst[7] = {0, 0, 0, 0, 0, 0, 0};
+    char where[7][96];
     for (int k = 0; k < 3; ++k) {
-        size_t isa_worst[6] = {0, 0, 0, 0, 0, 0};
+        size_t isa_worst[7] = {0, 0, 0, 0, 0, 0, 0};
         int ran = 0;
         for (int big = 0; big < 3; ++big) {
             for (int p = 0; p < 3; ++p) {
@@ -1537,7 +1582,7 @@ static void test_stack_bound(void **state)
                 assert_int_equal(nf_point_prepare(m, &ctx, NULL, &sp), NF_OK);
                 stack_job j = {m, &sp, &ctx, 0, NF_OK};
                 size_t base = stack_used(&j);
-                for (int call = 1; call <= 5; ++call) {
+                for (int call = 1; call <= 6; ++call) {
                     j.call = call;
                     size_t used = stack_used(&j);
                     assert_int_equal(j.status, NF_OK);
@@ -1557,21 +1602,21 @@ static void test_stack_bound(void **state)
             }
         }
         if (ran)
-            print_message("%-7s prepare %zu, sample %zu, pdf %zu, points sample %zu, points "
-                          "pdf %zu bytes\n",
+            print_message("%-7s prepare %zu, sample %zu, pdf (two) %zu, points sample %zu, "
+                          "points pdf %zu, sample and pdf %zu bytes\n",
                           isa_names[all_isas[k]], isa_worst[1], isa_worst[2], isa_worst[3],
-                          isa_worst[4], isa_worst[5]);
+                          isa_worst[4], isa_worst[5], isa_worst[6]);
     }
     int over = 0;
-    for (int call = 1; call <= 5; ++call) {
-        print_message("%-16s at most %5zu bytes of stack (%s)\n", names[call], worst[call],
+    for (int call = 1; call <= 6; ++call) {
+        print_message("%-23s at most %5zu bytes of stack (%s)\n", names[call], worst[call],
                       where[call]);
         over += worst[call] > STACK_ALLOWANCE;
     }
     /* The measurement is not vacuous: a point call does use kilobytes of stack. */
     assert_true(worst[2] > 1024 && worst[3] > 1024);
     if (over)
-        fail_msg("%d of the 5 functions used more than the %u bytes of stack point.h asks "
+        fail_msg("%d of the 6 functions used more than the %u bytes of stack point.h asks "
                  "renderers to allow (see above)", over, STACK_ALLOWANCE);
 #endif
 }
