@@ -31,10 +31,12 @@
  *                 (one unit's worth, prepared outside the timed region) with a new u every
  *                 call.
  *   point-pdf     nf_point_pdf(n = 1) likewise, of a uniform random unit direction.
- *   vertex        one guided vertex, the headline figure: nf_point_prepare on a new context,
- *                 nf_point_sample of one direction and nf_point_pdf of another (a uniform
- *                 random unit direction, standing for the BSDF's or a light sample's), all
- *                 timed.
+ *   vertex        one guided vertex, the headline figure, as docs/integration.md's recipe
+ *                 does it: nf_point_prepare on a new context, then nf_point_sample_and_pdf:
+ *                 a direction drawn and the density of another (a uniform random unit
+ *                 direction, standing for a light sample's), all timed.
+ *   vertex-calls  the same vertex as three calls: nf_point_prepare, nf_point_sample of one
+ *                 direction and nf_point_pdf of the other.
  *
  * With T threads, each thread processes its own contiguous 1/T of every batch and the figure
  * is throughput: wall time divided by the total samples. The main thread is worker 0; T - 1
@@ -146,6 +148,21 @@ static void point_range(bench_case *c, thread_result *r, size_t lo, size_t hi)
                               d->out_pdf2 + i);
         break;
     case OP_VERTEX:
+        /* fn is set only on a failure, to keep the timed loop to the two calls. */
+        for (size_t i = lo; i < hi; ++i) {
+            if ((st = nf_point_prepare(m, d->ctx + i, NULL, &sp)) != NF_OK) {
+                fn = "nf_point_prepare";
+                break;
+            }
+            if ((st = nf_point_sample_and_pdf(m, &sp, d->u + 2 * i, d->out_dir + 3 * i,
+                                              d->out_pdf + i, d->light_dir + 3 * i,
+                                              d->out_pdf2 + i)) != NF_OK) {
+                fn = "nf_point_sample_and_pdf";
+                break;
+            }
+        }
+        break;
+    case OP_VERTEX_CALLS:
         /* fn is set only on a failure, to keep the timed loop to the three calls. */
         for (size_t i = lo; i < hi; ++i) {
             if ((st = nf_point_prepare(m, d->ctx + i, NULL, &sp)) != NF_OK) {
@@ -450,11 +467,14 @@ static int check_outputs(const bench_case *c, const char *preset)
     const bench_data *d = c->d;
     int op = c->op;
     /* Which outputs the op writes, and the function that writes them. */
-    const char *dir_fn = op == OP_SAMPLE                            ? "nf_sample"
-                         : op == OP_POINT_SAMPLE || op == OP_VERTEX ? "nf_point_sample"
-                                                                     : NULL;
+    const char *dir_fn = op == OP_SAMPLE                                  ? "nf_sample"
+                         : op == OP_POINT_SAMPLE || op == OP_VERTEX_CALLS ? "nf_point_sample"
+                         : op == OP_VERTEX ? "nf_point_sample_and_pdf"
+                                           : NULL;
     const char *pdf_fn = op == OP_PDF ? "nf_pdf" : dir_fn;
-    const char *pdf2_fn = op == OP_POINT_PDF || op == OP_VERTEX ? "nf_point_pdf" : NULL;
+    const char *pdf2_fn = op == OP_POINT_PDF || op == OP_VERTEX_CALLS ? "nf_point_pdf"
+                          : op == OP_VERTEX                           ? "nf_point_sample_and_pdf"
+                                                                      : NULL;
     size_t covered = c->cursor * unit_samples(c);
     if (covered > d->n)
         covered = d->n;
@@ -569,8 +589,9 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
     best.attempts = attempt <= o->retries ? attempt + 1 : attempt;
     *r = best;
     /* What one "sample" of the figure is: a call of n = 1, or a vertex of three calls. */
-    const char *unit = op == OP_VERTEX ? "vertex" : op_is_point(op) ? "call" : "sample";
-    const char *units = op == OP_VERTEX ? "vertices" : op_is_point(op) ? "calls" : "samples";
+    const int vertex = op == OP_VERTEX || op == OP_VERTEX_CALLS;
+    const char *unit = vertex ? "vertex" : op_is_point(op) ? "call" : "sample";
+    const char *units = vertex ? "vertices" : op_is_point(op) ? "calls" : "samples";
     fprintf(stderr,
             "%s: %9.1f ns/%s (min %.1f, max %.1f; %d reps x %zu %s; other load %.2f CPUs; "
             "attempts %d)%s\n",

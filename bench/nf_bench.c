@@ -27,7 +27,7 @@
 
 const char *const OP_NAME[OP_COUNT] = {"sample",    "pdf",          "train",
                                        "guide",     "prepare",      "point-sample",
-                                       "point-pdf", "vertex"};
+                                       "point-pdf", "vertex",       "vertex-calls"};
 const char *const PRESET_NAME[2] = {"small", "large"};
 
 /* ---- Command line ------------------------------------------------------------------------ */
@@ -40,7 +40,8 @@ static void usage(FILE *f)
             "  --threads 1|2|all|N        thread counts (default all = 1 and 2)\n"
             "  --op LIST                  operations to measure, comma-separated (default\n"
             "                             all): sample, pdf, train, guide; the shading-point ops\n"
-            "                             prepare, point-sample, point-pdf, vertex; point\n"
+            "                             prepare, point-sample, point-pdf, vertex,\n"
+            "                             vertex-calls; point\n"
             "                             (those four); all\n"
             "  --reps N                   timed repetitions, median reported (default 7)\n"
             "  --min-rep-ms X             minimum length of one repetition (default 50)\n"
@@ -63,8 +64,9 @@ static void usage(FILE *f)
             "Batch sizes 1, 64, 4096, 65536. Batch 1 is streams of calls with n = 1, in units\n"
             "of %u calls. The shading-point ops are such streams too, timed per call:\n"
             "prepare (nf_point_prepare on a new context), point-sample and point-pdf (one\n"
-            "direction at a prepared point), vertex (prepare + point-sample + point-pdf of\n"
-            "another direction, per vertex).\n",
+            "direction at a prepared point), vertex (prepare + nf_point_sample_and_pdf: a\n"
+            "draw and another direction's density, per vertex), vertex-calls (the same as\n"
+            "prepare + point-sample + point-pdf, per vertex).\n",
             NFB_STREAM);
 }
 
@@ -223,7 +225,8 @@ static int parse_args(int argc, char **argv, options *o)
         } else if (strcmp(a, "--op") == 0) {
             if (parse_ops(v, &o->op_mask) != 0) {
                 fprintf(stderr, "nf_bench: --op takes a comma-separated list of sample, pdf, "
-                                "train, prepare, point-sample, point-pdf, vertex, point, all\n");
+                                "train, prepare, point-sample, point-pdf, vertex, vertex-calls, point, "
+                                "all\n");
                 return -1;
             }
         } else if (strcmp(a, "--isa") == 0) {

@@ -35,8 +35,9 @@ enum {
     OP_PREPARE = 4,
     OP_POINT_SAMPLE = 5,
     OP_POINT_PDF = 6,
-    OP_VERTEX = 7,
-    OP_COUNT = 8
+    OP_VERTEX = 7,       /* the recipe: nf_point_prepare + nf_point_sample_and_pdf      */
+    OP_VERTEX_CALLS = 8, /* the same questions as three calls: prepare, sample, pdf     */
+    OP_COUNT = 9
 };
 #define OP_MASK_ALL ((1 << OP_COUNT) - 1)
 #define OP_MASK_BATCHED ((1 << OP_BATCHED_COUNT) - 1)

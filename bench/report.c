@@ -88,6 +88,16 @@ size_t evaluate_targets(const result *res, size_t count, target *t)
         t[k++] = (target){point_abs[i].preset, point_abs[i].what, r ? r->ns_median : 0.0,
                           point_abs[i].limit, 0, r != NULL};
     }
+    /* A vertex against a batch's sample of the same preset and run: the ratio a renderer that
+     * cannot batch pays, comparable across machines. */
+    static const double per_batch_limit[2] = {2.3, 3.0};
+    for (int preset = 0; preset < 2; ++preset) {
+        const result *v = find_result(res, count, preset, OP_VERTEX, 1, 1);
+        const result *b = find_result(res, count, preset, OP_SAMPLE, 1, 4096);
+        t[k++] = (target){preset, "vertex / sample at batch 4096, 1 thread",
+                          v && b ? v->ns_median / b->ns_median : 0.0, per_batch_limit[preset], 0,
+                          v && b};
+    }
     const result *v1 = find_result(res, count, 0, OP_VERTEX, 1, 1);
     const result *v2 = find_result(res, count, 0, OP_VERTEX, 2, 1);
     t[k++] = (target){0, "vertex, 2 threads / 1 thread",
@@ -215,11 +225,13 @@ void print_table(FILE *f, int md, const options *o, const preset_info *info,
             fprintf(f, "\n");
         if (md)
             fprintf(f, "Shading points (`nf_point_*`, one call with n = 1 each, ns per call; "
-                       "`vertex` = `nf_point_prepare` + `nf_point_sample` + `nf_point_pdf` of "
-                       "another direction, ns per vertex):\n\n| preset | op");
+                       "`vertex` = `nf_point_prepare` + `nf_point_sample_and_pdf` (a draw and "
+                       "another direction's density), `vertex-calls` = `nf_point_prepare` + "
+                       "`nf_point_sample` + `nf_point_pdf`, ns per vertex):\n\n| preset | op");
         else
             fprintf(f, "shading points (n = 1 per call, ns per call; vertex = prepare + "
-                       "point-sample + point-pdf of another direction, ns per vertex):\n"
+                       "sample_and_pdf, vertex-calls = prepare + point-sample + point-pdf of\n"
+                       "another direction, ns per vertex):\n"
                        "%-6s %-12s",
                     "preset", "op");
         print_thread_header(f, md, o, "ns/call", has_scaling, "|---|---|");
@@ -284,11 +296,12 @@ int write_json(const options *o, const char *cpu, long nproc, const preset_info 
             "  \"batch1_stream_calls\": %u,\n"
             "  \"flop_count\": \"2 * multiply-adds of the conditioner MLPs, input layer with "
             "one-blob sparsity exploited; training = 3 x forward; prepare = the context's "
-            "share of the input layers, point-sample and point-pdf = the rest, vertex = "
-            "prepare + 2 directions\",\n"
-            "  \"point_ops\": \"prepare, point-sample, point-pdf and vertex are calls with "
-            "n = 1 (batch 1); ns_per_sample is per call, for vertex per guided vertex "
-            "(nf_point_prepare + nf_point_sample + nf_point_pdf)\",\n"
+            "share of the input layers, point-sample and point-pdf = the rest, vertex and "
+            "vertex-calls = prepare + 2 directions\",\n"
+            "  \"point_ops\": \"prepare, point-sample, point-pdf, vertex and vertex-calls are "
+            "calls with n = 1 (batch 1); ns_per_sample is per call, for vertex per guided "
+            "vertex (nf_point_prepare + nf_point_sample_and_pdf), for vertex-calls per vertex "
+            "of three calls (nf_point_prepare + nf_point_sample + nf_point_pdf)\",\n"
             "  \"presets\": [",
             o->quick ? "true" : "false", o->reps, o->min_rep_s * 1e3, NFB_STREAM);
     for (int pi = 0; pi < o->preset_count; ++pi) {

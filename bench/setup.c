@@ -169,6 +169,7 @@ double flops_per_sample(const preset_info *pi, int op)
     case OP_POINT_PDF:
         return direction;
     case OP_VERTEX:
+    case OP_VERTEX_CALLS:
         return pi->flops_context + 2.0 * direction;
     default:
         return pi->flops_sparse;
