@@ -651,7 +651,8 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
 static int flow_asks(const flow_questions *q) { return q->light || q->sample || q->pdf; }
 
 /* The recipe of docs/integration.md: one shading point per guided vertex, asked for the
- * light sample's density and for the scattered direction or the BSDF direction's density. */
+ * light sample's density and for the scattered direction or the BSDF direction's density,
+ * both in one call. */
 static void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st)
 {
     flow_questions *q = &vp->q;
@@ -660,17 +661,25 @@ static void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st)
     nf_shading_point sp;
     nf_prior_callbacks bsdf_prior = guide_point_callbacks(&vp->gp);
     int ok = nf_point_prepare(t->model, &q->ctx, t->bsdf_prior ? &bsdf_prior : NULL, &sp) == NF_OK;
-    float d[3];
-    if (ok && q->light) {
-        put_vec3(d, q->light_wi);
-        ok = nf_point_pdf(t->model, &sp, 1, d, &q->light_p_flow) == NF_OK;
-    }
-    if (ok && q->sample) {
+    /* Two questions go in one call, whose walks through the flow interleave. */
+    float d[3], dirs[6], p[2];
+    if (ok && q->sample && q->light) {
+        put_vec3(dirs, q->light_wi);
+        ok = nf_point_sample_and_pdf(t->model, &sp, q->u, d, &q->p_flow, dirs,
+                                     &q->light_p_flow) == NF_OK;
+        q->wi = v3(d[0], d[1], d[2]);
+    } else if (ok && q->sample) {
         ok = nf_point_sample(t->model, &sp, 1, q->u, d, &q->p_flow) == NF_OK;
         q->wi = v3(d[0], d[1], d[2]);
-    } else if (ok && q->pdf) {
-        put_vec3(d, q->wi);
-        ok = nf_point_pdf(t->model, &sp, 1, d, &q->p_flow) == NF_OK;
+    } else if (ok && (q->pdf || q->light)) {
+        size_t n = 0;
+        if (q->pdf)
+            put_vec3(dirs + 3 * n++, q->wi);
+        if (q->light)
+            put_vec3(dirs + 3 * n++, q->light_wi);
+        ok = nf_point_pdf(t->model, &sp, n, dirs, p) == NF_OK;
+        q->p_flow = q->pdf ? p[0] : q->p_flow;
+        q->light_p_flow = q->light ? p[n - 1] : q->light_p_flow;
     }
     if (!ok) {
         st->nf_errors++;
