@@ -41,6 +41,13 @@
 #define NF_NOINLINE
 #endif
 
+/* A pair's two scratches, for the shape `sh` in scope (SHAPE_EXPR's commas keep it out). */
+#define NF_POINT_PAIR_SCRATCH(WORK_FLOATS, PAIRS)                                                  \
+    float work[2][(PAIRS) ? (WORK_FLOATS) : 1];                                                    \
+    nf_point_scratch sc[2];                                                                        \
+    nf_point_scratch_in(work[0], sh, &sc[0]);                                                      \
+    nf_point_scratch_in(work[1], sh, &sc[1])
+
 /* The per-direction functions for one shape: flattened, so that the presets' constant shapes
  * reach every inner loop (point.h, nf_point_shape), with scratch sized for the shape. PAIRS
  * (1 for the presets' AVX-512 kernels) walks two directions in step (point.h,
@@ -77,10 +84,7 @@
             return st != NF_OK ? st : nf_point_pdf_##suffix(m, p, user, dir + 3, &pdf[1]);         \
         }                                                                                          \
         const nf_point_shape sh = SHAPE_EXPR;                                                      \
-        float work[2][(PAIRS) ? (WORK_FLOATS) : 1];                                                \
-        nf_point_scratch sc[2];                                                                    \
-        nf_point_scratch_in(work[0], sh, &sc[0]);                                                  \
-        nf_point_scratch_in(work[1], sh, &sc[1]);                                                  \
+        NF_POINT_PAIR_SCRATCH(WORK_FLOATS, PAIRS);                                                 \
         return nf_point_pdf_pair(m, sh, p, user, dir, pdf, sc);                                    \
     }                                                                                              \
     static NF_FLATTEN nf_status nf_point_sample_and_pdf_##suffix(                                  \
@@ -95,10 +99,7 @@
             return st;                                                                             \
         }                                                                                          \
         const nf_point_shape sh = SHAPE_EXPR;                                                      \
-        float work[2][(PAIRS) ? (WORK_FLOATS) : 1];                                                \
-        nf_point_scratch sc[2];                                                                    \
-        nf_point_scratch_in(work[0], sh, &sc[0]);                                                  \
-        nf_point_scratch_in(work[1], sh, &sc[1]);                                                  \
+        NF_POINT_PAIR_SCRATCH(WORK_FLOATS, PAIRS);                                                 \
         return nf_point_sample_and_pdf_pair(m, sh, p, user, u, dir, pdf, eval_dir, eval_pdf, sc);  \
     }
 
