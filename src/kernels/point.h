@@ -433,8 +433,9 @@ static inline uint32_t nf_point_walk_layer(nf_point_shape sh, int inverse, uint3
     return inverse ? sh.layers - 1u - j : j;
 }
 
-/* The second half of step j: the spline applied (forward) or inverted (inverse), with a
- * turning layer's rotation after it (forward) or before it (inverse), as flow.h. */
+/* Step j's map, once its conditioner and spline are in sc: the spline applied (forward) or
+ * inverted (inverse), with a turning layer's rotation after it (forward) or before it
+ * (inverse), as flow.h. */
 static inline void nf_point_walk_map(const nf_model *m, nf_point_shape sh, int inverse, uint32_t j,
                                      nf_point_walk *w, const nf_point_scratch *sc)
 {
