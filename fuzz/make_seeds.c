@@ -151,6 +151,7 @@ static void prepare(program *p, unsigned slot, int per_point_prior, const float 
     put(p, per_point_prior ? 3u : 0u);
     for (int i = 0; i < 9; ++i)
         put_float(p, c[i]);
+    put_float(p, 0.0f); /* phase_g (flags bit 4 clear: a float) */
 }
 
 static void sample(program *p, unsigned slot, unsigned n, float u0)
@@ -173,6 +174,20 @@ static void evaluate(program *p, unsigned slot, unsigned n)
         put_float(p, 0.5f);
         put_float(p, (float)(i % 3) - 1.0f);
     }
+}
+
+/* nf_point_sample_and_pdf: op_sample's byte of options with bits 3 and 4 set, then the
+ * direction to evaluate. with_pdf 0 passes pdf = NULL. */
+static void sample_and_pdf(program *p, unsigned slot, float u0, int with_pdf, const float d[3])
+{
+    put(p, 2);
+    put(p, 0); /* n = 1 */
+    put(p, slot);
+    put_float(p, u0);
+    put_float(p, 1.0f - u0);
+    put(p, 0x18u | (with_pdf ? 1u : 0u));
+    for (int a = 0; a < 3; ++a)
+        put_float(p, d[a]);
 }
 
 static void batch(program *p, unsigned n, int pdf)
@@ -261,6 +276,22 @@ static void program_seeds(const char *directory)
     prepare(&p, 1, 0, plain);
     sample(&p, 1, 9, 0.6f);
     write_seed("odd-widths-gradient.bin", p.b, p.n);
+
+    /* A draw and another direction's density in one call, on both presets: ordinary, without
+     * pdf, a zero direction (refused), after a training step (stale), on a per-point prior. */
+    const float up[3] = {0.0f, 0.3f, 1.0f}, zero[3] = {0.0f, 0.0f, 0.0f};
+    for (int large = 0; large < 2; ++large) {
+        header(&p, large, 0, large ? NF_PRIOR_CUSTOM : NF_PRIOR_COSINE, NF_ISA_AUTO, 2);
+        prepare(&p, 0, large, plain);
+        prepare(&p, 1, 0, pole);
+        sample_and_pdf(&p, 0, 0.2f, 1, up);
+        sample_and_pdf(&p, 1, 0.7f, 0, up);
+        sample_and_pdf(&p, 0, 0.4f, 1, zero);
+        put(&p, 7), put(&p, 0), put(&p, 1), put(&p, 2), put(&p, 3), put(&p, 0); /* train */
+        sample_and_pdf(&p, 0, 0.9f, 1, up);
+        write_seed(large ? "sample-and-pdf-large-custom.bin" : "sample-and-pdf-small.bin", p.b,
+                   p.n);
+    }
 }
 
 int main(int argc, char **argv)
