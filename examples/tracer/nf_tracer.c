@@ -147,9 +147,14 @@ static int write_results(const options *o, const char *prefix, const image *img,
     if (!image_write_png(img, path, o->exposure, err))
         return 0;
     printf("wrote      %s\n", path);
-    if (o->reference)
+    if (o->reference) {
+        double worst, body;
         printf("error      MAPE %.6f, relMSE %.6f (against %s)\n", image_mape(reference, img),
                image_relmse(reference, img), o->reference);
+        image_relmse_tail(reference, img, METRIC_TAIL_PIXELS, &worst, &body);
+        printf("tail       the worst pixel holds %.1f %% of the relMSE; without the %d worst, "
+               "relMSE %.6f\n", 100.0 * worst, METRIC_TAIL_PIXELS, body);
+    }
     if (o->save_model) {
         nf_status st = nf_model_save(model, o->save_model);
         if (st != NF_OK)

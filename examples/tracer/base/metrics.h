@@ -13,9 +13,22 @@
 #include "image.h"
 
 #define METRIC_EPSILON 1e-2
+/* The worst pixels that image_relmse_tail's body leaves out, in the tracer's and nf_compare's
+ * output. */
+#define METRIC_TAIL_PIXELS 10
 
 /* Both images must have the same size. */
 double image_mape(const image *reference, const image *img);
 double image_relmse(const image *reference, const image *img);
+
+/* How much of relMSE its worst pixels hold. A single path of huge weight (a caustic that
+ * next-event estimation cannot reach) can decide a render's relMSE: then two renders compare
+ * by where their rarest paths landed, not by their noise. *worst_share receives the share of
+ * relMSE in the worst pixel (its three channels), *body the relMSE over the image with the
+ * `k` worst pixels' errors left out (k < the pixel count; the mean is still over every
+ * pixel, so that body <= relMSE). 0 and 0 for an exact image. Allocates nothing; O(k x
+ * pixels). */
+void image_relmse_tail(const image *reference, const image *img, int k, double *worst_share,
+                       double *body);
 
 #endif /* TRACER_METRICS_H */

@@ -154,6 +154,29 @@ static void test_metrics(void **state)
     img.data[5] = 1.0f;
     assert_float_equal(image_mape(&ref, &img), 1.0 / 12.0, 1e-9);
 
+    /* The tail: pixel 0 has relMSE 1e-4 / 0.01 = 0.01 (its other channels are exact); pixel 3
+     * is off by 2 in one channel, 4 / 1.01. */
+    double worst, body, e0 = 0.01, e3 = 4.0 / 1.01;
+    img.data[9] = 3.0f;
+    image_relmse_tail(&ref, &img, 1, &worst, &body);
+    assert_float_equal(worst, e3 / (e0 + e3), 1e-9);
+    assert_float_equal(body, e0 / 12.0, 1e-9);
+    image_relmse_tail(&ref, &img, 2, &worst, &body);
+    assert_float_equal(body, 0.0, 0.0);
+    /* More pixels asked than carry an error, and ties: never more than k are left out. */
+    img.data[6] = 3.0f; /* pixel 2 ties with pixel 3 */
+    image_relmse_tail(&ref, &img, 1, &worst, &body);
+    assert_float_equal(body, (e0 + e3) / 12.0, 1e-9);
+    image_relmse_tail(&ref, &img, 3, &worst, &body);
+    assert_float_equal(body, 0.0, 0.0);
+    image_relmse_tail(&ref, &img, 4, &worst, &body);
+    assert_float_equal(body, 0.0, 0.0);
+    img.data[6] = img.data[9] = 1.0f;
+    img.data[0] = 0.0f;
+    image_relmse_tail(&ref, &img, 3, &worst, &body); /* an exact image */
+    assert_float_equal(worst, 0.0, 0.0);
+    assert_float_equal(body, 0.0, 0.0);
+
     /* Downsampling averages blocks; sizes must be integer multiples. */
     for (int i = 0; i < 12; ++i)
         ref.data[i] = (float)i;
