@@ -48,7 +48,8 @@ for seed in $SEEDS; do
                 --time-budget "$BUDGET" --reference "$(reference "$s")" --out "$OUT/$s-$w-$seed" \
                 $flags > "$OUT/$s-$w-$seed.log" 2>&1
             # The error line's relMSE, not the tail line's (relMSE without the worst pixels).
-            echo "$s $w $seed $(grep -E '^error' "$OUT/$s-$w-$seed.log" | grep -Eo 'relMSE [0-9.e+-]+' | tail -n 1)"
+            err=$(grep -E '^error' "$OUT/$s-$w-$seed.log" | grep -Eo 'relMSE [0-9.e+-]+' | tail -n 1)
+            echo "$s $w $seed $err"
         done
     done
 done | tee "$OUT/runs.txt"

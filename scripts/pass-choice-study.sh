@@ -79,6 +79,6 @@ awk '{ k = $1 " " $2; n[k]++; r[k] += $7; r2[k] += $7 * $7; m[k] += $5; m2[k] +=
                mr = r[k] / n[k]; mm = m[k] / n[k]
                sr = n[k] > 1 ? sqrt((r2[k] - n[k] * mr * mr) / (n[k] - 1)) : 0
                sm = n[k] > 1 ? sqrt((m2[k] - n[k] * mm * mm) / (n[k] - 1)) : 0
-               printf "%s: relMSE %.4g +- %.2g, MAPE %.4g +- %.2g, relMSE without the 10 worst pixels %.4g (%d seeds)\n",
-                      k, mr, sr, mm, sm, b[k] / n[k], n[k] } }' \
+               printf "%s: relMSE %.4g +- %.2g, MAPE %.4g +- %.2g, ", k, mr, sr, mm, sm
+               printf "relMSE without the 10 worst pixels %.4g (%d seeds)\n", b[k] / n[k], n[k] } }' \
     "$OUT/runs$TAG.txt" | sort | tee "$OUT/summary$TAG.txt"

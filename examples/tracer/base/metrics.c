@@ -45,6 +45,11 @@ void image_relmse_tail(const image *reference, const image *img, int k, double *
     double total = 0.0, taken = 0.0, worst = 0.0, below = INFINITY;
     for (size_t p = 0; p < pixels; ++p)
         total += pixel_relmse(reference, img, p);
+    if (!isfinite(total)) { /* as relMSE: a non-finite pixel must not go unnoticed */
+        *worst_share = NAN;
+        *body = total;
+        return;
+    }
     /* The k largest errors, each found by a scan for the largest one below the last; pixels
      * with equal errors are counted together, never more than k. */
     for (int taken_n = 0; taken_n < k;) {

@@ -25,9 +25,9 @@ double image_relmse(const image *reference, const image *img);
  * next-event estimation cannot reach) can decide a render's relMSE: then two renders compare
  * by where their rarest paths landed, not by their noise. *worst_share receives the share of
  * relMSE in the worst pixel (its three channels), *body the relMSE over the image with the
- * `k` worst pixels' errors left out (k < the pixel count; the mean is still over every
- * pixel, so that body <= relMSE). 0 and 0 for an exact image. Allocates nothing; O(k x
- * pixels). */
+ * `k` >= 1 worst pixels' errors left out (the mean is still over every pixel, so that body <=
+ * relMSE; k beyond the pixels with an error leaves them all out). 0 and 0 for an exact image;
+ * NaN and a non-finite body when relMSE is not finite. Allocates nothing; O(k x pixels). */
 void image_relmse_tail(const image *reference, const image *img, int k, double *worst_share,
                        double *body);
 

@@ -198,7 +198,8 @@ static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float 
 {
     rgb c[TRACE_BATCH];
     float m[TRACE_BATCH];
-    trace_paths(job->c.t, n, r, px, py, c, m, out, &job->c.scratch[thread], &job->c.stats[thread].s);
+    trace_paths(job->c.t, n, r, px, py, c, m, out, &job->c.scratch[thread],
+                &job->c.stats[thread].s);
     for (size_t i = 0; i < n; ++i)
         pass_pixel(job, at[i][0], at[i][1], c[i], m[i]);
 }

@@ -176,6 +176,10 @@ static void test_metrics(void **state)
     image_relmse_tail(&ref, &img, 3, &worst, &body); /* an exact image */
     assert_float_equal(worst, 0.0, 0.0);
     assert_float_equal(body, 0.0, 0.0);
+    img.data[4] = NAN; /* as relMSE, a NaN is not hidden */
+    image_relmse_tail(&ref, &img, 3, &worst, &body);
+    assert_true(isnan(worst) && isnan(body));
+    img.data[4] = 1.0f;
 
     /* Downsampling averages blocks; sizes must be integer multiples. */
     for (int i = 0; i < 12; ++i)
