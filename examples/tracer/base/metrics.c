@@ -42,35 +42,26 @@ void image_relmse_tail(const image *reference, const image *img, int k, double *
                        double *body)
 {
     size_t pixels = (size_t)img->width * (size_t)img->height;
-    double total = 0.0, taken = 0.0, worst = 0.0, below = INFINITY;
-    for (size_t p = 0; p < pixels; ++p)
-        total += pixel_relmse(reference, img, p);
+    /* The k largest errors so far, largest first: one pass, and ties take one slot each. */
+    double top[METRIC_TAIL_MAX] = {0.0}, total = 0.0, taken = 0.0;
+    int kept = k < 1 ? 1 : k > METRIC_TAIL_MAX ? METRIC_TAIL_MAX : k;
+    for (size_t p = 0; p < pixels; ++p) {
+        double e = pixel_relmse(reference, img, p);
+        total += e;
+        if (!(e > top[kept - 1]))
+            continue;
+        int i = kept - 1;
+        for (; i > 0 && top[i - 1] < e; --i)
+            top[i] = top[i - 1];
+        top[i] = e;
+    }
     if (!isfinite(total)) { /* as relMSE: a non-finite pixel must not go unnoticed */
         *worst_share = NAN;
         *body = total;
         return;
     }
-    /* The k largest errors, each found by a scan for the largest one below the last; pixels
-     * with equal errors are counted together, never more than k. */
-    for (int taken_n = 0; taken_n < k;) {
-        double top = -1.0;
-        for (size_t p = 0; p < pixels; ++p) {
-            double e = pixel_relmse(reference, img, p);
-            if (e < below && e > top)
-                top = e;
-        }
-        if (!(top > 0.0))
-            break;
-        size_t ties = 0;
-        for (size_t p = 0; p < pixels; ++p)
-            ties += pixel_relmse(reference, img, p) == top;
-        if (taken_n == 0)
-            worst = top;
-        size_t use = ties < (size_t)(k - taken_n) ? ties : (size_t)(k - taken_n);
-        taken += top * (double)use;
-        taken_n += (int)use;
-        below = top;
-    }
-    *worst_share = total > 0.0 ? worst / total : 0.0;
+    for (int i = 0; i < kept; ++i)
+        taken += top[i];
+    *worst_share = total > 0.0 ? top[0] / total : 0.0;
     *body = pixels ? fmax(total - taken, 0.0) / (double)(3 * pixels) : 0.0;
 }

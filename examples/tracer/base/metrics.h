@@ -16,6 +16,8 @@
 /* The worst pixels that image_relmse_tail's body leaves out, in the tracer's and nf_compare's
  * output. */
 #define METRIC_TAIL_PIXELS 10
+/* The most worst pixels image_relmse_tail leaves out. */
+#define METRIC_TAIL_MAX 64
 
 /* Both images must have the same size. */
 double image_mape(const image *reference, const image *img);
@@ -25,9 +27,10 @@ double image_relmse(const image *reference, const image *img);
  * next-event estimation cannot reach) can decide a render's relMSE: then two renders compare
  * by where their rarest paths landed, not by their noise. *worst_share receives the share of
  * relMSE in the worst pixel (its three channels), *body the relMSE over the image with the
- * `k` >= 1 worst pixels' errors left out (the mean is still over every pixel, so that body <=
- * relMSE; k beyond the pixels with an error leaves them all out). 0 and 0 for an exact image;
- * NaN and a non-finite body when relMSE is not finite. Allocates nothing; O(k x pixels). */
+ * `k` worst pixels' errors left out, k in [1, METRIC_TAIL_MAX] (clamped; the mean is still
+ * over every pixel, so that body <= relMSE; k beyond the pixels with an error leaves them all
+ * out). 0 and 0 for an exact image; NaN and a non-finite body when relMSE is not finite.
+ * One pass over the images; allocates nothing. */
 void image_relmse_tail(const image *reference, const image *img, int k, double *worst_share,
                        double *body);
 
