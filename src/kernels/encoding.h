@@ -156,10 +156,15 @@ static inline void nf_sh_unit(const float d[3], uint32_t bands, float *out)
 {
     if (bands > 4)
         nf_sh_recurrence(d, bands, out);
+    if (bands >= 4) {
+        /* Straight into out: a copy of a count known only at run time became a `rep movs`
+         * whose start-up cost was a third of a shading point's features. */
+        nf_sh4(d[0], d[1], d[2], out);
+        return;
+    }
     float v[16];
     nf_sh4(d[0], d[1], d[2], v);
-    uint32_t count = bands < 4 ? bands * bands : 16;
-    for (uint32_t i = 0; i < count; ++i)
+    for (uint32_t i = 0; i < bands * bands; ++i)
         out[i] = v[i];
 }
 
