@@ -202,14 +202,14 @@ static int sums_plain_pool(pass_sums *ps)
  * paths that rule it, and with them it would be trusted far too much). One weight per kind
  * for the whole image, not per pixel: per-pixel weights follow variances estimated from the
  * same passes, and on the Cornell box, with 43 guided passes beside 800 plain ones, they
- * left the image 10 % worse than the plain passes alone would have (docs/equal-time.md,
- * "Guided or plain passes"). Each group's variance is its mean squared distance to the
- * render passes' combined mean, less that mean's own variance, and it is weighed against
- * that mean for the whole image. The weights come from the same data, a slight bias that
- * Practical Path Guiding accepts too. Absolute, not relative: a relative error divides by the
- * reference, which for a render pass's own spread contains that pass's outliers and for a
- * training group's distance does not, and on a scene with fireflies the two would differ
- * tenfold. Returns the training groups' share. */
+ * drew almost nothing from the guided and training passes and left the image 10 % worse
+ * than one weight per kind (docs/equal-time.md, "Guided or plain passes"). Each group's
+ * variance is its mean squared distance to the render passes' combined mean, less that
+ * mean's own variance, and it is weighed against that mean for the whole image. The weights
+ * come from the same data, a slight bias that Practical Path Guiding accepts too. Absolute,
+ * not relative: a relative error divides by the reference, which for a render pass's own
+ * spread contains that pass's outliers and for a training group's distance does not, and on
+ * a scene with fireflies the two would differ tenfold. Returns the training groups' share. */
 static double combine(const pass_groups *g, pass_sums *ps, image *img)
 {
     size_t floats = g->n, pixels = floats / 3;
@@ -217,12 +217,13 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
     int groups = g->ngroups;
     double w[MAX_GROUPS] = {0}, total = 0.0, w_render = 0.0, mean_v[2] = {0.0, 0.0};
     sums_reference(ps);
-    const double np = sums_plain_pool(ps), ng = kinds[0].n;
+    const double np = sums_plain_pool(ps), ng = kinds[NF_PASS_GUIDED].n;
     const double *ref = ps->ref;
     for (size_t i = 0; i < pixels; ++i) { /* one pass's variance at pixel i, of each kind */
         double r = ref[i];
+        const kind_sums *kg = &kinds[NF_PASS_GUIDED];
         if (ng > 0.0)
-            mean_v[0] += fmax((kinds[0].sq[i] - 2.0 * r * kinds[0].lum[i] + ng * r * r) / ng, 0.0);
+            mean_v[0] += fmax((kg->sq[i] - 2.0 * r * kg->lum[i] + ng * r * r) / ng, 0.0);
         if (np > 0.0)
             mean_v[1] += fmax((ps->pool2[i] - 2.0 * r * ps->pool[i] + np * r * r) / np, 0.0);
     }
@@ -233,7 +234,7 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
     const double wp = kinds[1].n > 0 && mean_v[1] > 0.0 ? kinds[1].n / mean_v[1] : 0.0;
     double *mean = wg + wp > 0.0 ? malloc(floats * sizeof *mean) : NULL;
     if (mean) {
-        /* The render passes' combined mean, and its variance (per pixel, on average). */
+        /* The render passes' combined mean, and its variance (the mean over pixels). */
         for (size_t i = 0; i < floats; ++i) {
             double acc = 0.0;
             if (wg > 0.0)
