@@ -213,15 +213,14 @@ static int sums_plain_pool(pass_sums *ps)
 static double combine(const pass_groups *g, pass_sums *ps, image *img)
 {
     size_t floats = g->n, pixels = floats / 3;
-    const kind_sums *kinds = ps->kind;
+    const kind_sums *kg = &ps->kind[NF_PASS_GUIDED], *kp = &ps->kind[NF_PASS_PLAIN];
     int groups = g->ngroups;
     double w[MAX_GROUPS] = {0}, total = 0.0, w_render = 0.0, mean_v[2] = {0.0, 0.0};
     sums_reference(ps);
-    const double np = sums_plain_pool(ps), ng = kinds[NF_PASS_GUIDED].n;
+    const double np = sums_plain_pool(ps), ng = kg->n;
     const double *ref = ps->ref;
     for (size_t i = 0; i < pixels; ++i) { /* one pass's variance at pixel i, of each kind */
         double r = ref[i];
-        const kind_sums *kg = &kinds[NF_PASS_GUIDED];
         if (ng > 0.0)
             mean_v[0] += fmax((kg->sq[i] - 2.0 * r * kg->lum[i] + ng * r * r) / ng, 0.0);
         if (np > 0.0)
@@ -231,16 +230,16 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
     mean_v[1] /= (double)pixels;
     /* Each kind's weight: its passes over its variance of one pass; 0 without passes. */
     const double wg = ng > 0.0 && mean_v[0] > 0.0 ? ng / mean_v[0] : 0.0;
-    const double wp = kinds[1].n > 0 && mean_v[1] > 0.0 ? kinds[1].n / mean_v[1] : 0.0;
+    const double wp = kp->n > 0 && mean_v[1] > 0.0 ? kp->n / mean_v[1] : 0.0;
     double *mean = wg + wp > 0.0 ? malloc(floats * sizeof *mean) : NULL;
     if (mean) {
         /* The render passes' combined mean, and its variance (the mean over pixels). */
         for (size_t i = 0; i < floats; ++i) {
             double acc = 0.0;
             if (wg > 0.0)
-                acc += wg * kinds[0].rgb[i] / ng;
+                acc += wg * kg->rgb[i] / ng;
             if (wp > 0.0)
-                acc += wp * kinds[1].rgb[i] / kinds[1].n;
+                acc += wp * kp->rgb[i] / kp->n;
             mean[i] = acc / (wg + wp);
         }
         const double var_mean = 1.0 / (wg + wp);
@@ -253,7 +252,7 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
             w[k] = 1.0 / fmax(v, floor / g->count[k]);
         }
     } else { /* no variance estimate (a black image, or no render pass): pass counts */
-        w_render = kinds[0].n + kinds[1].n;
+        w_render = kg->n + kp->n;
         for (int k = 0; k < groups; ++k)
             w[k] = g->count[k];
     }
@@ -266,7 +265,7 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
         if (mean)
             acc = w_render * mean[i];
         else if (w_render > 0.0) /* pass counts: the render passes' plain mean */
-            acc = kinds[0].rgb[i] + kinds[1].rgb[i];
+            acc = kg->rgb[i] + kp->rgb[i];
         for (int k = 0; k < groups; ++k)
             acc += w[k] * g->sum[k][i] / g->count[k];
         img->data[i] = total > 0.0 ? (float)(acc / total) : 0.0f;
