@@ -111,9 +111,9 @@ static double next_double(reader *r)
     return d;
 }
 
-/* The choice of passes with any measures, the variance with any sums, the training ratio and
- * a plain moment fed any floats: documented statuses, answers in range, *out untouched when
- * refused, the moment never NaN or negative. */
+/* The choice of passes and of their depth with any measures, the variance with any sums, the
+ * training ratio and the plain and depth moments fed any floats: documented statuses, answers
+ * in range, *out untouched when refused, the moments never NaN or negative. */
 static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
 {
     nf_pass_measure m[2];
@@ -157,6 +157,39 @@ static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
         }
         NF_FUZZ_CHECK(pm.moment >= 0.0f, "plain moment %g", (double)pm.moment);
     }
+    nf_depth_moment dmo[3];
+    for (int k = 0; k < 3; ++k)
+        nf_depth_moment_start(&dmo[k], next_byte(r) % 4);
+    for (int k = next_byte(r) % 8; k > 0; --k) {
+        uint32_t depth = next_byte(r) % 6;
+        size_t n = next_byte(r) % 4;
+        switch (next_byte(r) % 3) {
+        case 0:
+            nf_depth_moment_scatter(dmo, n, depth, next_float(r), next_float(r), next_float(r));
+            break;
+        case 1:
+            nf_depth_moment_roulette(dmo, n, pol, depth, next_float(r), next_float(r));
+            break;
+        default:
+            nf_depth_moment_add(dmo, n, depth, next_float(r), next_float(r));
+        }
+        for (int j = 0; j < 3; ++j)
+            NF_FUZZ_CHECK(dmo[j].moment >= 0.0f, "depth moment %g", (double)dmo[j].moment);
+    }
+    nf_pass_measure dm[NF_GUIDE_DEPTHS];
+    for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k) {
+        dm[k].passes = next_byte(r) % 8;
+        dm[k].seconds = next_double(r);
+        dm[k].variance = next_double(r);
+    }
+    nf_depth_choice dc = {NF_GUIDE_DEPTHS, 99u, -1.0};
+    st = nf_guide_choose_depth(g, dm, &dc);
+    check_status(st, "nf_guide_choose_depth");
+    NF_FUZZ_CHECK(st == NF_OK ? dc.candidate < NF_GUIDE_DEPTHS &&
+                                    dc.depth == nf_guide_depth_of(dc.candidate) &&
+                                    !(dc.ratio < 0.0)
+                              : dc.candidate == NF_GUIDE_DEPTHS && dc.depth == 99u,
+                  "depth choice %u %u %g (status %d)", dc.candidate, dc.depth, dc.ratio, (int)st);
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)

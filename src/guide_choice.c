@@ -87,9 +87,70 @@ nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured
     return NF_OK;
 }
 
+uint32_t nf_guide_depth_of(uint32_t candidate)
+{
+    /* Every depth first: it is the kind a fixed policy renders, and the one training ran. */
+    static const uint32_t depth[NF_GUIDE_DEPTHS] = {0u, 1u, 2u};
+    return candidate < NF_GUIDE_DEPTHS ? depth[candidate] : 0u;
+}
+
+nf_status nf_guide_choose_depth(const nf_guide *g, const nf_pass_measure measured[NF_GUIDE_DEPTHS],
+                                nf_depth_choice *out)
+{
+    static const char fn[] = "nf_guide_choose_depth";
+    nf_status st = nf_check_pointers(fn, "g", g, "measured", measured, "out", out, NULL, NULL);
+    if (st != NF_OK)
+        return st;
+    for (uint32_t c = 0; c < NF_GUIDE_DEPTHS; ++c)
+        if (!nf_measure_ok(&measured[c]))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: measured[%u] has seconds %g and variance %g (finite, >= 0)", fn, c,
+                           measured[c].seconds, measured[c].variance);
+    nf_depth_choice r = {0u, 0u, NAN};
+    if (g->cfg.pass_choice) {
+        uint32_t warm = NF_GUIDE_DEPTHS;
+        for (uint32_t c = NF_GUIDE_DEPTHS; c-- > 0;)
+            if (measured[c].passes < NF_PASS_WARMUP)
+                warm = c;
+        if (warm < NF_GUIDE_DEPTHS) {
+            r.candidate = warm;
+        } else {
+            /* What a unit of variance costs, as nf_guide_choose_pass weighs the kinds. */
+            double cost[NF_GUIDE_DEPTHS];
+            for (uint32_t c = 0; c < NF_GUIDE_DEPTHS; ++c) {
+                cost[c] = measured[c].variance * measured[c].seconds / measured[c].passes;
+                if (cost[c] < cost[r.candidate])
+                    r.candidate = c;
+            }
+            r.ratio = cost[r.candidate] == cost[0] ? 1.0 : cost[r.candidate] / cost[0];
+        }
+    }
+    r.depth = nf_guide_depth_of(r.candidate);
+    *out = r;
+    return NF_OK;
+}
+
 /* R below this is taken as this: a path plain path tracing would (almost) never trace
  * weighs in its second moment as one it traces once in 10^6. */
 #define NF_PLAIN_RATIO_FLOOR 1e-6f
+
+/* The steps, on R and the sums, that both moments share. */
+static float nf_moment_roulette_ratio(float ratio, const nf_guide_policy *p, float throughput_max,
+                                      float boost, float q_used)
+{
+    float r = fmaxf(ratio, NF_PLAIN_RATIO_FLOOR);
+    float q_policy = nf_guide_roulette_survival(p, throughput_max / r, boost);
+    /* q_policy = 0: the policy would never have gone on (R = 0, floored when used). */
+    return q_policy > 0.0f ? r * (q_policy / q_used) : 0.0f;
+}
+
+static void nf_moment_add(float ratio, float *sum, float *moment, float c)
+{
+    float r = fmaxf(ratio, NF_PLAIN_RATIO_FLOOR);
+    /* c_k^2 / R_k + 2 c_k sum_j c_j / R_j, then the sum takes c_k / R_k. */
+    *moment += c * (c / r + 2.0f * *sum);
+    *sum += c / r;
+}
 
 void nf_plain_moment_start(nf_plain_moment *m)
 {
@@ -109,22 +170,56 @@ void nf_plain_moment_scatter(nf_plain_moment *m, float p_bsdf, float p_mix, floa
 void nf_plain_moment_roulette(nf_plain_moment *m, const nf_guide_policy *p, float throughput_max,
                               float q_used)
 {
-    if (!m || !(q_used > 0.0f) || !isfinite(q_used))
-        return;
-    float r = fmaxf(m->ratio, NF_PLAIN_RATIO_FLOOR);
-    float q_plain = nf_guide_roulette_survival(p, throughput_max / r, 1.0f);
-    /* q_plain = 0: plain path tracing would never have gone on (R = 0, floored when used). */
-    m->ratio = q_plain > 0.0f ? r * (q_plain / q_used) : 0.0f;
+    if (m && q_used > 0.0f && isfinite(q_used))
+        m->ratio = nf_moment_roulette_ratio(m->ratio, p, throughput_max, 1.0f, q_used);
 }
 
 void nf_plain_moment_add(nf_plain_moment *m, float c)
 {
-    if (!m || !(c > 0.0f) || !isfinite(c))
+    if (m && c > 0.0f && isfinite(c))
+        nf_moment_add(m->ratio, &m->sum, &m->moment, c);
+}
+
+void nf_depth_moment_start(nf_depth_moment *m, uint32_t depth)
+{
+    if (!m)
         return;
-    float r = fmaxf(m->ratio, NF_PLAIN_RATIO_FLOOR);
-    /* c_k^2 / R_k + 2 c_k sum_j c_j / R_j, then the sum takes c_k / R_k. */
-    m->moment += c * (c / r + 2.0f * m->sum);
-    m->sum += c / r;
+    m->ratio = m->boost = 1.0f;
+    m->sum = m->moment = 0.0f;
+    m->depth = depth;
+}
+
+void nf_depth_moment_scatter(nf_depth_moment *m, size_t n, uint32_t vertex_depth, float p_bsdf,
+                             float p_mix, float g_used)
+{
+    for (size_t k = 0; m && k < n; ++k) {
+        /* Up to D the policy guided this vertex as the path did: only its boost moves. */
+        if (vertex_depth <= m[k].depth)
+            m[k].boost = nf_guide_boost(m[k].boost, p_bsdf, p_mix, g_used);
+        else
+            m[k].ratio = nf_guide_boost(m[k].ratio, p_bsdf, p_mix, g_used);
+    }
+}
+
+void nf_depth_moment_roulette(nf_depth_moment *m, size_t n, const nf_guide_policy *p,
+                              uint32_t vertex_depth, float throughput_max, float q_used)
+{
+    if (!m || !(q_used > 0.0f) || !isfinite(q_used))
+        return;
+    for (size_t k = 0; k < n; ++k)
+        if (vertex_depth > m[k].depth)
+            m[k].ratio =
+                nf_moment_roulette_ratio(m[k].ratio, p, throughput_max, m[k].boost, q_used);
+}
+
+void nf_depth_moment_add(nf_depth_moment *m, size_t n, uint32_t vertex_depth, float c,
+                         float c_plain)
+{
+    for (size_t k = 0; m && k < n; ++k) {
+        float v = vertex_depth <= m[k].depth ? c : c_plain;
+        if (v > 0.0f && isfinite(v))
+            nf_moment_add(m[k].ratio, &m[k].sum, &m[k].moment, v);
+    }
 }
 
 /* Training stops paying when the ratio has not fallen by NF_RATIO_STEP for NF_RATIO_PATIENCE

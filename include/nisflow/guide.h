@@ -20,9 +20,10 @@
  *     or refused with NF_ERROR_BUSY, never silently wrong);
  *   - the path policy the study measured: the mixture probability and its boost cap, the
  *     Russian roulette rule, which vertices weigh light samples by the flow;
- *   - the choice, after training, between guided and plain passes, from what each kind
- *     costs and buys as the renderer measured it (plain path tracing measured on guided
- *     paths too, nf_plain_moment), and a training schedule that stops when it buys little.
+ *   - the choice, after training, between guided and plain passes, and of how deep guided
+ *     passes guide, from what each kind costs and buys as the renderer measured it (plain
+ *     path tracing and shallower guiding measured on guided paths too, nf_plain_moment and
+ *     nf_depth_moment), and a training schedule that stops when it buys little.
  *
  * The recipe (docs/integration.md has it with a renderer around it):
  *
@@ -172,8 +173,9 @@ typedef struct nf_guide_config {
     float learning_rate;     /* AdamW rate set on the model; default 5e-3                  */
     uint64_t seed;           /* the draws from the store; default 1                        */
     uint32_t pass_choice;    /* 1: nf_guide_choose_pass picks guided or plain render passes
-                              * from what each costs and buys (default); 0: every render
-                              * pass guided (a fixed policy)                               */
+                              * and nf_guide_choose_depth how deep they guide, from what
+                              * each costs and buys (default); 0: every render pass guided
+                              * at every depth (a fixed policy)                            */
     float explore_share;     /* the least share of render passes that stay guided when
                               * plain ones measure better, so that guiding's estimate goes
                               * on improving, [0, 0.5]; default 0.05                       */
@@ -381,6 +383,90 @@ NF_API nf_status nf_guide_report_training_ratio(nf_guide *g, double ratio);
  * finite). Thread-safe. */
 NF_API nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured[2],
                                       nf_pass_choice *out);
+
+/* ---- How deep guided passes guide --------------------------------------------------------- */
+
+/* Guiding a vertex costs the flow's questions, and deep vertices, which carry little of a
+ * pixel, may not repay them: in a box lit directly, guiding each path's first vertex alone buys
+ * more per second than guiding every vertex or none, while light that arrives through several
+ * bounces (a room lit through a door's gap) needs guiding at every depth. Guided render passes
+ * therefore come in NF_GUIDE_DEPTHS kinds, by the deepest vertex they guide
+ * (nf_guide_depth_of): every depth measured on its own passes, a shallower kind on every pass
+ * that guides deeper than it (nf_depth_moment, as plain path tracing is measured);
+ * nf_guide_choose_depth picks the kind to render, and nf_guide_choose_pass then weighs it
+ * against plain passes (docs/integration.md, "Guided or plain passes"). Training passes guide
+ * every depth. A vertex deeper than a pass's depth is not guided: the mixture probability 0,
+ * no question to the flow, light samples weighed against the BSDF's density. */
+#define NF_GUIDE_DEPTHS 3u
+
+/* The deepest vertex that guided passes of kind `candidate` guide, in segments from the
+ * camera (the first vertex is 1), or 0 for every depth: candidates 0, 1, 2 are every depth,
+ * 1 and 2. 0 for candidate >= NF_GUIDE_DEPTHS. Thread-safe, total. */
+NF_API uint32_t nf_guide_depth_of(uint32_t candidate);
+
+/* A kind that guides up to depth D, measured on paths guided deeper (as nf_plain_moment
+ * measures plain path tracing): its passes alone would miss the rare bright paths that rule
+ * its variance (light that only guiding finds, deeper than D), and the choice would pick it by
+ * chance. A path guided up to depth A >= D (every depth, training passes included) traces the
+ * same vertices as the depth-D policy up to D; beyond, R takes the step from the path's
+ * mixture to BSDF sampling, and roulette the depth-D policy's survival (its boost frozen at
+ * depth D). A path keeps one nf_depth_moment per policy it measures, in an array that each
+ * call below updates at once: start each with its policy's depth D >= 1, then call scatter and
+ * roulette at every vertex with the vertex's depth (the first vertex is 1) where the path
+ * calls nf_guide_boost and nf_guide_roulette_survival, and add every contribution. A path
+ * guided up to exactly D gives its squared luminance. D = 0 is nf_plain_moment's plain path
+ * tracing, to the bit. Thread-safe, total (the functions only write m[0..n); moments stay
+ * >= 0, +inf at worst); NULL m or n = 0 is a no-op. */
+typedef struct nf_depth_moment {
+    float ratio;    /* R: the depth-D policy's density of the path so far over the path's */
+    float sum;      /* the contributions so far, each divided by its R                    */
+    float moment;   /* the estimate of the depth-D policy's second moment                 */
+    float boost;    /* the depth-D policy's boost: the path's, frozen after depth D       */
+    uint32_t depth; /* D                                                                  */
+} nf_depth_moment;
+
+/* A path at the camera, measuring the policy that guides up to depth `depth`. */
+NF_API void nf_depth_moment_start(nf_depth_moment *m, uint32_t depth);
+
+/* A scattered direction at a vertex `vertex_depth` deep, with the arguments of
+ * nf_plain_moment_scatter: for each of the n moments, up to its D the boost takes the step,
+ * deeper R does. */
+NF_API void nf_depth_moment_scatter(nf_depth_moment *m, size_t n, uint32_t vertex_depth,
+                                    float p_bsdf, float p_mix, float g_used);
+
+/* Russian roulette survived with probability q_used at a vertex `vertex_depth` deep, whose
+ * throughput's largest channel before the roulette is throughput_max: for each moment deeper
+ * than its D, R takes nf_guide_roulette_survival(p, throughput_max / R, boost) over q_used. */
+NF_API void nf_depth_moment_roulette(nf_depth_moment *m, size_t n, const nf_guide_policy *p,
+                                     uint32_t vertex_depth, float throughput_max, float q_used);
+
+/* A contribution (a luminance, as added to the pixel) that the technique of the vertex
+ * `vertex_depth` deep found (0: seen from the camera): c >= 0 with the MIS weight the path gave
+ * it, c_plain >= 0 with plain path tracing's (light sampling against the BSDF's density). Each
+ * moment takes c where its policy guides that vertex (vertex_depth <= D), c_plain deeper, as
+ * nf_plain_moment_add takes its contribution; negative or non-finite values are ignored. */
+NF_API void nf_depth_moment_add(nf_depth_moment *m, size_t n, uint32_t vertex_depth, float c,
+                                float c_plain);
+
+/* nf_guide_choose_depth's answer. */
+typedef struct nf_depth_choice {
+    uint32_t candidate; /* render guided passes of this kind next, < NF_GUIDE_DEPTHS         */
+    uint32_t depth;     /* nf_guide_depth_of(candidate)                                    */
+    double ratio;       /* its variance x cost per pass over every depth's (below 1: the
+                         * shallower passes pay); NaN while a kind has fewer than 2 passes  */
+} nf_depth_choice;
+
+/* Which kind of guided pass to render next, from the measures of the guided render passes of
+ * each kind (measured[c] for candidate c, as nf_pass_measure of NF_PASS_GUIDED): first two
+ * passes of each kind, in candidate order; then the kind with the lowest variance x cost per
+ * pass (ties: the lower candidate, deeper guiding). Its measure is the NF_PASS_GUIDED one to
+ * give nf_guide_choose_pass. With pass_choice 0, always candidate 0 (every depth). Depends
+ * only on the arguments and the configuration, as nf_guide_choose_pass.
+ * Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not finite); *out is then
+ * unchanged. Thread-safe. */
+NF_API nf_status nf_guide_choose_depth(const nf_guide *g,
+                                       const nf_pass_measure measured[NF_GUIDE_DEPTHS],
+                                       nf_depth_choice *out);
 
 /* Copies the training model (parameters and optimizer state, nf_model_copy) into the
  * published model that no thread holds, and makes it the newest: acquire hands it out from

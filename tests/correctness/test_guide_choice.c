@@ -1,7 +1,8 @@
 /*
  * test_guide_choice.c - guided or plain passes (nisflow/guide.h): the relative variance of a
  * kind of pass about a reference, exactly and in expectation, and the choice of the next
- * pass: warm-up order, the cost rule, exploration, the fixed policy and bad input.
+ * pass: warm-up order, the cost rule, exploration, the fixed policy and bad input; and the
+ * choice of how deep guided passes guide.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -130,6 +131,98 @@ static void test_plain_moment_in_expectation(void **state)
     nf_plain_moment_add(&m, 0.25f);
     nf_plain_moment_add(&m, 1.5f);
     assert_true(fabs(m.moment - 1.75f * 1.75f) < 1e-6f);
+}
+
+/* nf_depth_moment in expectation, on a two-vertex toy: vertex 1 draws x1 from p_g = 2x in both
+ * the guided path and the depth-1 policy; at vertex 2 the path survives roulette with 0.5 and
+ * draws x2 from p_g again, where the depth-1 policy survives with its own rule (its boost
+ * frozen at vertex 1's 1 / (2 x1)) and draws x2 uniformly. The integrand is x^2 at both
+ * vertices, emission 0.5 at the camera and 1 after vertex 2. The estimator's mean over
+ * guided paths must match the depth-1 policy's second moment, simulated directly. */
+static void test_depth_moment_in_expectation(void **state)
+{
+    (void)state;
+    nf_guide_policy pol;
+    nf_guide_policy_init(&pol);
+    enum { N = 400000 };
+    nft_rng r;
+    nft_rng_seed(&r, 37, 0);
+    nf_depth_moment m;
+    double est = 0.0, est_sq = 0.0, sim = 0.0, sim_sq = 0.0;
+    for (int i = 0; i < N; ++i) {
+        /* The guided path and the estimator. */
+        float x1 = (float)sqrt(fmax(nft_rng_double(&r), 1e-12));
+        float t1 = x1 * x1 / (2.0f * x1), q = 0.5f;
+        nf_depth_moment_start(&m, 1);
+        nf_depth_moment_add(&m, 1, 0, 0.5f, 0.5f);
+        nf_depth_moment_scatter(&m, 1, 1, 1.0f, 2.0f * x1, 0.7f);
+        if (nft_rng_double(&r) < q) {
+            nf_depth_moment_roulette(&m, 1, &pol, 2, t1, q);
+            float x2 = (float)sqrt(fmax(nft_rng_double(&r), 1e-12));
+            nf_depth_moment_scatter(&m, 1, 2, 1.0f, 2.0f * x2, 0.7f);
+            float c = t1 * (x2 * x2 / (2.0f * x2)) / q; /* no light sampling: one weight */
+            nf_depth_moment_add(&m, 1, 2, c, c);
+        }
+        est += m.moment;
+        est_sq += (double)m.moment * m.moment;
+        /* The depth-1 policy itself. */
+        double y1 = sqrt(fmax(nft_rng_double(&r), 1e-12)), u1 = y1 / 2.0;
+        double qp = nf_guide_roulette_survival(&pol, (float)u1, (float)(1.0 / (2.0 * y1)));
+        double v = 0.5;
+        if (nft_rng_double(&r) < qp) {
+            double y2 = nft_rng_double(&r);
+            v += u1 * y2 * y2 / qp;
+        }
+        sim += v * v;
+        sim_sq += v * v * v * v;
+    }
+    double me = est / N, ms = sim / N;
+    double se = sqrt(fmax(est_sq / N - me * me, 0.0) / N);
+    double ss = sqrt(fmax(sim_sq / N - ms * ms, 0.0) / N);
+    /* Five standard errors of the difference of two independent means; float rounding of the
+     * estimator (relative 1e-7 per path) is far below. */
+    double tol = 5.0 * sqrt(se * se + ss * ss);
+    assert_true(fabs(me - ms) < tol);
+    assert_true(tol < 0.02 * ms); /* and the check is tight: under 2 % */
+
+    /* A path guided up to exactly D (no step deeper) gives its squared value. */
+    nf_depth_moment_start(&m, 2);
+    nf_depth_moment_add(&m, 1, 0, 0.25f, 0.25f);
+    nf_depth_moment_scatter(&m, 1, 1, 1.0f, 3.0f, 0.7f);
+    nf_depth_moment_roulette(&m, 1, &pol, 2, 0.01f, 0.3f);
+    nf_depth_moment_scatter(&m, 1, 2, 1.0f, 0.2f, 0.7f);
+    nf_depth_moment_add(&m, 1, 2, 1.5f, 9.0f);
+    assert_true(fabs(m.moment - 1.75f * 1.75f) < 1e-6f);
+    assert_true(m.ratio == 1.0f);
+    /* Each moment of an array takes the path's weight where its policy guides the vertex,
+     * plain path tracing's deeper: at vertex 2, depth 0 and 1 take 2, depth 2 takes 1. */
+    nf_depth_moment arr[3];
+    for (uint32_t d = 0; d < 3; ++d)
+        nf_depth_moment_start(&arr[d], d);
+    nf_depth_moment_add(arr, 3, 2, 1.0f, 2.0f);
+    assert_true(arr[0].moment == 4.0f && arr[1].moment == 4.0f && arr[2].moment == 1.0f);
+    nf_depth_moment_add(arr, 0, 2, 5.0f, 5.0f); /* n = 0 and NULL: no-ops */
+    nf_depth_moment_add(NULL, 3, 2, 5.0f, 5.0f);
+    assert_true(arr[0].moment == 4.0f && arr[2].moment == 1.0f);
+    /* D = 0 is nf_plain_moment, to the bit, on any sequence of steps. */
+    for (int i = 0; i < 1000; ++i) {
+        nf_plain_moment pm;
+        nf_plain_moment_start(&pm);
+        nf_depth_moment_start(&m, 0);
+        for (uint32_t depth = 1; depth <= 6; ++depth) {
+            float pb = (float)nft_rng_double(&r), pmix = (float)nft_rng_double(&r) + 0.01f;
+            float t = 4.0f * (float)nft_rng_double(&r), q = (float)nft_rng_double(&r) + 0.05f;
+            float c = (float)nft_rng_double(&r);
+            nf_plain_moment_roulette(&pm, &pol, t, q);
+            nf_depth_moment_roulette(&m, 1, &pol, depth, t, q);
+            nf_plain_moment_scatter(&pm, pb, pmix, 0.7f);
+            nf_depth_moment_scatter(&m, 1, depth, pb, pmix, 0.7f);
+            nf_plain_moment_add(&pm, c);
+            nf_depth_moment_add(&m, 1, depth, c, c);
+        }
+        assert_memory_equal(&pm.moment, &m.moment, sizeof m.moment);
+        assert_memory_equal(&pm.ratio, &m.ratio, sizeof m.ratio);
+    }
 }
 
 static void test_variance_refuses(void **state)
@@ -286,6 +379,80 @@ static void test_fixed_policy_and_refusals(void **state)
     nf_model_destroy(model);
 }
 
+/* The depth candidates: every depth, then 1 and 2; 0 beyond the last. */
+static void test_depth_candidates(void **state)
+{
+    (void)state;
+    assert_int_equal(NF_GUIDE_DEPTHS, 3);
+    assert_int_equal(nf_guide_depth_of(0), 0);
+    assert_int_equal(nf_guide_depth_of(1), 1);
+    assert_int_equal(nf_guide_depth_of(2), 2);
+    assert_int_equal(nf_guide_depth_of(3), 0);
+    assert_int_equal(nf_guide_depth_of(UINT32_MAX), 0);
+}
+
+/* Each depth's first two passes in candidate order, then the lowest variance x cost per pass:
+ * every depth 1.0 x 0.2 s = 0.2, depth 1 1.4 x 0.1 s = 0.14 (ratio 0.7), depth 2 1.2 x 0.15 s
+ * = 0.18. A tie goes to the deeper guiding (the lower candidate). */
+static void test_depth_choice(void **state)
+{
+    (void)state;
+    nf_guide *g = make_guide(NULL);
+    nf_depth_choice c;
+    nf_pass_measure m[NF_GUIDE_DEPTHS] = {measure(0, 0.0, 1.0), measure(0, 0.0, 1.4),
+                                          measure(0, 0.0, 1.2)};
+    const double per_pass[NF_GUIDE_DEPTHS] = {0.2, 0.1, 0.15};
+    const uint32_t warm[6] = {0, 0, 1, 1, 2, 2};
+    for (int i = 0; i < 6; ++i) {
+        assert_int_equal(nf_guide_choose_depth(g, m, &c), NF_OK);
+        assert_int_equal(c.candidate, warm[i]);
+        assert_int_equal(c.depth, nf_guide_depth_of(warm[i]));
+        assert_true(isnan(c.ratio));
+        m[c.candidate].passes++;
+        m[c.candidate].seconds += per_pass[c.candidate];
+    }
+    assert_int_equal(nf_guide_choose_depth(g, m, &c), NF_OK);
+    assert_int_equal(c.candidate, 1);
+    assert_int_equal(c.depth, 1);
+    assert_true(fabs(c.ratio - 0.7) < 1e-12);
+    m[1].variance = 2.0; /* 0.2: ties every depth, which keeps it */
+    assert_int_equal(nf_guide_choose_depth(g, m, &c), NF_OK);
+    assert_int_equal(c.candidate, 2);
+    m[2].variance = 2.0; /* 0.3 */
+    assert_int_equal(nf_guide_choose_depth(g, m, &c), NF_OK);
+    assert_int_equal(c.candidate, 0);
+    assert_int_equal(c.depth, 0);
+    assert_true(c.ratio == 1.0);
+
+    /* Refused: *out untouched, the message names the measure. */
+    nf_depth_choice before = {7u, 7u, 7.0}, d = before;
+    m[2].seconds = INFINITY;
+    assert_int_equal(nf_guide_choose_depth(g, m, &d), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "measured[2]"));
+    assert_memory_equal(&d, &before, sizeof d);
+    m[2].seconds = 0.3;
+    m[0].variance = -1.0;
+    assert_int_equal(nf_guide_choose_depth(g, m, &d), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_choose_depth(g, NULL, &d), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_choose_depth(NULL, m, &d), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_choose_depth(g, m, NULL), NF_ERROR_INVALID_ARGUMENT);
+    assert_memory_equal(&d, &before, sizeof d);
+    nf_guide_destroy(g);
+
+    /* A fixed policy guides every depth, whatever the measures. */
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.pass_choice = 0;
+    g = make_guide(&gc);
+    nf_pass_measure ahead[NF_GUIDE_DEPTHS] = {measure(10, 10.0, 10.0), measure(10, 1.0, 1.0),
+                                              measure(0, 0.0, 0.0)};
+    assert_int_equal(nf_guide_choose_depth(g, ahead, &c), NF_OK);
+    assert_int_equal(c.candidate, 0);
+    assert_int_equal(c.depth, 0);
+    assert_true(isnan(c.ratio));
+    nf_guide_destroy(g);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -293,10 +460,13 @@ int main(void)
         cmocka_unit_test(test_variance_in_expectation),
         cmocka_unit_test(test_variance_refuses),
         cmocka_unit_test(test_plain_moment_in_expectation),
+        cmocka_unit_test(test_depth_moment_in_expectation),
         cmocka_unit_test(test_warm_up),
         cmocka_unit_test(test_cost_rule),
         cmocka_unit_test(test_exploration),
         cmocka_unit_test(test_fixed_policy_and_refusals),
+        cmocka_unit_test(test_depth_candidates),
+        cmocka_unit_test(test_depth_choice),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
