@@ -244,6 +244,26 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
                    kind_name[k], br.kind_passes[k], br.kind_cpu_seconds[k] / br.kind_passes[k],
                    br.kind_variance[k],
                    cpu_all > 0.0 ? 100.0 * br.kind_cpu_seconds[k] / cpu_all : 0.0);
+    /* How deep the guided render passes guided (nf_guide_choose_depth). */
+    if (br.depth_fixed && br.kind_passes[NF_PASS_GUIDED])
+        printf("depth      fixed: guided passes guide vertices up to depth %d\n", br.depth);
+    for (uint32_t c = 0; c < NF_GUIDE_DEPTHS && !br.depth_fixed; ++c) {
+        if (!br.depth_passes[c])
+            continue;
+        char name[32];
+        if (nf_guide_depth_of(c))
+            snprintf(name, sizeof name, "up to depth %u", nf_guide_depth_of(c));
+        else
+            snprintf(name, sizeof name, "every depth");
+        printf("depth      %-14s %d guided passes, %.3f CPU s each, relative variance %.4g per "
+               "pass\n",
+               name, br.depth_passes[c], br.depth_cpu_seconds[c] / br.depth_passes[c],
+               br.depth_variance[c]);
+    }
+    if (isfinite(br.depth_ratio))
+        printf("choice     guided passes guide %s%.0d: variance x time %.3g of guiding every "
+               "depth\n",
+               br.depth ? "vertices up to depth " : "every depth", br.depth, br.depth_ratio);
     if (isfinite(br.ratio))
         printf("choice     a guided pass's variance x time is %.3g of a plain pass's: %s pays "
                "(%d guided passes kept while plain ones measured better)\n",

@@ -174,7 +174,7 @@ static const variant variants[] = {
     {"light-mis-bsdf", SWITCH, v_light_bsdf, "light samples weighed by the BSDF at every depth"},
     {"guide-min-roughness", 0.0, 1.0, 0, v_min_rough,
      "rough conductors smoother than this are not guided (0.3)"},
-    {"guide-depth", 0.0, 1e5, 1, v_guide_depth, "guide vertices up to this depth, 0 all (0)"},
+    {"guide-depth", 0.0, 1e5, 1, v_guide_depth, "guided passes guide vertices up to this depth, 0: the guide's choice (0)"},
     {"train-fraction", 0.0, 0.95, 0, v_train_fraction, "share of the budget that trains (0.15)"},
     {"patience", 0.0, 1e6, 1, v_patience,
      "training passes without a 1 % better held-out loss before training stops, 0 never (6)"},

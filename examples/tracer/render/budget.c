@@ -97,14 +97,19 @@ static double squared_error(const double *mean, double scale, const double *ref,
     return sum / (double)pixels;
 }
 
-/* The passes of one kind (nf_pass_kind: guided or plain; and the training passes, guided),
- * per pixel. */
+/* The render passes come in KINDS kinds: guided passes by how deep they guide (the guide's
+ * candidates, nf_guide_depth_of: kind c for candidate c) and plain passes (PLAIN). */
+#define KINDS (NF_GUIDE_DEPTHS + 1u)
+#define PLAIN NF_GUIDE_DEPTHS
+
+/* The passes of one kind (or the training passes, guided at every depth), per pixel. */
 typedef struct kind_sums {
     double *rgb; /* 3 per pixel: the sums of the passes' RGB                              */
     double *lum; /* the sums of their luminance                                           */
     double *sq;  /* the sums of their luminance squared                                   */
-    double *m2;  /* the sums of the paths' estimates of plain path tracing's second moment
-                  * of the luminance (nf_plain_moment; a plain pass's is its square)      */
+    double *m2[PATH_MOMENTS]; /* the sums of the paths' estimates of second moments of the
+                  * luminance: [0] plain path tracing's (nf_plain_moment), [c] the guide's
+                  * depth candidate c's (nf_depth_moment); a plain pass's are its square */
     int n;       /* passes                                                                */
     double cpu;  /* their CPU seconds, every thread and rank                              */
 } kind_sums;
@@ -114,7 +119,8 @@ static void kind_free(kind_sums *k)
     free(k->rgb);
     free(k->lum);
     free(k->sq);
-    free(k->m2);
+    for (int m = 0; m < PATH_MOMENTS; ++m)
+        free(k->m2[m]);
 }
 
 static int kind_alloc(kind_sums *k, size_t pixels)
@@ -122,8 +128,10 @@ static int kind_alloc(kind_sums *k, size_t pixels)
     k->rgb = calloc(3 * pixels, sizeof *k->rgb);
     k->lum = calloc(pixels, sizeof *k->lum);
     k->sq = calloc(pixels, sizeof *k->sq);
-    k->m2 = calloc(pixels, sizeof *k->m2);
-    return k->rgb && k->lum && k->sq && k->m2;
+    int ok = k->rgb && k->lum && k->sq;
+    for (int m = 0; m < PATH_MOMENTS; ++m)
+        ok = (k->m2[m] = calloc(pixels, sizeof *k->m2[m])) != NULL && ok;
+    return ok;
 }
 
 static void kind_add(kind_sums *k, const image *pass, const float *moment, size_t pixels)
@@ -136,7 +144,8 @@ static void kind_add(kind_sums *k, const image *pass, const float *moment, size_
         k->rgb[3 * i + 2] += p[2];
         k->lum[i] += l;
         k->sq[i] += l * l;
-        k->m2[i] += moment[i];
+        for (int m = 0; m < PATH_MOMENTS; ++m)
+            k->m2[m][i] += moment[m * pixels + i];
     }
     k->n++;
 }
@@ -144,7 +153,7 @@ static void kind_add(kind_sums *k, const image *pass, const float *moment, size_
 /* What the budget job measures its passes with: the sums of the training passes and of the
  * render passes of each kind, and scratch for the estimates. */
 typedef struct pass_sums {
-    kind_sums train, kind[2];
+    kind_sums train, kind[KINDS];
     double *ref;          /* per pixel: the luminance averaged over every pass         */
     double *pool, *pool2; /* per pixel: plain path tracing's first and second moments  */
     size_t pixels;
@@ -153,8 +162,8 @@ typedef struct pass_sums {
 static void sums_free(pass_sums *ps)
 {
     kind_free(&ps->train);
-    kind_free(&ps->kind[0]);
-    kind_free(&ps->kind[1]);
+    for (unsigned k = 0; k < KINDS; ++k)
+        kind_free(&ps->kind[k]);
     free(ps->ref);
     free(ps->pool);
     free(ps->pool2);
@@ -167,92 +176,133 @@ static int sums_alloc(pass_sums *ps, size_t pixels)
     ps->ref = calloc(pixels, sizeof *ps->ref);
     ps->pool = calloc(pixels, sizeof *ps->pool);
     ps->pool2 = calloc(pixels, sizeof *ps->pool2);
-    return kind_alloc(&ps->train, pixels) && kind_alloc(&ps->kind[0], pixels) &&
-           kind_alloc(&ps->kind[1], pixels) && ps->ref && ps->pool && ps->pool2;
+    int ok = kind_alloc(&ps->train, pixels) && ps->ref && ps->pool && ps->pool2;
+    for (unsigned k = 0; k < KINDS; ++k)
+        ok = ok && kind_alloc(&ps->kind[k], pixels);
+    return ok;
 }
 
-/* ps->ref: each pixel's luminance averaged over every pass, training and both kinds, the
+/* ps->ref: each pixel's luminance averaged over every pass, training and every kind, the
  * reference that the kinds' spreads are measured against (nf_guide_pass_variance). */
 static void sums_reference(pass_sums *ps)
 {
-    const kind_sums *k = ps->kind;
-    double n = (double)ps->train.n + k[0].n + k[1].n;
-    for (size_t i = 0; i < ps->pixels; ++i)
-        ps->ref[i] = n > 0.0 ? (ps->train.lum[i] + k[0].lum[i] + k[1].lum[i]) / n : 0.0;
-}
-
-/* ps->pool, pool2: plain path tracing's first and second moments as every pass tells them,
- * summed: a guided pass (training or render) by its paths' nf_plain_moment, a plain pass by
- * its own values. Returns the passes. */
-static int sums_plain_pool(pass_sums *ps)
-{
-    const kind_sums *k[3] = {&ps->train, &ps->kind[NF_PASS_GUIDED], &ps->kind[NF_PASS_PLAIN]};
+    double n = ps->train.n;
+    for (unsigned k = 0; k < KINDS; ++k)
+        n += ps->kind[k].n;
     for (size_t i = 0; i < ps->pixels; ++i) {
-        ps->pool[i] = k[0]->lum[i] + k[1]->lum[i] + k[2]->lum[i];
-        ps->pool2[i] = k[0]->m2[i] + k[1]->m2[i] + k[2]->m2[i];
+        double l = ps->train.lum[i];
+        for (unsigned k = 0; k < KINDS; ++k)
+            l += ps->kind[k].lum[i];
+        ps->ref[i] = n > 0.0 ? l / n : 0.0;
     }
-    return k[0]->n + k[1]->n + k[2]->n;
 }
 
-/* Writes into img the inverse-variance combination of the training groups and the render
- * passes of both kinds. Each kind weighs its passes over its variance of one pass, the mean
- * over pixels (absolute): a guided pass's, its passes' mean squared distance to the reference
- * (all passes averaged); a plain pass's, plain path tracing's second moment about the
- * reference as every pass tells it (sums_plain_pool: its own passes miss the rare bright
- * paths that rule it, and with them it would be trusted far too much). One weight per kind
- * for the whole image, not per pixel: per-pixel weights follow variances estimated from the
- * same passes, and on the Cornell box, with 43 guided passes beside 800 plain ones, they
- * drew almost nothing from the guided and training passes and left the image 10 % worse
- * than one weight per kind (docs/equal-time.md, "Guided or plain passes"). Each group's
- * variance is its mean squared distance to the render passes' combined mean, less that
+/* Whether the passes of kind k measure moment m (path_state.moments): plain path tracing's
+ * (m = 0) every pass does; a depth candidate's, the passes that guide at least that deep. */
+static int kind_measures(unsigned k, int m)
+{
+    if (m == 0)
+        return 1;
+    uint32_t want = nf_guide_depth_of((uint32_t)m), have = nf_guide_depth_of(k);
+    return k < PLAIN && (have == 0 || have >= want);
+}
+
+/* ps->pool, pool2: the first and second moments of the policy of moment m (plain path
+ * tracing's, or a depth candidate's) as the passes that measure it tell them, summed: a pass
+ * that guides deeper (training included) by its paths' nf_depth_moment, a pass of that very
+ * policy by its own values. Returns the passes. */
+static int sums_pool(pass_sums *ps, int m)
+{
+    int n = ps->train.n;
+    for (unsigned k = 0; k < KINDS; ++k)
+        n += kind_measures(k, m) ? ps->kind[k].n : 0;
+    for (size_t i = 0; i < ps->pixels; ++i) {
+        double l = ps->train.lum[i], m2 = ps->train.m2[m][i];
+        for (unsigned k = 0; k < KINDS; ++k)
+            if (kind_measures(k, m)) {
+                l += ps->kind[k].lum[i];
+                m2 += ps->kind[k].m2[m][i];
+            }
+        ps->pool[i] = l;
+        ps->pool2[i] = m2;
+    }
+    return n;
+}
+
+/* Writes into img the inverse-variance combination of the training groups and the render passes
+ * of every kind. Each kind weighs its passes over its variance of one pass, the mean over
+ * pixels (absolute): every depth's, its passes' mean squared distance to the reference (all
+ * passes averaged); plain path tracing's and a shallower depth's, their second moment about the
+ * reference as the passes that guide deeper tell it (sums_pool: their own passes miss the rare
+ * bright paths that rule them, and with them alone they would be trusted far too much). One
+ * weight per kind for the whole image, not per pixel: per-pixel weights follow variances
+ * estimated from the same passes, and on the Cornell box, with 43 guided passes beside 800
+ * plain ones, they drew almost nothing from the guided and training passes and left the image
+ * 10 % worse than one weight per kind (docs/equal-time.md, "Guided or plain passes"). Each
+ * group's variance is its mean squared distance to the render passes' combined mean, less that
  * mean's own variance, and it is weighed against that mean for the whole image. The weights
- * come from the same data, a slight bias that Practical Path Guiding accepts too. Absolute,
- * not relative: a relative error divides by the reference, which for a render pass's own
- * spread contains that pass's outliers and for a training group's distance does not, and on
- * a scene with fireflies the two would differ tenfold. Returns the training groups' share. */
+ * come from the same data, a slight bias that Practical Path Guiding accepts too. Absolute, not
+ * relative: a relative error divides by the reference, which for a render pass's own spread
+ * contains that pass's outliers and for a training group's distance does not, and on a scene
+ * with fireflies the two would differ tenfold. Returns the training groups' share. */
 static double combine(const pass_groups *g, pass_sums *ps, image *img)
 {
     size_t floats = g->n, pixels = floats / 3;
-    const kind_sums *kg = &ps->kind[NF_PASS_GUIDED], *kp = &ps->kind[NF_PASS_PLAIN];
+    const kind_sums *ks = ps->kind;
     int groups = g->ngroups;
-    double w[MAX_GROUPS] = {0}, total = 0.0, w_render = 0.0, mean_v[2] = {0.0, 0.0};
+    double w[MAX_GROUPS] = {0}, total = 0.0, w_render = 0.0, mean_v[KINDS] = {0.0};
     sums_reference(ps);
-    const double np = sums_plain_pool(ps), ng = kg->n;
     const double *ref = ps->ref;
-    for (size_t i = 0; i < pixels; ++i) { /* one pass's variance at pixel i, of each kind */
-        double r = ref[i];
-        if (ng > 0.0)
-            mean_v[0] += fmax((kg->sq[i] - 2.0 * r * kg->lum[i] + ng * r * r) / ng, 0.0);
-        if (np > 0.0)
-            mean_v[1] += fmax((ps->pool2[i] - 2.0 * r * ps->pool[i] + np * r * r) / np, 0.0);
+    /* One pass's variance of each kind, the mean over pixels: every depth's (kind 0) from its
+     * own passes, the others' from the moments of the passes that measure them (sums_pool),
+     * plain's whenever any pass measured it. */
+    for (unsigned k = 0; k < KINDS; ++k) {
+        const double *s1 = ks[k].lum, *s2 = ks[k].sq;
+        double n = ks[k].n;
+        if (k > 0) {
+            n = sums_pool(ps, k == PLAIN ? 0 : (int)k);
+            s1 = ps->pool;
+            s2 = ps->pool2;
+        }
+        if (n <= 0.0 || (k < PLAIN && ks[k].n == 0))
+            continue;
+        double acc = 0.0;
+        for (size_t i = 0; i < pixels; ++i)
+            acc += fmax((s2[i] - 2.0 * ref[i] * s1[i] + n * ref[i] * ref[i]) / n, 0.0);
+        mean_v[k] = acc / (double)pixels;
     }
-    mean_v[0] /= (double)pixels;
-    mean_v[1] /= (double)pixels;
     /* Each kind's weight: its passes over its variance of one pass; 0 without passes. */
-    const double wg = ng > 0.0 && mean_v[0] > 0.0 ? ng / mean_v[0] : 0.0;
-    const double wp = kp->n > 0 && mean_v[1] > 0.0 ? kp->n / mean_v[1] : 0.0;
-    double *mean = wg + wp > 0.0 ? malloc(floats * sizeof *mean) : NULL;
+    double wk[KINDS], w_all = 0.0;
+    for (unsigned k = 0; k < KINDS; ++k) {
+        wk[k] = ks[k].n > 0 && mean_v[k] > 0.0 ? ks[k].n / mean_v[k] : 0.0;
+        w_all += wk[k];
+    }
+    double *mean = w_all > 0.0 ? malloc(floats * sizeof *mean) : NULL;
     if (mean) {
         /* The render passes' combined mean, and its variance (the mean over pixels). */
         for (size_t i = 0; i < floats; ++i) {
             double acc = 0.0;
-            if (wg > 0.0)
-                acc += wg * kg->rgb[i] / ng;
-            if (wp > 0.0)
-                acc += wp * kp->rgb[i] / kp->n;
-            mean[i] = acc / (wg + wp);
+            for (unsigned k = 0; k < KINDS; ++k)
+                if (wk[k] > 0.0)
+                    acc += wk[k] * ks[k].rgb[i] / ks[k].n;
+            mean[i] = acc / w_all;
         }
-        const double var_mean = 1.0 / (wg + wp);
-        w_render = wg + wp;
+        const double var_mean = 1.0 / w_all;
+        w_render = w_all;
         /* A group looks better than a render pass of its kind only by chance: never trust it
-         * more than its pass count says (guided, or plain's if no guided pass measured). */
-        double floor = mean_v[0] > 0.0 ? mean_v[0] : mean_v[1];
+         * more than its pass count says. Training guides every depth (candidate 0); without
+         * such passes, the first guided kind measured, or plain's. */
+        double floor = mean_v[PLAIN];
+        for (unsigned k = PLAIN; k-- > 0;)
+            if (mean_v[k] > 0.0)
+                floor = mean_v[k];
         for (int k = 0; k < groups; ++k) {
             double v = squared_error(g->sum[k], 1.0 / g->count[k], mean, pixels) - var_mean;
             w[k] = 1.0 / fmax(v, floor / g->count[k]);
         }
     } else { /* no variance estimate (a black image, or no render pass): pass counts */
-        w_render = kg->n + kp->n;
+        for (unsigned k = 0; k < KINDS; ++k)
+            w_render += ks[k].n;
         for (int k = 0; k < groups; ++k)
             w[k] = g->count[k];
     }
@@ -264,8 +314,9 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
         double acc = 0.0;
         if (mean)
             acc = w_render * mean[i];
-        else if (w_render > 0.0) /* pass counts: the render passes' plain mean */
-            acc = kg->rgb[i] + kp->rgb[i];
+        else /* pass counts: the render passes' plain mean */
+            for (unsigned k = 0; k < KINDS; ++k)
+                acc += ks[k].rgb[i];
         for (int k = 0; k < groups; ++k)
             acc += w[k] * g->sum[k][i] / g->count[k];
         img->data[i] = total > 0.0 ? (float)(acc / total) : 0.0f;
@@ -274,33 +325,41 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
     return train_share;
 }
 
-/* Measures both kinds of render pass for nf_guide_choose_pass: passes, CPU seconds and
- * relative variance (guided: its passes' spread; plain: plain path tracing's moments as every
- * pass tells them), the same on every rank (each rank's pixels are its own: their sums add).
- * Collective. */
-static int measure_kinds(pass_sums *ps, nf_pass_measure *m, tr_error *err)
+/* Measures every kind of render pass for nf_guide_choose_depth and nf_guide_choose_pass
+ * (m[c] for guided candidate c, m[PLAIN]): passes, CPU seconds and relative variance (every
+ * depth: its passes' spread; plain path tracing and the shallower kinds: their moments as
+ * the passes that guide deeper tell them), the same on every rank (each rank's pixels are
+ * its own: their sums add). Collective. */
+static int measure_kinds(pass_sums *ps, nf_pass_measure m[KINDS], tr_error *err)
 {
     const kind_sums *kinds = ps->kind;
-    double v[2] = {0.0, 0.0};
+    double v[KINDS] = {0.0};
     sums_reference(ps);
-    for (int k = 0; k < 2; ++k) {
+    for (unsigned k = 0; k < KINDS; ++k) {
         m[k].passes = (uint32_t)kinds[k].n;
         m[k].seconds = kinds[k].cpu;
     }
-    /* A non-finite pixel fails the estimate; pass_pixel keeps them out, so never. */
-    if (kinds[0].n > 0 &&
-        nf_guide_pass_variance(ps->pixels, kinds[0].lum, kinds[0].sq, (uint32_t)kinds[0].n, ps->ref,
-                               METRIC_EPSILON, &v[0]) != NF_OK)
+    /* Every depth from its own passes, the other kinds from the moments of the passes that
+     * measure them (sums_pool). A non-finite pixel fails an estimate; pass_pixel keeps them
+     * out, so never. */
+    if (kinds[0].n > 0 && nf_guide_pass_variance(ps->pixels, kinds[0].lum, kinds[0].sq,
+                                                 (uint32_t)kinds[0].n, ps->ref, METRIC_EPSILON,
+                                                 &v[0]) != NF_OK)
         v[0] = 0.0;
-    int pooled = sums_plain_pool(ps);
-    if (pooled > 0 && nf_guide_pass_variance(ps->pixels, ps->pool, ps->pool2, (uint32_t)pooled,
-                                             ps->ref, METRIC_EPSILON, &v[1]) != NF_OK)
-        v[1] = 0.0;
+    for (unsigned k = 1; k < KINDS; ++k) {
+        if (k < PLAIN && kinds[k].n == 0)
+            continue;
+        int pooled = sums_pool(ps, k == PLAIN ? 0 : (int)k);
+        if (pooled > 0 && nf_guide_pass_variance(ps->pixels, ps->pool, ps->pool2,
+                                                 (uint32_t)pooled, ps->ref, METRIC_EPSILON,
+                                                 &v[k]) != NF_OK)
+            v[k] = 0.0;
+    }
     /* Each rank's mean covers its pixels (the others are zero): the ranks' means add. */
-    if (!ranks_sum_f64(v, 2, err))
+    if (!ranks_sum_f64(v, KINDS, err))
         return 0;
-    m[0].variance = v[0];
-    m[1].variance = v[1];
+    for (unsigned k = 0; k < KINDS; ++k)
+        m[k].variance = v[k];
     return 1;
 }
 
@@ -324,7 +383,7 @@ static int report_training_ratio(nf_guide *guide, pass_sums *ps, const image *pa
         v[0] = 0.0;
     if (!ranks_sum_f64(v, 2, err))
         return 0;
-    const nf_pass_measure *pm = &measured[NF_PASS_PLAIN];
+    const nf_pass_measure *pm = &measured[PLAIN];
     double plain = pm->passes ? pm->variance * pm->seconds / pm->passes : 0.0;
     *ratio = NAN;
     if (pm->passes < 2 || !(plain > 0.0))
@@ -418,7 +477,7 @@ static int train_on_pass(nf_guide *g, sample_arrays *a, const record_buffer *rec
 
 /* What rank 0 decides before a pass, the same for every rank. */
 typedef struct pass_plan {
-    int32_t stop_training, stopped_early, stop, kind;
+    int32_t stop_training, stopped_early, stop, kind, depth;
 } pass_plan;
 
 int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, image *img,
@@ -436,14 +495,16 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
     memset(rep, 0, sizeof *rep);
     memset(&groups, 0, sizeof groups);
     memset(&arrays, 0, sizeof arrays);
-    rep->ratio = rep->train_ratio = NAN;
+    rep->ratio = rep->train_ratio = rep->depth_ratio = NAN;
+    rep->depth = t->guide_depth;
+    rep->depth_fixed = t->guide_depth != 0;
     groups.n = 3 * pixels;
     groups.per_group = 1;
     /* Every step of the setup may fail on one rank only: the ranks agree before going on. */
     int ready =
         image_alloc(img, s->width, s->height, err) && image_alloc(&pass, s->width, s->height, err);
     int summed = sums_alloc(&sums, pixels);
-    moment = calloc(pixels, sizeof *moment);
+    moment = calloc(PATH_MOMENTS * pixels, sizeof *moment);
     ready = ready && ((summed && moment) || tr_fail(err, "out of memory for the image sums"));
     /* The BSDF prior's callbacks find each training sample's material in its payload. */
     if (ready && guide && t->bsdf_prior &&
@@ -455,35 +516,48 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
         goto done;
 
     const double end = bs->start + bs->seconds;
-    double last_pass = 0.0, last_kind[2] = {0.0, 0.0};
-    nf_pass_measure measured[2];
+    double last_pass = 0.0, last_kind[KINDS] = {0.0};
+    nf_pass_measure measured[KINDS];
     memset(measured, 0, sizeof measured);
     int training = guide != NULL && nf_guide_get_config(guide)->train_fraction > 0.0f;
     /* With the choice of passes, two plain passes come first: training measures itself
      * against them (nf_guide_report_training_ratio). */
     const int choosing = guide != NULL && nf_guide_get_config(guide)->pass_choice;
     const int plain_first = training && choosing ? 2 : 0;
+    /* A depth the user fixed (--variant guide-depth) holds for every guided pass, training
+     * too, and its passes are kind 0; otherwise the guide chooses it for render passes. */
+    const int fixed_depth = t->guide_depth;
     uint32_t k = 0;
     for (;; ++k) {
         double t0 = now_seconds(), c0 = cpu_seconds();
         /* Rank 0's clock decides; the held-out loss (the guide's patience) and the measures
          * are the same on every rank. */
-        pass_plan plan = {0, 0, 0, guide ? NF_PASS_GUIDED : NF_PASS_PLAIN};
+        pass_plan plan = {0, 0, 0, guide ? 0 : (int32_t)PLAIN, fixed_depth};
         if (training && !nf_guide_keep_training(guide, t0 - bs->start, bs->seconds)) {
             plan.stop_training = 1;
             plan.stopped_early = nf_guide_keep_training(guide, t0 - bs->start, 0.0) == 0;
         }
         if (guide && (!training || plan.stop_training)) {
+            /* How deep a guided pass would guide, then guided against plain with that kind's
+             * measure. */
+            nf_depth_choice depth = {0u, (uint32_t)fixed_depth, NAN};
             nf_pass_choice choice;
-            if (nf_guide_choose_pass(guide, measured, &choice) != NF_OK) {
+            if ((!fixed_depth && nf_guide_choose_depth(guide, measured, &depth) != NF_OK) ||
+                nf_guide_choose_pass(guide,
+                                     (nf_pass_measure[2]){measured[depth.candidate],
+                                                          measured[PLAIN]},
+                                     &choice) != NF_OK) {
                 tr_fail(err, "%s", nf_last_error_message());
                 goto done;
             }
-            plan.kind = (int32_t)choice.kind;
+            plan.kind = choice.kind == NF_PASS_GUIDED ? (int32_t)depth.candidate : (int32_t)PLAIN;
+            plan.depth = (int32_t)depth.depth;
             rep->ratio = choice.ratio;
             rep->explored += choice.exploring;
-        } else if (training && sums.kind[NF_PASS_PLAIN].n < plain_first) {
-            plan.kind = NF_PASS_PLAIN;
+            rep->depth_ratio = depth.ratio;
+            rep->depth = (int)depth.depth;
+        } else if (training && sums.kind[PLAIN].n < plain_first) {
+            plan.kind = PLAIN;
         }
         /* Stop before a pass that would overrun (its time: the last pass of its kind, or of
          * any kind). A budget too short for a single pass still renders one. */
@@ -497,18 +571,20 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
         }
         if (plan.stop)
             break;
-        const int train_pass = training && plan.kind == NF_PASS_GUIDED;
+        const int guided = plan.kind != (int32_t)PLAIN, train_pass = training && guided;
         const nf_model *m = NULL;
-        if (plan.kind == NF_PASS_GUIDED && guide && nf_guide_acquire(guide, &m) != NF_OK) {
+        if (guided && guide && nf_guide_acquire(guide, &m) != NF_OK) {
             tr_fail(err, "%s", nf_last_error_message());
             goto done;
         }
         t->model = m; /* every thread of the pass samples this one; NULL: a plain pass */
+        t->guide_depth = plan.depth;
         int rendered = render_pass(t, bs->seed, PASS_STREAM_BASE + k, bs->threads, &pass, moment,
                                    train_pass ? &records : NULL, &rep->stats, err);
         if (m)
             nf_guide_release(guide, m);
         t->model = NULL;
+        t->guide_depth = fixed_depth;
         if (!ranks_agree(rendered, err))
             goto done;
         double t1 = now_seconds(), c1 = cpu_seconds();
@@ -548,24 +624,39 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
             rep->render_cpu_seconds += cpu;
         }
     }
-    /* The measures of both kinds, as the last choice saw them and after it. */
+    /* The measures of every kind, as the last choice saw them and after it; the guided
+     * kinds' sums are the report's guided passes. */
     if (!measure_kinds(&sums, measured, err))
         goto done;
-    for (int i = 0; i < 2; ++i) {
-        rep->kind_passes[i] = sums.kind[i].n;
-        rep->kind_cpu_seconds[i] = sums.kind[i].cpu;
-        rep->kind_variance[i] = measured[i].variance;
+    for (unsigned i = 0; i < KINDS; ++i) {
+        int r = i == PLAIN ? NF_PASS_PLAIN : NF_PASS_GUIDED;
+        if (i < PLAIN) {
+            rep->depth_passes[i] = sums.kind[i].n;
+            rep->depth_cpu_seconds[i] = sums.kind[i].cpu;
+            rep->depth_variance[i] = measured[i].variance;
+        }
+        rep->kind_passes[r] += sums.kind[i].n;
+        rep->kind_cpu_seconds[r] += sums.kind[i].cpu;
     }
+    rep->kind_variance[NF_PASS_PLAIN] = measured[PLAIN].variance;
+    /* A guided pass's variance: the kinds' weighted by their passes. */
+    for (unsigned i = 0; i < PLAIN && rep->kind_passes[NF_PASS_GUIDED] > 0; ++i)
+        rep->kind_variance[NF_PASS_GUIDED] +=
+            measured[i].variance * sums.kind[i].n / rep->kind_passes[NF_PASS_GUIDED];
     /* Rank 0 receives the ranks' pixels (each rendered by one rank: exact sums) and combines. */
     for (int g = 0; g < groups.ngroups; ++g)
         if (!ranks_sum_doubles_to_root(groups.sum[g], groups.n, err))
             goto done;
-    kind_sums *all[3] = {&sums.train, &sums.kind[0], &sums.kind[1]};
-    for (int i = 0; i < 3; ++i)
+    kind_sums *all[KINDS + 1] = {&sums.train};
+    for (unsigned i = 0; i < KINDS; ++i)
+        all[i + 1] = &sums.kind[i];
+    for (unsigned i = 0; i < KINDS + 1; ++i)
         if (!ranks_sum_doubles_to_root(all[i]->rgb, 3 * pixels, err) ||
             !ranks_sum_doubles_to_root(all[i]->lum, pixels, err) ||
             !ranks_sum_doubles_to_root(all[i]->sq, pixels, err) ||
-            !ranks_sum_doubles_to_root(all[i]->m2, pixels, err))
+            !ranks_sum_doubles_to_root(all[i]->m2[0], pixels, err) ||
+            !ranks_sum_doubles_to_root(all[i]->m2[1], pixels, err) ||
+            !ranks_sum_doubles_to_root(all[i]->m2[2], pixels, err))
             goto done;
     if (!ranks_sum_u64((uint64_t *)&rep->stats, sizeof rep->stats / sizeof(uint64_t), err) ||
         !ranks_sum_u64(&rep->samples, 1, err))

@@ -9,13 +9,15 @@
  *      guide, which trains after each pass (nisflow/guide.h: its store, its steps, its
  *      schedule), and their radiance is kept, not thrown away;
  *   2. render passes with the model frozen, each guided or plain as nf_guide_choose_pass
- *      says, until the next pass would overrun the budget.
- * Every pass also writes its paths' estimates of plain path tracing's second moment
- * (nf_plain_moment), which measure plain passes. Training stops when the guide says
- * (nf_guide_keep_training: its share of the budget, the held-out loss's patience, or the
- * training passes' ratio to a plain pass). The image is the inverse-variance combination of
- * the training passes (grouped) and the render passes of both kinds, per pixel
- * (docs/tracer.md, "The time budget"). Without a guide every pass is a plain render pass.
+ *      says, a guided one guiding as deep as nf_guide_choose_depth says, until the next pass
+ *      would overrun the budget.
+ * Every pass also writes its paths' estimates of the second moments of plain path tracing and
+ * of guiding less deep than the pass (nf_plain_moment, nf_depth_moment), which measure those
+ * kinds. Training stops when the guide says (nf_guide_keep_training: its share of the
+ * budget, the held-out loss's patience, or the training passes' ratio to a plain pass). The
+ * image is the inverse-variance combination of the training passes (grouped) and the render
+ * passes of every kind, one weight per kind (docs/tracer.md, "The time budget"). Without a
+ * guide every pass is a plain render pass.
  */
 #ifndef TRACER_BUDGET_H
 #define TRACER_BUDGET_H
@@ -42,12 +44,22 @@ typedef struct budget_report {
     double step_seconds;       /* of which optimizer steps                                  */
     double render_seconds;
     double render_cpu_seconds; /* CPU time of the render passes, all threads                */
-    /* The render passes by kind, [NF_PASS_GUIDED] and [NF_PASS_PLAIN] (nisflow/guide.h): */
+    /* The render passes by kind, [NF_PASS_GUIDED] and [NF_PASS_PLAIN] (nisflow/guide.h); a
+     * guided pass's variance is its kinds' weighted by their passes:                       */
     int kind_passes[2];
     double kind_cpu_seconds[2];
     double kind_variance[2];   /* relative variance of one pass (nf_guide_pass_variance)    */
     double ratio;              /* the last choice's guided / plain variance x cost; NaN:
                                 * none made (no guide, or too few passes)                   */
+    /* The guided render passes by the guide's depth candidates (nf_guide_depth_of), summed
+     * in kind_*[NF_PASS_GUIDED]; with a fixed depth (depth_fixed), all of them in [0]:       */
+    int depth_passes[NF_GUIDE_DEPTHS];
+    double depth_cpu_seconds[NF_GUIDE_DEPTHS];
+    double depth_variance[NF_GUIDE_DEPTHS];
+    int depth;                 /* the depth of the last choice, 0: every depth             */
+    int depth_fixed;           /* the user fixed it (tracer.h guide_depth)                 */
+    double depth_ratio;        /* the last choice's variance x cost over every depth's; NaN:
+                                * none made                                                 */
     int explored;              /* guided passes kept while plain ones measured better       */
     double train_ratio;        /* the last training pass's guided / plain variance x cost   */
     double seconds;            /* the whole job                                             */

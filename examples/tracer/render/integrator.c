@@ -418,24 +418,35 @@ static int scatter_plan(vertex_plan *vp, rng *r)
     return 1;
 }
 
-/* Adds radiance `value` found with MIS weight w to the path's estimate, and with weight
- * w_plain, the one plain path tracing gives it (its scattered directions weighed by the
- * BSDF's density), to what the path says of plain path tracing's second moment. */
+/* Adds a contribution c (throughput times radiance, RGB) that the technique of the vertex
+ * `vertex_depth` deep found, with MIS weight w as the path weighs it and w_plain as plain
+ * path tracing does (its scattered directions weighed by the BSDF's density), to what the
+ * path says of each policy's second moment: a policy that guides the vertex weighs it as the
+ * path does, one that does not as plain path tracing. */
+static void moments_add(path_state *ps, int vertex_depth, rgb c, float w, float w_plain)
+{
+    if (!ps->guided) /* a plain path's moments are its square (path_moments) */
+        return;
+    float l = (c.r + c.g + c.b) / 3.0f;
+    nf_depth_moment_add(ps->moments, (size_t)ps->nmoments, (uint32_t)vertex_depth, w * l,
+                        w_plain * l);
+}
+
+/* Adds radiance `value` found with MIS weight w (w_plain: plain path tracing's) after the
+ * scattered direction of the vertex before this one, to the path's estimate and moments. */
 static void path_add(path_state *ps, rgb value, float w, float w_plain)
 {
     ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, rgb_scale(value, w)));
-    if (!ps->guided) /* a plain path's moment is its square (path_moment) */
-        return;
-    rgb c = rgb_mul(ps->throughput, value);
-    nf_plain_moment_add(&ps->plain, w_plain * (c.r + c.g + c.b) / 3.0f);
+    moments_add(ps, ps->depth - 1, rgb_mul(ps->throughput, value), w, w_plain);
 }
 
-/* What the path says of plain path tracing's second moment: a guided path's nf_plain_moment,
- * a plain path's squared luminance. */
-static float path_moment(const path_state *ps)
+/* What the path says of each policy's second moment (path_state.moments): a guided path's
+ * estimates, a plain path's squared luminance. */
+static void path_moments(const path_state *ps, float *out)
 {
     float l = (ps->L.r + ps->L.g + ps->L.b) / 3.0f;
-    return ps->guided ? ps->plain.moment : l * l;
+    for (int k = 0; k < PATH_MOMENTS; ++k)
+        out[k] = k < ps->nmoments ? ps->moments[k].moment : l * l;
 }
 
 /* The MIS weights of emission found after a scattered direction whose light-sampling density
@@ -469,8 +480,8 @@ static int plan_light_and_scatter(const tracer *t, path_state *ps, rng *r, path_
         if (!(rng_next(r) < q))
             return 1; /* scatters = 0: the light sample still counts */
         vp->rr = 1.0f / q;
-        if (ps->guided)
-            nf_plain_moment_roulette(&ps->plain, &t->policy, rgb_max(ps->throughput), q);
+        nf_depth_moment_roulette(ps->moments, (size_t)ps->nmoments, &t->policy, (uint32_t)depth,
+                                 rgb_max(ps->throughput), q);
     }
     vp->scatters = scatter_plan(vp, r);
     if (!vp->scatters)
@@ -706,8 +717,8 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         ps->L = rgb_add(ps->L, rgb_mul(ps->throughput, d));
         if (ps->guided) {
             float w_plain = q->light ? power_heuristic(vp->nee_light_pdf, vp->nee_p_bsdf) : w;
-            rgb c = rgb_mul(ps->throughput, vp->nee_value);
-            nf_plain_moment_add(&ps->plain, w_plain / vp->nee_light_pdf * (c.r + c.g + c.b) / 3.0f);
+            rgb c = rgb_scale(rgb_mul(ps->throughput, vp->nee_value), 1.0f / vp->nee_light_pdf);
+            moments_add(ps, ps->depth, c, w, w_plain);
         }
         if (v)
             put_rgb(v->direct, d);
@@ -724,7 +735,8 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         weight = vp->delta_weight;
         if (g > 0.0f) { /* the BSDF technique ran with probability 1 - g */
             ps->boost = nf_guide_boost(ps->boost, 0.0f, 0.0f, g);
-            nf_plain_moment_scatter(&ps->plain, 0.0f, 0.0f, g);
+            nf_depth_moment_scatter(ps->moments, (size_t)ps->nmoments, (uint32_t)ps->depth, 0.0f,
+                                    0.0f, g);
         }
     } else {
         if (vp->flow_chosen)
@@ -738,7 +750,8 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
         weight = rgb_scale(f, 1.0f / p_weight);
         if (g > 0.0f) {
             ps->boost = nf_guide_boost(ps->boost, p_bsdf, p_weight, g);
-            nf_plain_moment_scatter(&ps->plain, p_bsdf, p_weight, g);
+            nf_depth_moment_scatter(ps->moments, (size_t)ps->nmoments, (uint32_t)ps->depth,
+                                    p_bsdf, p_weight, g);
         }
     }
     if (!rgb_is_finite(weight) || rgb_is_black(weight))
@@ -792,7 +805,17 @@ static void path_start(const tracer *t, float px, float py, path_state *ps)
     ps->depth = 0;
     ps->boost = 1.0f;
     ps->medium = s->camera_medium;
-    nf_plain_moment_start(&ps->plain);
+    /* Each moment costs its steps at every vertex: a path estimates only the policies that
+     * guide less deep than it does (plain path tracing's whenever it is guided). Their depths
+     * grow with k, so those are the first nmoments. */
+    ps->nmoments = 0;
+    for (int k = 0; ps->guided && k < PATH_MOMENTS; ++k) {
+        uint32_t d = k ? nf_guide_depth_of((uint32_t)k) : 0u;
+        if (d && t->guide_depth && (int)d >= t->guide_depth)
+            break;
+        nf_depth_moment_start(&ps->moments[k], d);
+        ps->nmoments = k + 1;
+    }
 }
 
 rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records, path_stats *st)
@@ -824,7 +847,7 @@ rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer
     if (pr)
         recorder_close(t, pr, film_pixel(t->s, px, py), records, st);
     if (moment)
-        *moment = path_moment(&ps);
+        path_moments(&ps, moment);
     return ps.L;
 }
 
@@ -948,7 +971,8 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
     if (!trace_paths_pay(t) || (records && !pr)) { /* the same bits, one path at a time */
         for (size_t i = 0; i < n; ++i)
             out[i] =
-                trace_path_moment(t, &r[i], px[i], py[i], records, st, moment ? &moment[i] : NULL);
+                trace_path_moment(t, &r[i], px[i], py[i], records, st,
+                                  moment ? &moment[PATH_MOMENTS * i] : NULL);
         return;
     }
     for (size_t i = 0; i < n; ++i) {
@@ -979,7 +1003,7 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
     for (size_t i = 0; i < n; ++i) {
         out[i] = ps[i].L;
         if (moment)
-            moment[i] = path_moment(&ps[i]);
+            path_moments(&ps[i], &moment[PATH_MOMENTS * i]);
         if (pr) /* in path order, as n calls of trace_path append them */
             recorder_close(t, &pr[i], film_pixel(t->s, px[i], py[i]), records, st);
     }

@@ -60,6 +60,9 @@ int record_buffer_append(record_buffer *dst, const record_buffer *src);
 
 /* Counters for throughput figures; each thread keeps its own and they are summed. Every field
  * is a uint64_t counter: the MPI ranks sum them as an array (nf_tracer.c, budget.c). */
+/* The second moments a path estimates (path_state.moments). */
+#define PATH_MOMENTS ((int)NF_GUIDE_DEPTHS)
+
 typedef struct path_stats {
     uint64_t paths, rays, guided_vertices, nf_errors;
     uint64_t camera_backfaces; /* camera rays that hit the black back of a one-sided material */
@@ -84,8 +87,13 @@ typedef struct path_state {
                         * and roulette (nf_guide_mixture_prob, nf_guide_roulette_survival)  */
     int guided;        /* the tracer has a model: the path may be guided                  */
     int medium;        /* the medium the ray ry travels in (scene.media); -1: vacuum      */
-    nf_plain_moment plain; /* what a guided path says of plain path tracing's second moment
-                            * (nisflow/guide.h), which budget.h's choice of passes reads   */
+    /* What a guided path says of the second moments of the policies that guide less than
+     * it does (nisflow/guide.h, nf_depth_moment), which budget.h's choices of passes read:
+     * [0] plain path tracing's (depth 0, nf_plain_moment's), [c] for c >= 1 that of the
+     * guide's depth candidate c (nf_guide_depth_of). */
+    nf_depth_moment moments[PATH_MOMENTS];
+    int nmoments; /* the first nmoments are estimated: those of policies that guide less deep
+                   * than the path; the others are the path's own, or not its to measure    */
 } path_state;
 
 /* Traces the path through film position (px, py) and returns its radiance estimate.
@@ -94,8 +102,11 @@ typedef struct path_state {
 rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
                path_stats *stats);
 
-/* trace_path, and with moment != NULL *moment receives the path's estimate of plain path
- * tracing's second moment of the pixel's luminance (nf_plain_moment). */
+/* trace_path, and with moment != NULL moment[0..PATH_MOMENTS) receive the path's estimates
+ * of the second moments of the pixel's luminance under the policies of path_state.moments:
+ * plain path tracing's, then the guide's depth candidates'. A path estimates a depth's only
+ * when it guides at least that deep (t->guide_depth 0 or larger); the others hold its own
+ * squared luminance, which budget.c does not read. */
 rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer *records,
                       path_stats *stats, float *moment);
 
@@ -124,8 +135,8 @@ void trace_scratch_free(trace_scratch *scratch);
  * (docs/performance.md). Models with a custom prior are asked at shading points. With
  * records != NULL the paths' vertices are kept in *scratch (about 170 bytes per vertex, up to
  * the scene's max_depth vertices per path); when it cannot grow, the paths are traced one at
- * a time (the same bits). With moment != NULL, moment[i] receives path i's estimate of plain
- * path tracing's second moment (trace_path_moment). Uses about 170 KiB of stack (360 bytes of
+ * a time (the same bits). With moment != NULL, moment[PATH_MOMENTS i + k] receives path i's
+ * estimates of second moments (trace_path_moment). Uses about 185 KiB of stack (360 bytes of
  * plan per path). */
 void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float *py, rgb *out,
                  float *moment, record_buffer *records, trace_scratch *scratch,

@@ -171,25 +171,28 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
 typedef struct pass_job {
     job_common c;
     image *img;
-    float *moment; /* NULL, or per pixel: plain path tracing's second moment (trace_paths) */
+    float *moment; /* NULL, or PATH_MOMENTS planes of one float per pixel: the paths' second
+                    * moments (trace_paths) */
     uint64_t seed;
     uint32_t pass;
 } pass_job;
 
 /* One pixel's sample of a pass, written into the pass image (and its moment). */
-static void pass_pixel(pass_job *job, int x, int y, rgb c, float moment)
+static void pass_pixel(pass_job *job, int x, int y, rgb c, const float *moment)
 {
-    if (!rgb_is_finite(c)) { /* as in render_tile: a NaN must not poison the pixel */
+    const int finite = rgb_is_finite(c);
+    if (!finite) /* as in render_tile: a NaN must not poison the pixel */
         c = rgb_gray(0.0f);
-        moment = 0.0f;
-    }
     float *p = image_pixel(job->img, x, y);
     p[0] = c.r;
     p[1] = c.g;
     p[2] = c.b;
-    if (job->moment)
-        job->moment[(size_t)y * (size_t)job->img->width + (size_t)x] =
-            isfinite(moment) ? moment : 0.0f;
+    if (!job->moment)
+        return;
+    size_t pixels = (size_t)job->img->width * (size_t)job->img->height;
+    size_t i = (size_t)y * (size_t)job->img->width + (size_t)x;
+    for (int k = 0; k < PATH_MOMENTS; ++k)
+        job->moment[k * pixels + i] = finite && isfinite(moment[k]) ? moment[k] : 0.0f;
 }
 
 /* Traces n gathered paths together and writes their pixels (and their records to out). */
@@ -197,11 +200,11 @@ static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float 
                        const float *py, int (*at)[2], record_buffer *out)
 {
     rgb c[TRACE_BATCH];
-    float m[TRACE_BATCH];
+    float m[PATH_MOMENTS * TRACE_BATCH];
     trace_paths(job->c.t, n, r, px, py, c, m, out, &job->c.scratch[thread],
                 &job->c.stats[thread].s);
     for (size_t i = 0; i < n; ++i)
-        pass_pixel(job, at[i][0], at[i][1], c[i], m[i]);
+        pass_pixel(job, at[i][0], at[i][1], c[i], &m[PATH_MOMENTS * i]);
 }
 
 /* A guided pass traces its tile's paths TRACE_BATCH at a time (trace_paths: the flow's
@@ -225,9 +228,9 @@ static void pass_tile(void *user, size_t k, int thread)
             rng pr = rng_seed(job->seed, RNG_RENDER, job->pass, pixel);
             float jx = rng_next(&pr), jy = rng_next(&pr);
             if (!batched) {
-                float m = 0.0f;
+                float m[PATH_MOMENTS] = {0.0f};
                 rgb c = trace_path_moment(job->c.t, &pr, (float)x + jx, (float)y + jy, out,
-                                          &job->c.stats[thread].s, &m);
+                                          &job->c.stats[thread].s, m);
                 pass_pixel(job, x, y, c, m);
                 continue;
             }
@@ -251,7 +254,8 @@ int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, imag
     pass_job job = {{0}, img, moment, seed, pass};
     clear_for_ranks(t, img);
     if (moment && t->ranks > 1)
-        memset(moment, 0, (size_t)img->width * (size_t)img->height * sizeof *moment);
+        memset(moment, 0,
+               PATH_MOMENTS * (size_t)img->width * (size_t)img->height * sizeof *moment);
     return run_job(&job.c, t, tile_count(t), threads, pass_tile, &job, records, NULL, stats, NULL,
                    err);
 }

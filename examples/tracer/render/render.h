@@ -24,8 +24,9 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
 
 /* Renders one path per pixel into img (overwriting it; the scene's resolution; with
  * t->ranks > 1 only this rank's tiles, the others black, as render_image) with the random
- * streams of `pass`. With moment != NULL (one float per pixel, row-major), each pixel's path
- * also writes its estimate of plain path tracing's second moment there (trace_path_moment).
+ * streams of `pass`. With moment != NULL (PATH_MOMENTS planes of one float per pixel,
+ * row-major), each pixel's path also writes its estimates of second moments there, plane k
+ * its moment[k] (trace_path_moment).
  * With records != NULL, replaces its contents with the training records of those paths, in
  * tile order (the same whatever the number of threads). The passes of a time-budgeted render
  * (budget.h) are these. */

@@ -172,8 +172,8 @@ static void check_batched_pass_in(const char *scene_name, guide_prior prior,
     record_buffer records_one = {0}, records_batched = {0};
     path_stats st_one = {0}, st_batched = {0}, st_recorded = {0};
     size_t pixels = (size_t)s.width * (size_t)s.height;
-    float *moment_one = calloc(pixels, sizeof(float)),
-          *moment_batched = calloc(pixels, sizeof(float));
+    float *moment_one = calloc(PATH_MOMENTS * pixels, sizeof(float)),
+          *moment_batched = calloc(PATH_MOMENTS * pixels, sizeof(float));
     assert_non_null(moment_one);
     assert_non_null(moment_batched);
     assert_true(render_pass(&one_by_one, 7, 3, 2, &one, moment_one, &records_one, &st_one, &err));
@@ -182,10 +182,11 @@ static void check_batched_pass_in(const char *scene_name, guide_prior prior,
     assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, NULL, &err));
     size_t bytes = pixels * 3u * sizeof(float);
     assert_memory_equal(one.data, batched.data, bytes);
-    /* The paths' estimates of plain path tracing's second moment too, and they say something. */
-    assert_memory_equal(moment_one, moment_batched, pixels * sizeof(float));
+    /* The paths' estimates of plain path tracing's and the depth candidates' second moments
+     * too, and they say something. */
+    assert_memory_equal(moment_one, moment_batched, PATH_MOMENTS * pixels * sizeof(float));
     double moments = 0.0;
-    for (size_t i = 0; i < pixels; ++i)
+    for (size_t i = 0; i < PATH_MOMENTS * pixels; ++i)
         moments += moment_one[i];
     assert_true(moments > 0.0);
     free(moment_one);
