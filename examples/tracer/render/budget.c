@@ -650,14 +650,15 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
     kind_sums *all[KINDS + 1] = {&sums.train};
     for (unsigned i = 0; i < KINDS; ++i)
         all[i + 1] = &sums.kind[i];
-    for (unsigned i = 0; i < KINDS + 1; ++i)
+    for (unsigned i = 0; i < KINDS + 1; ++i) {
         if (!ranks_sum_doubles_to_root(all[i]->rgb, 3 * pixels, err) ||
             !ranks_sum_doubles_to_root(all[i]->lum, pixels, err) ||
-            !ranks_sum_doubles_to_root(all[i]->sq, pixels, err) ||
-            !ranks_sum_doubles_to_root(all[i]->m2[0], pixels, err) ||
-            !ranks_sum_doubles_to_root(all[i]->m2[1], pixels, err) ||
-            !ranks_sum_doubles_to_root(all[i]->m2[2], pixels, err))
+            !ranks_sum_doubles_to_root(all[i]->sq, pixels, err))
             goto done;
+        for (int m = 0; m < PATH_MOMENTS; ++m)
+            if (!ranks_sum_doubles_to_root(all[i]->m2[m], pixels, err))
+                goto done;
+    }
     if (!ranks_sum_u64((uint64_t *)&rep->stats, sizeof rep->stats / sizeof(uint64_t), err) ||
         !ranks_sum_u64(&rep->samples, 1, err))
         goto done;
