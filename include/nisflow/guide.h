@@ -411,7 +411,7 @@ NF_API uint32_t nf_guide_depth_of(uint32_t candidate);
  * same vertices as the depth-D policy up to D; beyond, R takes the step from the path's
  * mixture to BSDF sampling, and roulette the depth-D policy's survival (its boost frozen at
  * depth D). A path keeps one nf_depth_moment per policy it measures, in an array that each
- * call below updates at once: start each with its policy's depth D >= 1, then call scatter and
+ * call below updates at once: start each with its policy's depth D, then call scatter and
  * roulette at every vertex with the vertex's depth (the first vertex is 1) where the path
  * calls nf_guide_boost and nf_guide_roulette_survival, and add every contribution. A path
  * guided up to exactly D gives its squared luminance. D = 0 is nf_plain_moment's plain path
@@ -459,8 +459,8 @@ typedef struct nf_depth_choice {
 /* Which kind of guided pass to render next, from the measures of the guided render passes of
  * each kind (measured[c] for candidate c, as nf_pass_measure of NF_PASS_GUIDED): first two
  * passes of each kind, in candidate order; then the kind with the lowest variance x cost per
- * pass (ties: the lower candidate, deeper guiding). Its measure is the NF_PASS_GUIDED one to
- * give nf_guide_choose_pass. With pass_choice 0, always candidate 0 (every depth). Depends
+ * pass (ties: the lower candidate, so every depth first). Its measure is the NF_PASS_GUIDED
+ * one to give nf_guide_choose_pass. With pass_choice 0, always candidate 0 (every depth). Depends
  * only on the arguments and the configuration, as nf_guide_choose_pass.
  * Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not finite); *out is then
  * unchanged. Thread-safe. */
