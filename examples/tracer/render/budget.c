@@ -213,16 +213,21 @@ static int kind_measures(unsigned k, int m)
  * policy by its own values. Returns the passes. */
 static int sums_pool(pass_sums *ps, int m)
 {
+    /* The kinds that measure m, decided once: the pixel loop runs after every pass. */
+    const kind_sums *from[KINDS];
+    unsigned nk = 0;
     int n = ps->train.n;
     for (unsigned k = 0; k < KINDS; ++k)
-        n += kind_measures(k, m) ? ps->kind[k].n : 0;
+        if (kind_measures(k, m) && ps->kind[k].n > 0) {
+            from[nk++] = &ps->kind[k];
+            n += ps->kind[k].n;
+        }
     for (size_t i = 0; i < ps->pixels; ++i) {
         double l = ps->train.lum[i], m2 = ps->train.m2[m][i];
-        for (unsigned k = 0; k < KINDS; ++k)
-            if (kind_measures(k, m)) {
-                l += ps->kind[k].lum[i];
-                m2 += ps->kind[k].m2[m][i];
-            }
+        for (unsigned k = 0; k < nk; ++k) {
+            l += from[k]->lum[i];
+            m2 += from[k]->m2[m][i];
+        }
         ps->pool[i] = l;
         ps->pool2[i] = m2;
     }
