@@ -313,12 +313,13 @@ int write_json(const options *o, const char *cpu, long nproc, const preset_info 
                 "\"forward_flops_dense\": %.0f, \"train_flops\": %.0f, "
                 "\"prepare_flops\": %.0f, \"point_direction_flops\": %.0f, "
                 "\"sharded_gradient_rel_diff\": %.2e, \"point_check_inputs\": %zu, "
-                "\"point_check_mismatches\": %zu, \"kernels\": \"%s\"}",
+                "\"point_check_mismatches\": %zu, \"point_check_worst_pdf_rel_diff\": %.2e, "
+                "\"kernels\": \"%s\"}",
                 pi ? "," : "", p->name, p->cfg.coupling_layers, p->cfg.spline_bins,
                 p->cfg.hidden_layers, p->cfg.hidden_width, p->params, p->model_bytes,
                 p->flops_sparse, p->flops_dense, 3.0 * p->flops_sparse,
                 flops_per_sample(p, OP_PREPARE), flops_per_sample(p, OP_POINT_SAMPLE),
-                p->shard_check, p->point_checked, p->point_mismatches, p->isa);
+                p->shard_check, p->point_checked, p->point_mismatches, p->point_worst, p->isa);
     }
     fprintf(f, "\n  ],\n  \"results\": [");
     int first = 1;

@@ -275,9 +275,10 @@ int check_sharding(const nf_model *m, const bench_data *d, size_t n, size_t p, d
 }
 
 /* Compared with memcmp, not ==, so that a difference in the last bit, or in a NaN, counts. */
-int check_points(const nf_model *m, bench_data *d, size_t n, size_t *mismatches)
+int check_points(const nf_model *m, bench_data *d, size_t n, size_t *mismatches, double *worst)
 {
     *mismatches = 0;
+    *worst = 0.0;
     if (report_status(nf_pdf(m, n, d->ctx, d->light_dir, d->out_pdf2), "nf_pdf") != 0)
         return -1;
     _Alignas(64) nf_shading_point sp;
@@ -293,6 +294,9 @@ int check_points(const nf_model *m, bench_data *d, size_t n, size_t *mismatches)
             memcmp(&pdf, d->out_pdf + i, sizeof pdf) != 0 ||
             memcmp(&pdf2, d->out_pdf2 + i, sizeof pdf2) != 0)
             ++*mismatches;
+        double a = fabs((double)pdf - d->out_pdf[i]) / d->out_pdf[i];
+        double b = fabs((double)pdf2 - d->out_pdf2[i]) / d->out_pdf2[i];
+        *worst = fmax(*worst, fmax(a, b));
     }
     return 0;
 }

@@ -58,7 +58,8 @@ typedef struct preset_info {
     double flops_context;    /* the share of flops_sparse that nf_point_prepare does  */
     double shard_check;      /* check_sharding's relative difference                  */
     size_t point_checked;    /* check_points: inputs compared                         */
-    size_t point_mismatches; /* check_points: inputs whose results differ             */
+    size_t point_mismatches; /* check_points: inputs whose results differ in a bit    */
+    double point_worst;      /* check_points: the largest relative density difference */
     const char *isa;         /* the kernel variant the model runs (nf_model_isa_name) */
     nf_config cfg;
 } preset_info;
@@ -85,6 +86,6 @@ int check_sharding(const nf_model *m, const bench_data *d, size_t n, size_t p, d
  * (point.h): for the first n inputs, nf_point_sample(u) against d->dir and d->out_pdf (which
  * the caller has just filled with nf_sample) and nf_point_pdf(light_dir) against nf_pdf.
  * A failed call is an error; *mismatches counts inputs whose results differ in any bit. */
-int check_points(const nf_model *m, bench_data *d, size_t n, size_t *mismatches);
+int check_points(const nf_model *m, bench_data *d, size_t n, size_t *mismatches, double *worst);
 
 #endif /* NF_BENCH_SETUP_H */

@@ -9,7 +9,12 @@
  * the part of every conditioner's first layer that reads them. What remains per direction is
  * the pass-through coordinate's one-blob (three weight rows), the rest of each small MLP, the
  * splines and the map to the sphere. Results are bit-identical to nf_sample / nf_pdf for the
- * same model, context and inputs (on every instruction set: both paths share their code).
+ * same model, context and inputs, except for the two presets on the AVX-512 kernels: there a
+ * path designed for one direction (vectors across units and bins, sums in another order)
+ * agrees with them within a bound, asserted by tests/correctness/test_point.c on randomized
+ * models: densities within 2e-3 relatively (0.2 % of them beyond 1e-4), direction components
+ * within 2e-5. Calls through points agree with each other to the bit on every path.
+ * docs/architecture.md ("Which rule holds where") has the measured figures.
  *
  * The recipe of a guided vertex (docs/integration.md has it in full), two questions per call:
  *
@@ -21,9 +26,9 @@
  *     nf_point_pdf(model, &sp, 2, bsdf_and_light_dirs, p);   both densities
  *
  * One direction's walk through the flow is a chain of dependent arithmetic that leaves most
- * of a core idle; with the AVX-512 kernels a call with two directions walks them in step,
- * interleaved, and costs less than two calls (docs/performance.md has the figures; the other
- * kernels walk them one after the other).
+ * of a core idle; with the AVX-512 kernels and a preset a call with two directions walks them
+ * in step, interleaved, and costs less than two calls (docs/performance.md has the figures;
+ * the other kernels and shapes walk them one after the other).
  *
  * Memory: an nf_shading_point is a plain struct (1,152 bytes on 64-bit targets) that the
  * caller owns (stack, arrays, anything). Nothing is allocated and nothing needs freeing.
@@ -108,8 +113,8 @@ NF_API nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
 /* Draws n directions at the prepared point: u[2i], u[2i+1] in [0,1) (values outside are
  * clamped, as in nf_sample) give dir[3i..3i+2], a unit vector, and, if pdf is not NULL,
  * pdf[i], its solid-angle density (per steradian), clamped to [FLT_MIN, FLT_MAX]. The same
- * bits as nf_sample for the point's context. n = 0 is a no-op.
- * Errors: NF_ERROR_INVALID_ARGUMENT (NULL, an unprepared or corrupted point, a point of
+ * bits as nf_sample for the point's context (within the bound above on the vector path). n = 0 is a
+ * no-op. Errors: NF_ERROR_INVALID_ARGUMENT (NULL, an unprepared or corrupted point, a point of
  * another model, NaN or Inf in u) and NF_ERROR_STALE write nothing; NF_ERROR_NUMERIC (a
  * custom prior callback returned an invalid value) may come after earlier directions were
  * written. Thread-safe on a const model and point; never allocates. */
@@ -118,8 +123,10 @@ NF_API nf_status nf_point_sample(const nf_model *m, const nf_shading_point *poin
 
 /* The solid-angle densities of n directions at the prepared point: pdf[i] for dir[3i..3i+2],
  * which must be finite and non-zero (squared length above 1e-30) and is normalized by the
- * library. The same bits as nf_pdf for the point's context. n = 0 is a no-op. Directions go
- * two at a time, walked in step (AVX-512 kernels): n = 2 costs less than two calls of n = 1.
+ * library. The same bits as nf_pdf for the point's context (within the bound above on the
+ * vector path). n = 0 is a no-op. Directions go
+ * two at a time, walked in step (the presets on the AVX-512 kernels): n = 2 costs less than
+ * two calls of n = 1.
  * Errors as nf_point_sample (a bad direction is NF_ERROR_INVALID_ARGUMENT, nothing written).
  * Thread-safe on a const model and point; never allocates. */
 NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n,
@@ -129,8 +136,8 @@ NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, 
  * nf_point_sample with n = 1: dir, and pdf if not NULL) and returns the density of another
  * direction, eval_dir (as nf_point_pdf with n = 1: *eval_pdf), usually the light sample's,
  * for MIS. With the AVX-512 kernels the two walks through the flow run interleaved, which
- * costs less than the two calls (docs/performance.md); the results are the same bits as
- * theirs.
+ * costs less than the two calls (docs/performance.md) for the presets; the results are the
+ * same bits as theirs.
  * Errors: as the two calls; every input is checked before anything is written, and
  * NF_ERROR_NUMERIC (a custom prior callback returned an invalid value) writes nothing either.
  * Thread-safe on a const model and point; never allocates. */

@@ -16,6 +16,7 @@
 #include "internal.h"
 #include "kernels.h"
 #include "point.h"
+#include "point_vector.h"
 
 #ifndef NF_KERNEL_ISA
 #define NF_KERNEL_ISA generic
@@ -41,20 +42,11 @@
 #define NF_NOINLINE
 #endif
 
-/* A pair's two scratches, for the shape `sh` in scope (SHAPE_EXPR's commas keep it out). */
-#define NF_POINT_PAIR_SCRATCH(WORK_FLOATS, PAIRS)                                                  \
-    float work[2][(PAIRS) ? (WORK_FLOATS) : 1];                                                    \
-    nf_point_scratch sc[2];                                                                        \
-    nf_point_scratch_in(work[0], sh, &sc[0]);                                                      \
-    nf_point_scratch_in(work[1], sh, &sc[1])
-
 /* The per-direction functions for one shape: flattened, so that the presets' constant shapes
- * reach every inner loop (point.h, nf_point_shape), with scratch sized for the shape. PAIRS
- * (1 for the presets' AVX-512 kernels) walks two directions in step (point.h,
- * NF_POINT_PAIR); 0 runs a pair as two calls of the single-direction functions, which are never
- * inlined, so that any shape's largest scratch is never held twice on the caller's stack. Same bits
- * either way. */
-#define NF_POINT_VARIANT(suffix, SHAPE_EXPR, WORK_FLOATS, PAIRS)                                   \
+ * reach every inner loop (point.h, nf_point_shape), with scratch sized for the shape, and never
+ * inlined, so that any shape's largest scratch is never held twice on the caller's stack. Two
+ * directions at a point are two calls. */
+#define NF_POINT_VARIANT(suffix, SHAPE_EXPR, WORK_FLOATS)                                          \
     static NF_NOINLINE NF_FLATTEN nf_status nf_point_sample_##suffix(                              \
         const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \
         float dir[3], float *pdf)                                                                  \
@@ -74,52 +66,80 @@
         nf_point_scratch sc;                                                                       \
         nf_point_scratch_in(work, sh, &sc);                                                        \
         return nf_point_pdf_one(m, sh, p, user, dir, pdf, &sc);                                    \
-    }                                                                                              \
-    static NF_FLATTEN nf_status nf_point_pdf_pair_##suffix(                                        \
-        const nf_model *m, const nf_shading_point *p, const nf_context *user, const float dir[6],  \
-        float pdf[2])                                                                              \
+    }
+
+/* A shape's two questions at one point as two calls of its functions. */
+#define NF_POINT_CALL_PAIRS(suffix)                                                                \
+    static nf_status nf_point_pdf_pair_##suffix(const nf_model *m, const nf_shading_point *p,      \
+                                                const nf_context *user, const float dir[6],        \
+                                                float pdf[2])                                      \
     {                                                                                              \
-        if (!(PAIRS)) {                                                                            \
-            nf_status st = nf_point_pdf_##suffix(m, p, user, dir, &pdf[0]);                        \
-            return st != NF_OK ? st : nf_point_pdf_##suffix(m, p, user, dir + 3, &pdf[1]);         \
-        }                                                                                          \
-        const nf_point_shape sh = SHAPE_EXPR;                                                      \
-        NF_POINT_PAIR_SCRATCH(WORK_FLOATS, PAIRS);                                                 \
-        return nf_point_pdf_pair(m, sh, p, user, dir, pdf, sc);                                    \
+        nf_status st = nf_point_pdf_##suffix(m, p, user, dir, &pdf[0]);                            \
+        return st != NF_OK ? st : nf_point_pdf_##suffix(m, p, user, dir + 3, &pdf[1]);             \
     }                                                                                              \
-    static NF_FLATTEN nf_status nf_point_sample_and_pdf_##suffix(                                  \
+    static nf_status nf_point_sample_and_pdf_##suffix(                                             \
         const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \
         float dir[3], float *pdf, const float eval_dir[3], float *eval_pdf)                        \
     {                                                                                              \
-        if (!(PAIRS)) {                                                                            \
-            float q;                                                                               \
-            nf_status st = nf_point_pdf_##suffix(m, p, user, eval_dir, &q);                        \
-            if (st == NF_OK && (st = nf_point_sample_##suffix(m, p, user, u, dir, pdf)) == NF_OK)  \
-                *eval_pdf = q;                                                                     \
-            return st;                                                                             \
-        }                                                                                          \
-        const nf_point_shape sh = SHAPE_EXPR;                                                      \
-        NF_POINT_PAIR_SCRATCH(WORK_FLOATS, PAIRS);                                                 \
-        return nf_point_sample_and_pdf_pair(m, sh, p, user, u, dir, pdf, eval_dir, eval_pdf, sc);  \
+        float q;                                                                                   \
+        nf_status st = nf_point_pdf_##suffix(m, p, user, eval_dir, &q);                            \
+        if (st == NF_OK && (st = nf_point_sample_##suffix(m, p, user, u, dir, pdf)) == NF_OK)      \
+            *eval_pdf = q;                                                                         \
+        return st;                                                                                 \
     }
 
-/* Pairs pay where a direction leaves the core waiting: with AVX-512 a chunk of 16 units is one
- * register and a direction's chain is latency-bound. With AVX2 (two registers per chunk) a
- * vertex in step measured no faster than its two walks one after the other (nf_bench --isa
- * avx2: 1 270 against 1 282 ns, small preset), at up to 5 KiB of stack for the large preset's
- * two scratches; the generic kernels' would take 7 KiB. */
-#if defined(__AVX512F__)
-#define NF_POINT_PAIRS 1
-#else
-#define NF_POINT_PAIRS 0
-#endif
-
-NF_POINT_VARIANT(small, NF_POINT_SHAPE_SMALL, NF_POINT_WORK_FLOATS(32u, 8u, 16u), NF_POINT_PAIRS)
-NF_POINT_VARIANT(large, NF_POINT_SHAPE_LARGE, NF_POINT_WORK_FLOATS(64u, 16u, 16u), NF_POINT_PAIRS)
+NF_POINT_VARIANT(small, NF_POINT_SHAPE_SMALL, NF_POINT_WORK_FLOATS(32u, 8u, 16u))
+NF_POINT_VARIANT(large, NF_POINT_SHAPE_LARGE, NF_POINT_WORK_FLOATS(64u, 16u, 16u))
 NF_POINT_VARIANT(any, nf_point_shape_of(m),
                  NF_POINT_WORK_FLOATS(NF_MAX_RAW_PADDED, NF_MAX_SPLINE_BINS,
-                                      NF_PAD(NF_MAX_HIDDEN_WIDTH)),
-                 0)
+                                      NF_PAD(NF_MAX_HIDDEN_WIDTH)))
+NF_POINT_CALL_PAIRS(any)
+
+/* The shading-point API's per-direction functions for one preset shape in the AVX-512 kernels
+ * (point_vector.h: vectors across units and bins, within a stated bound of the tile); the same
+ * signatures as NF_POINT_VARIANT's. */
+#if defined(__AVX512F__)
+#define NF_PV_VARIANT(suffix, SHAPE)                                                               \
+    static NF_NOINLINE NF_FLATTEN nf_status nf_pv_sample_##suffix(                                 \
+        const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \
+        float dir[3], float *pdf)                                                                  \
+    {                                                                                              \
+        (void)user;                                                                                \
+        const nf_point_shape sh = SHAPE;                                                           \
+        return nf_pv_sample_one(m, sh, p, u, dir, pdf);                                            \
+    }                                                                                              \
+    static NF_NOINLINE NF_FLATTEN nf_status nf_pv_pdf_##suffix(                                    \
+        const nf_model *m, const nf_shading_point *p, const nf_context *user, const float dir[3],  \
+        float *pdf)                                                                                \
+    {                                                                                              \
+        (void)user;                                                                                \
+        const nf_point_shape sh = SHAPE;                                                           \
+        return nf_pv_pdf_one(m, sh, p, dir, pdf);                                                  \
+    }                                                                                              \
+    static NF_NOINLINE NF_FLATTEN nf_status nf_pv_pdf_pair_##suffix(                               \
+        const nf_model *m, const nf_shading_point *p, const nf_context *user, const float dir[6],  \
+        float pdf[2])                                                                              \
+    {                                                                                              \
+        (void)user;                                                                                \
+        const nf_point_shape sh = SHAPE;                                                           \
+        return nf_pv_pdf_pair(m, sh, p, dir, pdf);                                                 \
+    }                                                                                              \
+    static NF_NOINLINE NF_FLATTEN nf_status nf_pv_sample_and_pdf_##suffix(                         \
+        const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \
+        float dir[3], float *pdf, const float eval_dir[3], float *eval_pdf)                        \
+    {                                                                                              \
+        (void)user;                                                                                \
+        const nf_point_shape sh = SHAPE;                                                           \
+        return nf_pv_sample_and_pdf(m, sh, p, u, dir, pdf, eval_dir, eval_pdf);                    \
+    }
+NF_PV_VARIANT(small, NF_POINT_SHAPE_SMALL)
+NF_PV_VARIANT(large, NF_POINT_SHAPE_LARGE)
+#define NF_PV(name, suffix) nf_pv_##name##_##suffix
+#else
+NF_POINT_CALL_PAIRS(small)
+NF_POINT_CALL_PAIRS(large)
+#define NF_PV(name, suffix) nf_point_##name##_##suffix
+#endif
 
 typedef nf_status (*nf_point_sample_fn)(const nf_model *, const nf_shading_point *,
                                         const nf_context *, const float *, float *, float *);
@@ -149,10 +169,26 @@ static nf_point_pdf_fn nf_point_evaluator(const nf_model *m)
     return fns[nf_point_variant(m)];
 }
 
-static nf_point_pdf_fn nf_point_pair_evaluator(const nf_model *m)
+/* The public shading-point API's functions: the presets' vector path where the kernels have
+ * one (point_vector.h), the same-bits path for other shapes and instruction sets. Small
+ * nf_sample / nf_pdf calls keep the same-bits path, so that they agree with tiles. */
+static nf_point_sample_fn nf_point_api_sampler(const nf_model *m)
 {
-    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_pair_any, nf_point_pdf_pair_small,
-                                           nf_point_pdf_pair_large};
+    static const nf_point_sample_fn fns[3] = {nf_point_sample_any, NF_PV(sample, small),
+                                              NF_PV(sample, large)};
+    return fns[nf_point_variant(m)];
+}
+
+static nf_point_pdf_fn nf_point_api_evaluator(const nf_model *m)
+{
+    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_any, NF_PV(pdf, small), NF_PV(pdf, large)};
+    return fns[nf_point_variant(m)];
+}
+
+static nf_point_pdf_fn nf_point_api_pair_evaluator(const nf_model *m)
+{
+    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_pair_any, NF_PV(pdf_pair, small),
+                                           NF_PV(pdf_pair, large)};
     return fns[nf_point_variant(m)];
 }
 
@@ -178,7 +214,7 @@ static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const floa
 static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points, size_t n,
                                         size_t stride, const float *u, float *dir, float *pdf)
 {
-    const nf_point_sample_fn sample = nf_point_sampler(m);
+    const nf_point_sample_fn sample = nf_point_api_sampler(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
         nf_status st = sample(m, p, &p->context_, u + 2 * i, dir + 3 * i, pdf ? pdf + i : NULL);
@@ -191,10 +227,10 @@ static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_poin
 static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *points, size_t n,
                                      size_t stride, const float *dir, float *pdf)
 {
-    const nf_point_pdf_fn eval = nf_point_evaluator(m);
+    const nf_point_pdf_fn eval = nf_point_api_evaluator(m);
     size_t i = 0;
     if (stride == 0) /* directions at one point: two at a time, in step (point.h) */
-        for (const nf_point_pdf_fn pair = nf_point_pair_evaluator(m); i + 2 <= n; i += 2) {
+        for (const nf_point_pdf_fn pair = nf_point_api_pair_evaluator(m); i + 2 <= n; i += 2) {
             nf_status st = pair(m, points, &points->context_, dir + 3 * i, pdf + i);
             if (st != NF_OK)
                 return st;
@@ -215,8 +251,8 @@ static nf_status nf_kernel_point_sample_and_pdf(const nf_model *m, const nf_shad
 {
     typedef nf_status (*fn)(const nf_model *, const nf_shading_point *, const nf_context *,
                             const float *, float *, float *, const float *, float *);
-    static const fn fns[3] = {nf_point_sample_and_pdf_any, nf_point_sample_and_pdf_small,
-                              nf_point_sample_and_pdf_large};
+    static const fn fns[3] = {nf_point_sample_and_pdf_any, NF_PV(sample_and_pdf, small),
+                              NF_PV(sample_and_pdf, large)};
     return fns[nf_point_variant(m)](m, p, &p->context_, u, dir, pdf, eval_dir, eval_pdf);
 }
 

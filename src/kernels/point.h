@@ -10,9 +10,10 @@
  * same order, as the per-sample and tile paths, so the results are the same bits. Where the
  * operations are laid out for one direction (a preset's hidden units kept in a register, the
  * knots' steps vectorized across bins ahead of their running sums), each is the tile's
- * operation on the same values, never a reassociated or fused one. Two directions at one point
- * (nf_point_sample_and_pdf, nf_point_pdf of n >= 2) walk the flow in step, their operations
- * interleaved (NF_POINT_PAIR): each direction's are still its own, in its own order.
+ * operation on the same values, never a reassociated or fused one. This is the path of small
+ * nf_sample / nf_pdf calls everywhere, and of the shading-point API except for the presets on
+ * the AVX-512 kernels, which take point_vector.h (its own arithmetic, within a stated bound;
+ * docs/architecture.md, "Which rule holds where").
  */
 #ifndef NISFLOW_KERNELS_POINT_H
 #define NISFLOW_KERNELS_POINT_H
@@ -98,7 +99,9 @@ static inline void nf_point_scratch_in(float *work, nf_point_shape sh, nf_point_
  * sum per knot, the root), so a core that runs one direction mostly waits on latencies; two
  * independent chains, interleaved in the source, fill those waits. Each direction keeps its own
  * operations in its own order: pairing changes when they run, never what they compute. The
- * functions take `count` (1 or 2) directions and arrays of that many. */
+ * functions take `count` (1 or 2) directions and arrays of that many; kernel.c calls them with
+ * one, since the AVX-512 kernels (where two in step paid) take point_vector.h for the presets,
+ * which walks its pairs the same way. */
 #define NF_POINT_PAIR 2u
 
 /* The knots of both halves of each spline (widths into x, heights into y) from the 2K exps in
@@ -532,47 +535,6 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
     nf_point_walk_pdf(p, user, dir, &w);
     nf_point_walks(m, sh, p, 1, inverse, &w, sc);
     return nf_point_walk_density(m, &w, pdf);
-}
-
-/* The densities of two directions dir[0..2], dir[3..5] at the point, walked in step: the same
- * bits as two calls of nf_point_pdf_one. sc holds two scratches. */
-static inline nf_status nf_point_pdf_pair(const nf_model *m, nf_point_shape sh,
-                                          const nf_shading_point *p, const nf_context *user,
-                                          const float dir[6], float pdf[2],
-                                          const nf_point_scratch sc[2])
-{
-    static const int inverse[2] = {1, 1};
-    nf_point_walk w[2];
-    nf_point_walk_pdf(p, user, dir, &w[0]);
-    nf_point_walk_pdf(p, user, dir + 3, &w[1]);
-    nf_point_walks(m, sh, p, 2, inverse, w, sc);
-    nf_status st = nf_point_walk_density(m, &w[0], &pdf[0]);
-    return st != NF_OK ? st : nf_point_walk_density(m, &w[1], &pdf[1]);
-}
-
-/* A direction drawn for u and another direction's density (eval_dir, eval_pdf), walked in
- * step: the same bits as nf_point_sample_one and nf_point_pdf_one. A custom prior's failure
- * in the draw returns before anything is written. */
-static inline nf_status nf_point_sample_and_pdf_pair(const nf_model *m, nf_point_shape sh,
-                                                     const nf_shading_point *p,
-                                                     const nf_context *user, const float u[2],
-                                                     float dir[3], float *pdf,
-                                                     const float eval_dir[3], float *eval_pdf,
-                                                     const nf_point_scratch sc[2])
-{
-    static const int inverse[2] = {0, 1};
-    nf_point_walk w[2];
-    nf_status st = nf_point_walk_sample(m, p, user, u, &w[0]);
-    if (st != NF_OK)
-        return st;
-    nf_point_walk_pdf(p, user, eval_dir, &w[1]);
-    nf_point_walks(m, sh, p, 2, inverse, w, sc);
-    float q;
-    if ((st = nf_point_walk_density(m, &w[1], &q)) != NF_OK)
-        return st;
-    nf_point_walk_sampled(&w[0], dir, pdf);
-    *eval_pdf = q;
-    return NF_OK;
 }
 
 /* The presets' shapes (nisflow/model.h: NF_PRESET_SMALL, NF_PRESET_LARGE). */
