@@ -94,66 +94,47 @@ static inline void nf_point_scratch_in(float *work, nf_point_shape sh, nf_point_
     sc->y = sc->x + sh.bins + 1;
 }
 
-/* Up to NF_POINT_PAIR directions at one point go through the steps below together. One
- * direction's step is a chain of dependent operations (a multiply-add per hidden unit, a running
- * sum per knot, the root), so a core that runs one direction mostly waits on latencies; two
- * independent chains, interleaved in the source, fill those waits. Each direction keeps its own
- * operations in its own order: pairing changes when they run, never what they compute. The
- * functions take `count` (1 or 2) directions and arrays of that many; kernel.c calls them with
- * one, since the AVX-512 kernels (where two in step paid) take point_vector.h for the presets,
- * which walks its pairs the same way. */
-#define NF_POINT_PAIR 2u
-
 /* The knots of both halves of each spline (widths into x, heights into y) from the 2K exps in
  * e, which it overwrites: nf_spline_knots_from_exps's operations on each half, in its order,
  * without keeping the softmax (only reverse mode reads it). The steps m + (1 - K m) softmax_i,
  * independent of one another, come first, in one loop over the 2K values (a vector or two for the
- * presets); only the running sums are sequential, as two independent chains per direction. */
-static NF_ALWAYS_INLINE void nf_point_knots(uint32_t bins, uint32_t count,
-                                            const nf_point_scratch *sc)
+ * presets); only the running sums are sequential, as two independent chains. */
+static NF_ALWAYS_INLINE void nf_point_knots(uint32_t bins, const nf_point_scratch *sc)
 {
-    float sum_w[NF_POINT_PAIR] = {0.0f, 0.0f}, sum_h[NF_POINT_PAIR] = {0.0f, 0.0f};
-    for (uint32_t i = 0; i < bins; ++i)
-        for (uint32_t d = 0; d < count; ++d) {
-            sum_w[d] += sc[d].e[i];
-            sum_h[d] += sc[d].e[bins + i];
-        }
-    const float scale = 1.0f - (float)bins * NF_SPLINE_MIN;
-    for (uint32_t d = 0; d < count; ++d) {
-        const float inv_w = 1.0f / sum_w[d], inv_h = 1.0f / sum_h[d];
-        float *e = sc[d].e, *step = e; /* in place: the exps are not read again */
-        for (uint32_t i = 0; i < 2 * bins; ++i)
-            step[i] = NF_SPLINE_MIN + scale * (e[i] * (i < bins ? inv_w : inv_h));
-        sc[d].x[0] = sc[d].y[0] = 0.0f;
+    float sum_w = 0.0f, sum_h = 0.0f;
+    for (uint32_t i = 0; i < bins; ++i) {
+        sum_w += sc->e[i];
+        sum_h += sc->e[bins + i];
     }
-    float acc_w[NF_POINT_PAIR] = {0.0f, 0.0f}, acc_h[NF_POINT_PAIR] = {0.0f, 0.0f};
-    for (uint32_t i = 0; i < bins; ++i)
-        for (uint32_t d = 0; d < count; ++d) {
-            acc_w[d] += sc[d].e[i];
-            acc_h[d] += sc[d].e[bins + i];
-            sc[d].x[i + 1] = acc_w[d];
-            sc[d].y[i + 1] = acc_h[d];
-        }
-    for (uint32_t d = 0; d < count; ++d) /* exactly 1, as nf_spline_knots_from_exps pins it */
-        sc[d].x[bins] = sc[d].y[bins] = 1.0f;
+    const float scale = 1.0f - (float)bins * NF_SPLINE_MIN;
+    const float inv_w = 1.0f / sum_w, inv_h = 1.0f / sum_h;
+    float *e = sc->e, *step = e; /* in place: the exps are not read again */
+    for (uint32_t i = 0; i < 2 * bins; ++i)
+        step[i] = NF_SPLINE_MIN + scale * (e[i] * (i < bins ? inv_w : inv_h));
+    sc->x[0] = sc->y[0] = 0.0f;
+    float acc_w = 0.0f, acc_h = 0.0f;
+    for (uint32_t i = 0; i < bins; ++i) {
+        acc_w += sc->e[i];
+        acc_h += sc->e[bins + i];
+        sc->x[i + 1] = acc_w;
+        sc->y[i + 1] = acc_h;
+    }
+    sc->x[bins] = sc->y[bins] = 1.0f; /* exactly 1, as nf_spline_knots_from_exps pins it */
 }
 
-/* The splines of the raw parameters in sc[d].raw: knots and every knot derivative
+/* The spline of the raw parameters in sc->raw: knots and every knot derivative
  * (nf_spline_build's and nf_spline_bin_at's values). A circular spline's d_K is d_0
  * (circle.h); its rotation stays in raw[3K]. */
-static NF_ALWAYS_INLINE void nf_point_spline(uint32_t bins, uint32_t raw_stride, uint32_t count,
-                                             const int *circular, const nf_point_scratch *sc)
+static NF_ALWAYS_INLINE void nf_point_spline(uint32_t bins, uint32_t raw_stride, int circular,
+                                             const nf_point_scratch *sc)
 {
-    for (uint32_t d = 0; d < count; ++d)
-        nf_spline_exps(bins, sc[d].raw, sc[d].e);
-    nf_point_knots(bins, count, sc);
-    for (uint32_t d = 0; d < count; ++d) {
-        nf_spline_derivatives(nf_point_derivative_count(bins, raw_stride) - 1u,
-                              sc[d].raw + 2 * bins, sc[d].d, sc[d].sd);
-        if (circular[d]) {
-            sc[d].d[bins] = sc[d].d[0];
-            sc[d].sd[bins] = sc[d].sd[0];
-        }
+    nf_spline_exps(bins, sc->raw, sc->e);
+    nf_point_knots(bins, sc);
+    nf_spline_derivatives(nf_point_derivative_count(bins, raw_stride) - 1u, sc->raw + 2 * bins,
+                          sc->d, sc->sd);
+    if (circular) {
+        sc->d[bins] = sc->d[0];
+        sc->sd[bins] = sc->sd[0];
     }
 }
 
@@ -220,29 +201,23 @@ static inline float nf_point_lane(const nf_lanes *v, uint32_t k)
  * the stack of every call only 256 bytes per direction. */
 #define NF_POINT_LANES_RAW 64u
 
-/* y[d][0..stride) = bias[d] + sum_k x[d][k] W[d][k] for each of `count` directions
- * (nf_dense_one: the same multiply-adds in the same order), for inputs that are one chunk of
- * hidden units in a register, each broadcast from its lane. Stored to memory instead and read
- * back one float at a time, as nf_dense_one reads them, the units waited on the store: a
- * 16-lane store followed by single-float loads from it cost the per-direction conditioner about
- * a third of its time (AMD Zen 4). The directions' chains interleave in the inner loop. */
-static NF_ALWAYS_INLINE void nf_point_dense_lanes(uint32_t count,
-                                                  nf_lanes (*y)[NF_POINT_LANES_RAW / NF_CHUNK],
-                                                  const float *const *w, uint32_t stride,
-                                                  const float *const *bias, const nf_lanes *x,
+/* y[0..stride) = bias + sum_k x[k] W[k] (nf_dense_one: the same multiply-adds in the same
+ * order), for inputs that are one chunk of hidden units in a register, each broadcast from its
+ * lane. Stored to memory instead and read back one float at a time, as nf_dense_one reads
+ * them, the units waited on the store: a 16-lane store followed by single-float loads from it
+ * cost the per-direction conditioner about a third of its time (AMD Zen 4). */
+static NF_ALWAYS_INLINE void nf_point_dense_lanes(nf_lanes *y, const float *w, uint32_t stride,
+                                                  const float *bias, const nf_lanes *x,
                                                   uint32_t inputs)
 {
     for (uint32_t c = 0; c < stride; c += NF_CHUNK) {
-        nf_lanes acc[NF_POINT_PAIR], row;
-        for (uint32_t d = 0; d < count; ++d)
-            nf_lanes_load(&acc[d], bias[d] + c);
-        for (uint32_t k = 0; k < inputs; ++k)
-            for (uint32_t d = 0; d < count; ++d) {
-                nf_lanes_load(&row, w[d] + (size_t)k * stride + c);
-                nf_lanes_madd(&acc[d], nf_point_lane(&x[d], k), &row);
-            }
-        for (uint32_t d = 0; d < count; ++d)
-            y[d][c / NF_CHUNK] = acc[d];
+        nf_lanes acc, row;
+        nf_lanes_load(&acc, bias + c);
+        for (uint32_t k = 0; k < inputs; ++k) {
+            nf_lanes_load(&row, w + (size_t)k * stride + c);
+            nf_lanes_madd(&acc, nf_point_lane(x, k), &row);
+        }
+        y[c / NF_CHUNK] = acc;
     }
 }
 
@@ -261,77 +236,58 @@ static inline void nf_point_clamp_store(float *out, const nf_lanes *v)
     nf_lanes_store(out, &r);
 }
 
-/* Raw spline parameters of coupling layer layer[d] into sc[d].raw, from the pass-through
- * coordinate v[d], for `count` directions: nf_conditioner_forward with the context's share read
- * from the point. The padding of raw is clamped too (finite values the spline never reads):
- * whole vectors, no remainder. Hidden layers of one chunk (both presets) stay in registers from
- * the context sums to the output layer (nf_point_dense_lanes); wider ones go through
- * sc[d].act, one direction after the other. */
+/* Raw spline parameters of coupling layer `layer` into sc->raw, from the pass-through
+ * coordinate v: nf_conditioner_forward with the context's share read from the point. The
+ * padding of raw is clamped too (finite values the spline never reads): whole vectors, no
+ * remainder. Hidden layers of one chunk (both presets) stay in registers from the context sums
+ * to the output layer (nf_point_dense_lanes); wider ones go through sc->act. */
 static NF_ALWAYS_INLINE void nf_point_conditioner(const nf_model *m, nf_point_shape sh,
-                                                  const nf_shading_point *p, uint32_t count,
-                                                  const uint32_t *layer, const float *v,
-                                                  const nf_point_scratch *sc)
+                                                  const nf_shading_point *p, uint32_t layer,
+                                                  float v, const nf_point_scratch *sc)
 {
     const float *packed = m->packed;
     const uint32_t hp = sh.hp;
+    const nf_linear *lin = m->packed_linear[layer];
+    const float *ctx = nf_point_context_sums(m, p, layer, sc->act[0]);
+    uint32_t rows[3];
+    float vals[3];
+    nf_oneblob_slots(v, sh.blob_bins, 0, nf_layer_wraps(m, layer), rows, vals);
     if (sh.lanes && hp == NF_CHUNK && sh.raw_stride <= NF_POINT_LANES_RAW) {
         /* nf_input_layer_blob, nf_relu and nf_dense_one on registers: same operations */
-        nf_lanes h[NF_POINT_PAIR], row, zero, out[NF_POINT_PAIR][NF_POINT_LANES_RAW / NF_CHUNK];
-        const float *w[NF_POINT_PAIR], *b[NF_POINT_PAIR];
+        nf_lanes h, row, zero, out[NF_POINT_LANES_RAW / NF_CHUNK];
         nf_lanes_splat(&zero, 0.0f);
-        for (uint32_t d = 0; d < count; ++d) {
-            const float *ctx = nf_point_context_sums(m, p, layer[d], sc[d].act[0]);
-            uint32_t rows[3];
-            float vals[3];
-            nf_oneblob_slots(v[d], sh.blob_bins, 0, nf_layer_wraps(m, layer[d]), rows, vals);
-            const float *w0 = packed + m->packed_linear[layer[d]][0].weight;
-            nf_lanes_load(&h[d], ctx);
-            for (uint32_t s = 0; s < 3; ++s) {
-                nf_lanes_load(&row, w0 + (size_t)rows[s] * hp);
-                nf_lanes_madd(&h[d], vals[s], &row);
-            }
-            nf_lanes_max(&h[d], &zero);
+        const float *w0 = packed + lin[0].weight;
+        nf_lanes_load(&h, ctx);
+        for (uint32_t s = 0; s < 3; ++s) {
+            nf_lanes_load(&row, w0 + (size_t)rows[s] * hp);
+            nf_lanes_madd(&h, vals[s], &row);
         }
-        for (uint32_t l = 1; l <= sh.depth; ++l) {
-            for (uint32_t d = 0; d < count; ++d) {
-                w[d] = packed + m->packed_linear[layer[d]][l].weight;
-                b[d] = packed + m->packed_linear[layer[d]][l].bias;
-            }
-            if (l == sh.depth) {
-                nf_point_dense_lanes(count, out, w, sh.raw_stride, b, h, sh.width);
-                break;
-            }
-            nf_point_dense_lanes(count, out, w, hp, b, h, sh.width);
-            for (uint32_t d = 0; d < count; ++d) {
-                h[d] = out[d][0];
-                nf_lanes_max(&h[d], &zero);
-            }
+        nf_lanes_max(&h, &zero);
+        for (uint32_t l = 1; l < sh.depth; ++l) {
+            nf_point_dense_lanes(out, packed + lin[l].weight, hp, packed + lin[l].bias, &h,
+                                 sh.width);
+            h = out[0];
+            nf_lanes_max(&h, &zero);
         }
-        for (uint32_t d = 0; d < count; ++d)
-            for (uint32_t c = 0; c < sh.raw_stride / NF_CHUNK; ++c)
-                nf_point_clamp_store(sc[d].raw + (size_t)c * NF_CHUNK, &out[d][c]);
+        nf_point_dense_lanes(out, packed + lin[sh.depth].weight, sh.raw_stride,
+                             packed + lin[sh.depth].bias, &h, sh.width);
+        for (uint32_t c = 0; c < sh.raw_stride / NF_CHUNK; ++c)
+            nf_point_clamp_store(sc->raw + (size_t)c * NF_CHUNK, &out[c]);
         return;
     }
-    for (uint32_t d = 0; d < count; ++d) {
-        const nf_linear *lin = m->packed_linear[layer[d]];
-        const float *ctx = nf_point_context_sums(m, p, layer[d], sc[d].act[0]);
-        uint32_t rows[3];
-        float vals[3];
-        nf_oneblob_slots(v[d], sh.blob_bins, 0, nf_layer_wraps(m, layer[d]), rows, vals);
-        nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc[d].act[0]);
-        nf_relu(sc[d].act[0], hp);
-        const float *h = sc[d].act[0];
-        for (uint32_t l = 1; l < sh.depth; ++l) {
-            float *o = sc[d].act[l & 1u];
-            nf_dense_one(o, packed + lin[l].weight, hp, packed + lin[l].bias, h, sh.width);
-            nf_relu(o, hp);
-            h = o;
-        }
-        nf_dense_one(sc[d].raw, packed + lin[sh.depth].weight, sh.raw_stride,
-                     packed + lin[sh.depth].bias, h, sh.width);
-        for (uint32_t r = 0; r < sh.raw_stride; ++r)
-            sc[d].raw[r] = nf_clampf(sc[d].raw[r], -NF_RAW_LIMIT, NF_RAW_LIMIT);
+    nf_input_layer_blob(ctx, packed + lin[0].weight, hp, rows, vals, sc->act[0]);
+    nf_relu(sc->act[0], hp);
+    const float *h = sc->act[0];
+    for (uint32_t l = 1; l < sh.depth; ++l) {
+        float *o = sc->act[l & 1u];
+        nf_dense_one(o, packed + lin[l].weight, hp, packed + lin[l].bias, h, sh.width);
+        nf_relu(o, hp);
+        h = o;
     }
+    nf_dense_one(sc->raw, packed + lin[sh.depth].weight, sh.raw_stride, packed + lin[sh.depth].bias,
+                 h, sh.width);
+    for (uint32_t r = 0; r < sh.raw_stride; ++r)
+        sc->raw[r] = nf_clampf(sc->raw[r], -NF_RAW_LIMIT, NF_RAW_LIMIT);
 }
 
 /* The prior's view of the point (nf_prior_sample and nf_prior_density read the unit normal,
@@ -463,26 +419,17 @@ static inline void nf_point_walk_map(const nf_model *m, nf_point_shape sh, int i
     }
 }
 
-/* `count` walks at the point, each forward (inverse[d] = 0) or inverse, every coupling layer
- * of them in step: the conditioners and splines of step j together, then each map. */
-static NF_ALWAYS_INLINE void nf_point_walks(const nf_model *m, nf_point_shape sh,
-                                            const nf_shading_point *p, uint32_t count,
-                                            const int *inverse, nf_point_walk *w,
-                                            const nf_point_scratch *sc)
+/* A walk at the point through every coupling layer, forward (inverse = 0) or inverse: each
+ * step's conditioner and spline, then its map. */
+static NF_ALWAYS_INLINE void nf_point_walk_layers(const nf_model *m, nf_point_shape sh,
+                                                  const nf_shading_point *p, int inverse,
+                                                  nf_point_walk *w, const nf_point_scratch *sc)
 {
     for (uint32_t j = 0; j < sh.layers; ++j) {
-        uint32_t layer[NF_POINT_PAIR];
-        float v[NF_POINT_PAIR];
-        int circular[NF_POINT_PAIR];
-        for (uint32_t d = 0; d < count; ++d) {
-            layer[d] = nf_point_walk_layer(sh, inverse[d], j);
-            v[d] = w[d].x[1u - nf_transformed(layer[d])];
-            circular[d] = nf_layer_circular(m, layer[d]);
-        }
-        nf_point_conditioner(m, sh, p, count, layer, v, sc);
-        nf_point_spline(sh.bins, sh.raw_stride, count, circular, sc);
-        for (uint32_t d = 0; d < count; ++d)
-            nf_point_walk_map(m, sh, inverse[d], j, &w[d], &sc[d]);
+        const uint32_t layer = nf_point_walk_layer(sh, inverse, j);
+        nf_point_conditioner(m, sh, p, layer, w->x[1u - nf_transformed(layer)], sc);
+        nf_point_spline(sh.bins, sh.raw_stride, nf_layer_circular(m, layer), sc);
+        nf_point_walk_map(m, sh, inverse, j, w, sc);
     }
 }
 
@@ -515,12 +462,11 @@ static inline nf_status nf_point_sample_one(const nf_model *m, nf_point_shape sh
                                             const float u[2], float dir[3], float *pdf,
                                             const nf_point_scratch *sc)
 {
-    static const int forward[1] = {0};
     nf_point_walk w;
     nf_status st = nf_point_walk_sample(m, p, user, u, &w);
     if (st != NF_OK)
         return st;
-    nf_point_walks(m, sh, p, 1, forward, &w, sc);
+    nf_point_walk_layers(m, sh, p, 0, &w, sc);
     nf_point_walk_sampled(&w, dir, pdf);
     return NF_OK;
 }
@@ -530,10 +476,9 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
                                          const nf_shading_point *p, const nf_context *user,
                                          const float dir[3], float *pdf, const nf_point_scratch *sc)
 {
-    static const int inverse[1] = {1};
     nf_point_walk w;
     nf_point_walk_pdf(p, user, dir, &w);
-    nf_point_walks(m, sh, p, 1, inverse, &w, sc);
+    nf_point_walk_layers(m, sh, p, 1, &w, sc);
     return nf_point_walk_density(m, &w, pdf);
 }
 

@@ -29,6 +29,11 @@
 /* The most raw-parameter chunks a shape of this path has: 3K + 1 <= 49 floats. */
 #define NF_PV_CHUNKS 4u
 
+/* Directions walked in step at most: two questions of a vertex. One direction is a chain of
+ * dependent operations that leaves the core waiting on latencies; a second, independent chain
+ * interleaved with it fills those waits. */
+#define NF_PV_PAIR 2u
+
 /* One coupling layer's spline for one direction, in registers. */
 typedef struct nf_pv_spline {
     __m512 x, y;    /* knots x_1 .. x_K and y_1 .. y_K in lanes 0 .. K-1 (lane K-1 exactly 1) */
@@ -338,7 +343,7 @@ static NF_ALWAYS_INLINE void nf_pv_walks(const nf_model *m, nf_point_shape sh,
                                          const int *inverse, nf_point_walk *w)
 {
     for (uint32_t j = 0; j < sh.layers; ++j) {
-        nf_pv_spline s[NF_POINT_PAIR];
+        nf_pv_spline s[NF_PV_PAIR];
         for (uint32_t d = 0; d < count; ++d) {
             uint32_t layer = nf_point_walk_layer(sh, inverse[d], j);
             nf_pv_layer(m, sh, p, layer, w[d].x[1u - nf_transformed(layer)], &s[d]);
