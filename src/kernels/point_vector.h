@@ -201,6 +201,39 @@ static NF_ALWAYS_INLINE __m512 nf_pv_derivatives(__m512 raw)
     return _mm512_add_ps(sp, _mm512_set1_ps(NF_SPLINE_MIN));
 }
 
+/* The three one-blob slots of v (nf_oneblob_slots, offset 0): rows into row, values in lanes
+ * 0 .. 2 of the result, the four Q of the quartic kernel computed in one 4-lane vector (its
+ * polynomial in Horner form in u^2). */
+static NF_ALWAYS_INLINE __m128 nf_pv_oneblob(float v, uint32_t bins, int wrap, uint32_t row[3])
+{
+    const float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
+    const int first = (int)vb - 1; /* vb >= 0, so truncation is floor */
+    __m128 vbv = _mm_set1_ps(vb);
+    __m128 t = _mm_sub_ps(_mm_add_ps(_mm_round_ps(vbv, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC),
+                                     _mm_setr_ps(-1.0f, 0.0f, 1.0f, 2.0f)),
+                          vbv);
+    __m128 u = _mm_min_ps(_mm_max_ps(t, _mm_set1_ps(-1.0f)), _mm_set1_ps(1.0f));
+    __m128 u2 = _mm_mul_ps(u, u);
+    __m128 p = _mm_fmadd_ps(u2, _mm_set1_ps(0.1875f), _mm_set1_ps(-0.625f));
+    p = _mm_fmadd_ps(u2, p, _mm_set1_ps(0.9375f));
+    __m128 q = _mm_fmadd_ps(u, p, _mm_set1_ps(0.5f));
+    q = _mm_min_ps(_mm_max_ps(q, _mm_setzero_ps()), _mm_set1_ps(1.0f));
+    /* the kernel's ends pinned to 0 and 1 exactly, as nf_quartic_cdf */
+    q = _mm_blendv_ps(q, _mm_setzero_ps(), _mm_cmple_ps(u, _mm_set1_ps(-1.0f)));
+    q = _mm_blendv_ps(q, _mm_set1_ps(1.0f), _mm_cmpge_ps(u, _mm_set1_ps(1.0f)));
+    __m128 value = _mm_sub_ps(_mm_shuffle_ps(q, q, _MM_SHUFFLE(3, 3, 2, 1)), q);
+    int keep[4] = {0, 0, 0, 0};
+    for (int c = 0; c < 3; ++c) {
+        int j = first + c;
+        int inside = wrap | ((j >= 0) & (j < (int)bins));
+        int bin = wrap ? nf_oneblob_bin(j, bins, 1) : j;
+        row[c] = (uint32_t)(inside ? bin : 0);
+        keep[c] = -inside;
+    }
+    __m128i mask = _mm_setr_epi32(keep[0], keep[1], keep[2], keep[3]);
+    return _mm_and_ps(value, _mm_castsi128_ps(mask));
+}
+
 /* Coupling layer `layer`'s spline for the pass-through coordinate v: the conditioner from the
  * point's context sums, the clamp of nf_conditioner_forward (NaN to the lower bound), knots
  * and knot derivatives (a circular layer's d_K is d_0, circle.h). */
@@ -211,13 +244,13 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
     const float *packed = m->packed;
     const nf_linear *lin = m->packed_linear[layer];
     uint32_t rows[3];
-    float vals[3];
-    nf_oneblob_slots(v, sh.blob_bins, 0, nf_layer_wraps(m, layer), rows, vals);
+    __m512 vals =
+        _mm512_castps128_ps512(nf_pv_oneblob(v, sh.blob_bins, nf_layer_wraps(m, layer), rows));
     const float *w0 = packed + lin[0].weight;
     __m512 h = _mm512_loadu_ps(p->cache_ + (size_t)layer * NF_CHUNK);
     for (uint32_t k = 0; k < 3; ++k)
-        h = _mm512_fmadd_ps(_mm512_set1_ps(vals[k]),
-                            _mm512_loadu_ps(w0 + (size_t)rows[k] * NF_CHUNK), h);
+        h = _mm512_fmadd_ps(nf_pv_splat(vals, k), _mm512_loadu_ps(w0 + (size_t)rows[k] * NF_CHUNK),
+                            h);
     h = _mm512_max_ps(h, _mm512_setzero_ps());
     __m512 raw[NF_PV_CHUNKS];
     for (uint32_t l = 1; l < sh.depth; ++l) {
@@ -243,12 +276,14 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
         else
             d1 = _mm512_mask_mov_ps(d1, 1, d0);
     }
-    /* the bins' slopes and inverse widths, divided here in one vector each, in parallel with
-     * the bin search, instead of after it */
+    /* the bins' slopes and inverse widths, here in one vector each, in parallel with the bin
+     * search, instead of two divisions after it (lanes K and above are never read) */
     __m512 w = _mm512_sub_ps(s->x, nf_pv_shift_up(s->x, 1));
     __m512 hgt = _mm512_sub_ps(s->y, nf_pv_shift_up(s->y, 1));
-    s->iw = _mm512_div_ps(_mm512_set1_ps(1.0f), w);
-    s->s = _mm512_div_ps(hgt, w);
+    __m512 r = _mm512_rcp14_ps(w); /* 2^-14, then one Newton step: a few ulps */
+    r = _mm512_mul_ps(r, _mm512_fnmadd_ps(w, r, _mm512_set1_ps(2.0f)));
+    s->iw = r;
+    s->s = _mm512_mul_ps(hgt, r);
     s->d[0] = nf_pv_derivatives(d0);
     s->d[1] = bins == 16u ? nf_pv_derivatives(d1) : s->d[0];
 }
