@@ -132,11 +132,17 @@ static inline nf_status nf_flow_density(const nf_model *m, const nf_point *pt, c
  * can make a density (correctly) exceed the float range; it is clamped to [FLT_MIN, FLT_MAX] so
  * that both the density and its reciprocal are finite and positive (a renderer divides by
  * it). Ordinary densities are untouched; NaN, which cannot arise, would pass through. */
-static inline float nf_solid_angle_pdf(double p_s, float s0)
+static inline float nf_solid_angle_pdf_at(double p_s, float sin_theta)
 {
-    double p = p_s / (double)(NF_TWO_PI_SQUARED * nf_maxf(nf_sin_pi(s0), NF_SIN_THETA_MIN));
+    double p = p_s / (double)(NF_TWO_PI_SQUARED * nf_maxf(sin_theta, NF_SIN_THETA_MIN));
     p = p > (double)FLT_MAX ? (double)FLT_MAX : p;
     return (float)(p < (double)FLT_MIN ? (double)FLT_MIN : p);
+}
+
+/* The same with sin(theta) from s0 = theta / pi. */
+static inline float nf_solid_angle_pdf(double p_s, float s0)
+{
+    return nf_solid_angle_pdf_at(p_s, nf_sin_pi(s0));
 }
 
 #endif /* NISFLOW_KERNELS_FLOW_H */

@@ -438,9 +438,10 @@ static inline void nf_point_walk_sampled(nf_point_walk *w, float dir[3], float *
 {
     /* One ulp below 1, as nf_sample: phi = 2 pi would map back across the seam. */
     w->x[1] = nf_minf(w->x[1], 0x1.fffffep-1f);
-    nf_from_square(w->x, dir);
+    /* the map's sin(theta) is nf_sin_pi(x[0])'s bits (x[0] lies in [0, 1]): one sincos, not two */
+    float sin_theta = nf_from_square(w->x, dir);
     if (pdf)
-        *pdf = nf_solid_angle_pdf((double)w->q / w->det, w->x[0]);
+        *pdf = nf_solid_angle_pdf_at((double)w->q / w->det, sin_theta);
 }
 
 /* Ends an inverse walk: the prior's density at the latent point, then the direction's. */
