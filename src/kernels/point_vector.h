@@ -203,7 +203,7 @@ static NF_ALWAYS_INLINE __m512 nf_pv_derivatives(__m512 raw)
 
 /* The three one-blob slots of v (nf_oneblob_slots, offset 0): rows into row, values in lanes
  * 0 .. 2 of the result, the four Q of the quartic kernel computed in one 4-lane vector (its
- * polynomial in Horner form in u^2). */
+ * polynomial 1/2 + u (15/16 - 5/8 u^2 + 3/16 u^4) in Horner form in u^2). */
 static NF_ALWAYS_INLINE __m128 nf_pv_oneblob(float v, uint32_t bins, int wrap, uint32_t row[3])
 {
     const float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
@@ -216,11 +216,9 @@ static NF_ALWAYS_INLINE __m128 nf_pv_oneblob(float v, uint32_t bins, int wrap, u
     __m128 u2 = _mm_mul_ps(u, u);
     __m128 p = _mm_fmadd_ps(u2, _mm_set1_ps(0.1875f), _mm_set1_ps(-0.625f));
     p = _mm_fmadd_ps(u2, p, _mm_set1_ps(0.9375f));
+    /* At u = -1 and 1 this form is 0 and 1 exactly (p = 1/2 without rounding), so the ends
+     * need no pinning, unlike nf_quartic_cdf's form */
     __m128 q = _mm_fmadd_ps(u, p, _mm_set1_ps(0.5f));
-    q = _mm_min_ps(_mm_max_ps(q, _mm_setzero_ps()), _mm_set1_ps(1.0f));
-    /* the kernel's ends pinned to 0 and 1 exactly, as nf_quartic_cdf */
-    q = _mm_blendv_ps(q, _mm_setzero_ps(), _mm_cmple_ps(u, _mm_set1_ps(-1.0f)));
-    q = _mm_blendv_ps(q, _mm_set1_ps(1.0f), _mm_cmpge_ps(u, _mm_set1_ps(1.0f)));
     __m128 value = _mm_sub_ps(_mm_shuffle_ps(q, q, _MM_SHUFFLE(3, 3, 2, 1)), q);
     int keep[4] = {0, 0, 0, 0};
     for (int c = 0; c < 3; ++c) {
