@@ -4,8 +4,10 @@
  * generic, avx2 or avx512 (and the matching -m flags); each copy defines the table
  * nf_kernels_<isa> (kernels.h). Inputs arrive validated from flow.c, point.c and train.c.
  * nf_sample and nf_pdf run on tiles of 16 samples (flow_tile.h), or through a shading point on
- * the stack (point.h) for calls of 1 or 2; the shading-point API runs one direction at a time;
- * the gradient runs on tiles (flow_tile_backward.h), or per sample for calls of 1 to 3.
+ * the stack (point.h) for calls of 1 or 2; the shading-point API runs one direction at a time,
+ * on point.h, or for the presets in the AVX-512 kernels on point_vector.h (two directions at a
+ * point in step); the gradient runs on tiles (flow_tile_backward.h), or per sample for calls of
+ * 1 to 3.
  */
 #include <float.h>
 #include <math.h>
