@@ -466,6 +466,17 @@ static void check_context(const nf_model *m, const nf_context *ctx, const float 
     agree(v_dir, b_dir, 3 * K, 0, what, "nf_point_sample_and_pdf: dir");
     agree(v_pdf, b_pdf, K, 1, what, "nf_point_sample_and_pdf: pdf");
     agree(v_eval, b_eval, K, 1, what, "nf_point_sample_and_pdf: eval_pdf");
+    /* The points' own calls agree with each other to the bit on every path (point.h), pairs in
+     * step and calls of any size alike. */
+    same_bits(q_dir, p_dir, 3 * K, what, "nf_point_sample in pieces vs n = 64: dir");
+    same_bits(q_pdf, p_pdf, K, what, "nf_point_sample in pieces vs n = 64: pdf");
+    same_bits(q_eval, p_eval, K, what, "nf_point_pdf in pieces vs n = 64");
+    same_bits(n_dir, p_dir, 3 * K, what, "nf_point_sample without pdf vs with: dir");
+    same_bits(v_dir, p_dir, 3 * K, what, "nf_point_sample_and_pdf vs nf_point_sample: dir");
+    for (int i = 0; i < K; i += 2) /* the draws that asked for their pdf */
+        same_bits(v_pdf + i, p_pdf + i, 1, what,
+                  "nf_point_sample_and_pdf vs nf_point_sample: pdf");
+    same_bits(v_eval, p_eval, K, what, "nf_point_sample_and_pdf vs nf_point_pdf: eval_pdf");
     /* The reference is meaningful: unit directions (1e-5 is ~80 ulps of 1, model.h's unit
      * vectors), finite positive densities. */
     for (int i = 0; i < K; ++i) {
