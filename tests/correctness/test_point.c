@@ -96,8 +96,8 @@ static size_t far_pdfs, compared_pdfs;
  * flows, densities 7.5x and more from the prior). Measured on an Intel Xeon (AVX-512) over
  * 39,936 densities of both presets and every prior: worst relative difference 4.9e-4 to
  * 5.1e-4, 9 to 16 beyond 1e-4 (0.02-0.04 %), worst direction component 4.3e-6 to 4.7e-6, over
- * the path's versions. The bounds leave a factor 4 (the fraction 5); an error of the vector path's arithmetic (a knot, a slope, a Jacobian off by
- * one rounding step of a sum is not one; a wrong term is) moves densities by 1e-2 or more. */
+ * the path's versions. The bounds leave a factor 4 (the fraction 5). An error in the path's
+ * arithmetic fails them: the knots' scale off by 0.1 % moved a direction by 5.2e-4. */
 #define VECTOR_PDF_REL 2e-3
 #define VECTOR_DIR_ABS 2e-5
 #define VECTOR_FAR_FRACTION 2e-3
