@@ -11,7 +11,9 @@
  * before the search; the inverse's root is solved in float. The results are not the tile's
  * bits: they differ by rounding, within the bound that tests/correctness/test_point.c states
  * and checks against nf_sample / nf_pdf (docs/architecture.md, "Which rule holds where"). The
- * sphere maps, the priors and the walks' ends are point.h's, shared.
+ * walks' ends take the sphere maps' angles in one vector (fastmath.h's polynomials, four lanes
+ * at a time) and, for the cosine prior on surfaces, the draw's prior density from the drawn
+ * direction; other priors and media end as point.h's walks do.
  *
  * It serves the two presets (hidden layers of one register, K <= 16 spline bins, the context
  * sums cached in the point): kernel.c compiles it for their shapes, as constants.
@@ -95,6 +97,76 @@ static NF_ALWAYS_INLINE __m512 nf_pv_log(__m512 x)
     y = _mm512_fmadd_ps(e, _mm512_set1_ps(-2.12194440e-4f), y);
     y = _mm512_fmadd_ps(z, _mm512_set1_ps(-0.5f), y);
     return _mm512_fmadd_ps(e, _mm512_set1_ps(0.693359375f), _mm512_add_ps(m, y));
+}
+
+/* Sines (lanes 0-3) and cosines (lanes 4-7) of four angles t given in turns, |t| <= 1:
+ * nf_fast_sincos_turns's exact reduction to the nearest quarter turn and its Taylor series, to
+ * r^11 and r^10 on |r| <= pi/4, for four angles in one polynomial whose coefficients differ
+ * between the halves. The reduced angle is scaled to radians in float, not double, and the
+ * polynomial fuses its multiply-adds: within a few ulps of the scalar function. */
+static NF_ALWAYS_INLINE __m256 nf_pv_sincos_turns(__m128 t)
+{
+    __m128 q = _mm_round_ps(_mm_mul_ps(t, _mm_set1_ps(4.0f)),
+                            _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+    __m128 r4 = _mm_mul_ps(_mm_fnmadd_ps(q, _mm_set1_ps(0.25f), t), _mm_set1_ps(NF_TWO_PI));
+    __m256 r = _mm256_set_m128(r4, r4);
+    __m256 r2 = _mm256_mul_ps(r, r);
+#define NF_PV_HALVES(s, c) _mm256_setr_ps(s, s, s, s, c, c, c, c)
+    __m256 p = NF_PV_HALVES(-2.5052108385e-8f, -2.7557319224e-7f);
+    p = _mm256_fmadd_ps(p, r2, NF_PV_HALVES(2.7557319224e-6f, 2.4801587302e-5f));
+    p = _mm256_fmadd_ps(p, r2, NF_PV_HALVES(-1.9841269841e-4f, -1.3888888889e-3f));
+    p = _mm256_fmadd_ps(p, r2, NF_PV_HALVES(8.3333333333e-3f, 4.1666666667e-2f));
+    p = _mm256_fmadd_ps(p, r2, NF_PV_HALVES(-1.6666666667e-1f, -0.5f));
+#undef NF_PV_HALVES
+    /* sin r = r (1 + r^2 p), cos r = 1 + r^2 p */
+    __m256 base = _mm256_blend_ps(r, _mm256_set1_ps(1.0f), 0xf0);
+    __m256 f = _mm256_fmadd_ps(_mm256_mul_ps(base, r2), p, base);
+    /* quadrant: odd ones swap sine and cosine; the sine is negated in quadrants 2 and 3, the
+     * cosine in 1 and 2 */
+    __m128i quad = _mm_and_si128(_mm_cvtps_epi32(q), _mm_set1_epi32(3));
+    __m256i qq = _mm256_set_m128i(_mm_add_epi32(quad, _mm_set1_epi32(1)), quad);
+    __m256i odd = _mm256_set_m128i(quad, quad);
+    odd = _mm256_slli_epi32(odd, 31);
+    f = _mm256_blendv_ps(f, _mm256_permute2f128_ps(f, f, 0x01), _mm256_castsi256_ps(odd));
+    __m256i sign = _mm256_slli_epi32(_mm256_and_si256(qq, _mm256_set1_epi32(2)), 30);
+    return _mm256_xor_ps(f, _mm256_castsi256_ps(sign));
+}
+
+/* atan2(y, x) in (-pi, pi] of four pairs, atan2(0, 0) = 0: nf_fast_atan2's reduction and
+ * polynomial, with its two divisions (lo / hi, then (a - 1) / (a + 1) above tan(pi/8)) as
+ * one, (lo - hi) / (lo + hi) there. */
+static NF_ALWAYS_INLINE __m128 nf_pv_atan2(__m128 y, __m128 x)
+{
+    const __m128 sign = _mm_set1_ps(-0.0f);
+    __m128 ax = _mm_andnot_ps(sign, x), ay = _mm_andnot_ps(sign, y);
+    __m128 hi = _mm_max_ps(ax, ay), lo = _mm_min_ps(ax, ay);
+    __m128 big = _mm_cmpgt_ps(lo, _mm_mul_ps(hi, _mm_set1_ps(0.4142135623730950f)));
+    __m128 num = _mm_blendv_ps(lo, _mm_sub_ps(lo, hi), big);
+    __m128 den = _mm_blendv_ps(hi, _mm_add_ps(lo, hi), big);
+    __m128 a = _mm_and_ps(_mm_div_ps(num, den), _mm_cmpgt_ps(hi, _mm_setzero_ps())); /* 0 / 0 */
+    __m128 z = _mm_mul_ps(a, a);
+    __m128 p = _mm_fmadd_ps(_mm_set1_ps(8.05374449538e-2f), z, _mm_set1_ps(-1.38776856032e-1f));
+    p = _mm_fmadd_ps(p, z, _mm_set1_ps(1.99777106478e-1f));
+    p = _mm_fmadd_ps(p, z, _mm_set1_ps(-3.33329491539e-1f));
+    __m128 r = _mm_fmadd_ps(_mm_mul_ps(p, z), a, a);
+    r = _mm_add_ps(r, _mm_and_ps(big, _mm_set1_ps(0.78539816339744831f)));
+    r = _mm_blendv_ps(r, _mm_sub_ps(_mm_set1_ps(1.57079632679489662f), r), _mm_cmpgt_ps(ay, ax));
+    r = _mm_blendv_ps(r, _mm_sub_ps(_mm_set1_ps(3.14159265358979324f), r),
+                      _mm_cmplt_ps(x, _mm_setzero_ps()));
+    return _mm_xor_ps(r, _mm_and_ps(sign, _mm_cmplt_ps(y, _mm_setzero_ps())));
+}
+
+/* nf_to_square's point of a direction of any positive length, both angles in one vector. */
+static NF_ALWAYS_INLINE void nf_pv_to_square(const float dir_in[3], float s[2])
+{
+    float d[3];
+    nf_square_scaled(dir_in, d);
+    float rho = sqrtf(d[0] * d[0] + d[1] * d[1]);
+    __m128 a = nf_pv_atan2(_mm_setr_ps(rho, d[1], 0.0f, 0.0f), _mm_setr_ps(d[2], d[0], 1.0f, 1.0f));
+    float theta = _mm_cvtss_f32(a), phi = _mm_cvtss_f32(_mm_movehdup_ps(a));
+    phi = phi < 0.0f ? phi + NF_TWO_PI : phi;
+    s[0] = nf_clampf(theta * (1.0f / NF_PI), 0.0f, 1.0f);
+    s[1] = nf_clampf(phi * (1.0f / NF_TWO_PI), 0.0f, 0x1.fffffep-1f);
 }
 
 /* Lane k of v in every lane. */
@@ -347,7 +419,9 @@ static NF_ALWAYS_INLINE float nf_pv_bin_solve(const nf_pv_bin *b, float y)
     return y >= b->y1 ? b->x1 : nf_minf(nf_maxf(b->xk + xi * b->wk, b->xk), b->x1);
 }
 
-/* Step j's map with the layer's spline in s (nf_point_walk_map's, on the vector knots). */
+/* Step j's map with the layer's spline in s (nf_point_walk_map's, on the vector knots). Both
+ * directions multiply w->det by the slope: an inverse walk's det is the forward |det J|, which
+ * nf_pv_walk_density divides by once. */
 static NF_ALWAYS_INLINE void nf_pv_map(const nf_model *m, nf_point_shape sh, int inverse,
                                        uint32_t j, nf_point_walk *w, const nf_pv_spline *s)
 {
@@ -368,7 +442,7 @@ static NF_ALWAYS_INLINE void nf_pv_map(const nf_model *m, nf_point_shape sh, int
         float solved = nf_pv_bin_solve(&bin, w->x[t]);
         nf_pv_bin_eval(&bin, solved, &slope);
         w->x[t] = solved;
-        w->det /= slope;
+        w->det *= slope; /* the forward |det J| here: one division at the end, not per layer */
     }
 }
 
@@ -388,17 +462,100 @@ static NF_ALWAYS_INLINE void nf_pv_walks(const nf_model *m, nf_point_shape sh,
     }
 }
 
+/* The walks' ends, as point.h's (nf_point_walk_sample, _pdf, _sampled, _density) with the
+ * trigonometry of each end in one vector: the sphere maps' two angles together, and at a
+ * density's end sin(theta) of the direction asked about beside them. For the cosine prior on
+ * surfaces, a draw's prior density comes from the drawn direction itself, where point.h maps
+ * the square's point back to a direction first. Other priors, the cosine's uniform share and
+ * media take point.h's ends. */
+static NF_ALWAYS_INLINE nf_status nf_pv_walk_sample(const nf_model *m, const nf_shading_point *p,
+                                                    const float u[2], nf_point_walk *w)
+{
+    const float eps = m->cfg.prior_epsilon, u0 = nf_clamp_unit(u[0]);
+    if (m->cfg.prior != NF_PRIOR_COSINE || nf_context_in_medium(&p->context_) || !(u0 < 1.0f - eps))
+        return nf_point_walk_sample(m, p, &p->context_, u, w);
+    /* nf_cosine_direction around the point's unit normal */
+    const float *n = p->frame_;
+    float t[3], b[3], d[3];
+    nf_frame(n, t, b);
+    const float uc = nf_clamp_unit(u0 / (1.0f - eps));
+    __m256 sc = nf_pv_sincos_turns(_mm_set1_ps(nf_clamp_unit(u[1])));
+    const float sin_phi = _mm256_cvtss_f32(sc);
+    const float cos_phi = _mm_cvtss_f32(_mm256_extractf128_ps(sc, 1));
+    const float r = sqrtf(uc), lx = r * cos_phi, ly = r * sin_phi;
+    const float lz = sqrtf(nf_maxf(1.0f - uc, 0.0f));
+    for (int a = 0; a < 3; ++a)
+        d[a] = lx * t[a] + ly * b[a] + lz * n[a];
+    nf_pv_to_square(d, w->x);
+    /* q_s = sin(theta) lobe(n.w), with n.w = lz and |d| = 1 up to rounding */
+    const float sin_theta = nf_maxf(sqrtf(d[0] * d[0] + d[1] * d[1]), NF_SIN_THETA_MIN);
+    w->p = p;
+    w->user = &p->context_;
+    w->q = sin_theta * nf_cosine_lobe(lz, eps);
+    w->det = 1.0;
+    return NF_OK;
+}
+
+static NF_ALWAYS_INLINE void nf_pv_walk_pdf(const nf_shading_point *p, const float dir[3],
+                                            nf_point_walk *w)
+{
+    nf_pv_to_square(dir, w->x);
+    w->p = p;
+    w->user = &p->context_;
+    w->s0 = w->x[0];
+    w->det = 1.0;
+}
+
+static NF_ALWAYS_INLINE void nf_pv_walk_sampled(nf_point_walk *w, float dir[3], float *pdf)
+{
+    w->x[1] = nf_minf(w->x[1], 0x1.fffffep-1f); /* as nf_point_walk_sampled */
+    float v[8];
+    _mm256_storeu_ps(v, nf_pv_sincos_turns(_mm_setr_ps(0.5f * w->x[0], w->x[1], 0.0f, 0.0f)));
+    const float sin_theta = nf_maxf(v[0], 0.0f);
+    dir[0] = sin_theta * v[5];
+    dir[1] = sin_theta * v[1];
+    dir[2] = v[4];
+    if (pdf)
+        *pdf = nf_solid_angle_pdf_at((double)w->q / w->det, sin_theta);
+}
+
+static NF_ALWAYS_INLINE nf_status nf_pv_walk_density(const nf_model *m, const nf_point_walk *w,
+                                                     float *pdf)
+{
+    const nf_prior_kind kind = m->cfg.prior;
+    if ((kind != NF_PRIOR_COSINE && kind != NF_PRIOR_UNIFORM_DIRECTION) ||
+        nf_context_in_medium(&w->p->context_)) {
+        nf_point_walk inverted = *w; /* point.h's walks keep 1 / |det J| */
+        inverted.det = 1.0 / w->det;
+        return nf_point_walk_density(m, &inverted, pdf);
+    }
+    /* sin and cos of theta and phi at the latent point, and sin(theta) of the direction */
+    float v[8];
+    _mm256_storeu_ps(v,
+                     nf_pv_sincos_turns(_mm_setr_ps(0.5f * w->x[0], w->x[1], 0.5f * w->s0, 0.0f)));
+    const float sin_raw = nf_maxf(v[0], 0.0f);
+    const float sin_theta = nf_maxf(sin_raw, NF_SIN_THETA_MIN);
+    float q = NF_HALF_PI * sin_theta;
+    if (kind == NF_PRIOR_COSINE) {
+        const float *n = w->p->frame_;
+        const float c = n[0] * (sin_raw * v[5]) + n[1] * (sin_raw * v[1]) + n[2] * v[4];
+        q = sin_theta * nf_cosine_lobe(c, m->cfg.prior_epsilon);
+    }
+    *pdf = nf_solid_angle_pdf_at((double)q / w->det, nf_maxf(v[2], 0.0f));
+    return NF_OK;
+}
+
 static inline nf_status nf_pv_sample_one(const nf_model *m, nf_point_shape sh,
                                          const nf_shading_point *p, const float u[2], float dir[3],
                                          float *pdf)
 {
     static const int forward[1] = {0};
     nf_point_walk w;
-    nf_status st = nf_point_walk_sample(m, p, &p->context_, u, &w);
+    nf_status st = nf_pv_walk_sample(m, p, u, &w);
     if (st != NF_OK)
         return st;
     nf_pv_walks(m, sh, p, 1, forward, &w);
-    nf_point_walk_sampled(&w, dir, pdf);
+    nf_pv_walk_sampled(&w, dir, pdf);
     return NF_OK;
 }
 
@@ -407,9 +564,9 @@ static inline nf_status nf_pv_pdf_one(const nf_model *m, nf_point_shape sh,
 {
     static const int inverse[1] = {1};
     nf_point_walk w;
-    nf_point_walk_pdf(p, &p->context_, dir, &w);
+    nf_pv_walk_pdf(p, dir, &w);
     nf_pv_walks(m, sh, p, 1, inverse, &w);
-    return nf_point_walk_density(m, &w, pdf);
+    return nf_pv_walk_density(m, &w, pdf);
 }
 
 static inline nf_status nf_pv_pdf_pair(const nf_model *m, nf_point_shape sh,
@@ -417,11 +574,11 @@ static inline nf_status nf_pv_pdf_pair(const nf_model *m, nf_point_shape sh,
 {
     static const int inverse[2] = {1, 1};
     nf_point_walk w[2];
-    nf_point_walk_pdf(p, &p->context_, dir, &w[0]);
-    nf_point_walk_pdf(p, &p->context_, dir + 3, &w[1]);
+    nf_pv_walk_pdf(p, dir, &w[0]);
+    nf_pv_walk_pdf(p, dir + 3, &w[1]);
     nf_pv_walks(m, sh, p, 2, inverse, w);
-    nf_status st = nf_point_walk_density(m, &w[0], &pdf[0]);
-    return st != NF_OK ? st : nf_point_walk_density(m, &w[1], &pdf[1]);
+    nf_status st = nf_pv_walk_density(m, &w[0], &pdf[0]);
+    return st != NF_OK ? st : nf_pv_walk_density(m, &w[1], &pdf[1]);
 }
 
 /* A draw and another direction's density; a custom prior's failure writes nothing. */
@@ -432,15 +589,15 @@ static inline nf_status nf_pv_sample_and_pdf(const nf_model *m, nf_point_shape s
 {
     static const int inverse[2] = {0, 1};
     nf_point_walk w[2];
-    nf_status st = nf_point_walk_sample(m, p, &p->context_, u, &w[0]);
+    nf_status st = nf_pv_walk_sample(m, p, u, &w[0]);
     if (st != NF_OK)
         return st;
-    nf_point_walk_pdf(p, &p->context_, eval_dir, &w[1]);
+    nf_pv_walk_pdf(p, eval_dir, &w[1]);
     nf_pv_walks(m, sh, p, 2, inverse, w);
     float q;
-    if ((st = nf_point_walk_density(m, &w[1], &q)) != NF_OK)
+    if ((st = nf_pv_walk_density(m, &w[1], &q)) != NF_OK)
         return st;
-    nf_point_walk_sampled(&w[0], dir, pdf);
+    nf_pv_walk_sampled(&w[0], dir, pdf);
     *eval_pdf = q;
     return NF_OK;
 }

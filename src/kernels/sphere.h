@@ -20,16 +20,15 @@ static inline float nf_sin_pi(float x)
     return nf_maxf(s, 0.0f);
 }
 
-static NF_ALWAYS_INLINE void nf_to_square(const float dir_in[3], float s[2])
+/* dir_in scaled by an exact power of two so that its largest component lies in [1, 2), into
+ * dir. Directions may have any positive length. Squaring a component above ~2^64 overflows
+ * and one below ~2^-63 underflows, which made theta wrong (e.g. (1e20, 1e20, 1e20) gave
+ * theta = pi/2). The angles are scale-invariant, every power-of-two multiple of a vector maps
+ * to the same bits, and for vectors of ordinary length the exact scaling leaves the results
+ * bit-identical to the unscaled computation. */
+static NF_ALWAYS_INLINE void nf_square_scaled(const float dir_in[3], float dir[3])
 {
-    /* Directions may have any positive length. Squaring a component above ~2^64 overflows
-     * and one below ~2^-63 underflows, which made theta wrong (e.g. (1e20, 1e20, 1e20) gave
-     * theta = pi/2). The vector is therefore scaled by an exact power of two so that its
-     * largest component lies in [1, 2): the angles are scale-invariant, every power-of-two
-     * multiple of a vector maps to the same bits, and for vectors of ordinary length the
-     * exact scaling leaves the results bit-identical to the unscaled computation. */
-    float dir[3] = {dir_in[0], dir_in[1], dir_in[2]};
-    float big = nf_maxf(nf_maxf(fabsf(dir[0]), fabsf(dir[1])), fabsf(dir[2]));
+    float big = nf_maxf(nf_maxf(fabsf(dir_in[0]), fabsf(dir_in[1])), fabsf(dir_in[2]));
     /* Branch-free, so that the kernels' loops over samples vectorize. The zero vector (and
      * Inf/NaN) keeps its components: scale and pre are then 1. First into [2^-85, 2^64)
      * (denormals become normal), then by 2^-e with big in [2^e, 2^(e+1)), e in [-85, 63]:
@@ -42,7 +41,13 @@ static NF_ALWAYS_INLINE void nf_to_square(const float dir_in[3], float s[2])
     pre = usable ? pre : 1.0f;
     scale = usable ? scale : 1.0f;
     for (int a = 0; a < 3; ++a)
-        dir[a] = dir[a] * pre * scale;
+        dir[a] = dir_in[a] * pre * scale;
+}
+
+static NF_ALWAYS_INLINE void nf_to_square(const float dir_in[3], float s[2])
+{
+    float dir[3];
+    nf_square_scaled(dir_in, dir);
     float theta = nf_fast_atan2(sqrtf(dir[0] * dir[0] + dir[1] * dir[1]), dir[2]);
     float phi = nf_fast_atan2(dir[1], dir[0]);
     phi = phi < 0.0f ? phi + NF_TWO_PI : phi;
