@@ -156,11 +156,15 @@ static NF_ALWAYS_INLINE __m128 nf_pv_atan2(__m128 y, __m128 x)
     return _mm_xor_ps(r, _mm_and_ps(sign, _mm_cmplt_ps(y, _mm_setzero_ps())));
 }
 
-/* nf_to_square's point of a direction of any positive length, both angles in one vector. */
+/* nf_to_square's point of a direction of any positive length, both angles in one vector. The
+ * angles are invariant under exact scaling, so a direction whose largest component lies in
+ * [2^-60, 2^60] (every one a renderer asks about) skips nf_square_scaled's power of two. */
 static NF_ALWAYS_INLINE void nf_pv_to_square(const float dir_in[3], float s[2])
 {
-    float d[3];
-    nf_square_scaled(dir_in, d);
+    float d[3] = {dir_in[0], dir_in[1], dir_in[2]};
+    const float big = nf_maxf(nf_maxf(fabsf(d[0]), fabsf(d[1])), fabsf(d[2]));
+    if (__builtin_expect(!(big >= 0x1p-60f && big <= 0x1p60f), 0))
+        nf_square_scaled(dir_in, d);
     float rho = sqrtf(d[0] * d[0] + d[1] * d[1]);
     __m128 a = nf_pv_atan2(_mm_setr_ps(rho, d[1], 0.0f, 0.0f), _mm_setr_ps(d[2], d[0], 1.0f, 1.0f));
     float theta = _mm_cvtss_f32(a), phi = _mm_cvtss_f32(_mm_movehdup_ps(a));
