@@ -12,7 +12,8 @@
  * same model, context and inputs, except for the two presets on the AVX-512 kernels: there a
  * path designed for one direction (vectors across units and bins, sums in another order)
  * agrees with them within a bound, asserted by tests/correctness/test_point.c on randomized
- * models: densities within 2e-3 relatively (0.2 % of them beyond 1e-4), direction components
+ * models: densities within 2e-3 relatively (0.2 % of them beyond 1e-4; in a medium with
+ * |g| > 0.9, directions in the phase function's peak within 1.5e-2), direction components
  * within 2e-5. Calls through points agree with each other to the bit on every path.
  * docs/architecture.md ("Which rule holds where") has the measured figures.
  *
