@@ -279,24 +279,27 @@ static NF_ALWAYS_INLINE __m512 nf_pv_derivatives(__m512 raw)
 }
 
 /* The three one-blob slots of v (nf_oneblob_slots, offset 0): rows into row, values in lanes
- * 0 .. 2 of the result, the four Q of the quartic kernel computed in one 4-lane vector (its
+ * 0 .. 2 of the result, the two inner Q of the quartic kernel computed in one vector (its
  * polynomial 1/2 + u (15/16 - 5/8 u^2 + 3/16 u^4) in Horner form in u^2). */
 static NF_ALWAYS_INLINE __m128 nf_pv_oneblob(float v, uint32_t bins, int wrap, uint32_t row[3])
 {
     const float vb = nf_clampf(v, 0.0f, 1.0f) * (float)bins;
     const int first = (int)vb - 1; /* vb >= 0, so truncation is floor */
+    /* With f = vb - floor(vb) in [0, 1), the four Q are at -1 - f, -f, 1 - f and 2 - f: the
+     * outer two clamp to the kernel's ends, Q = 0 and 1, so only u = -f and 1 - f, inside
+     * [-1, 1], need the polynomial, and no clamp */
     __m128 vbv = _mm_set1_ps(vb);
-    __m128 t = _mm_sub_ps(_mm_add_ps(_mm_round_ps(vbv, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC),
-                                     _mm_setr_ps(-1.0f, 0.0f, 1.0f, 2.0f)),
-                          vbv);
-    __m128 u = _mm_min_ps(_mm_max_ps(t, _mm_set1_ps(-1.0f)), _mm_set1_ps(1.0f));
+    __m128 f = _mm_sub_ps(vbv, _mm_round_ps(vbv, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC));
+    __m128 u = _mm_sub_ps(_mm_setr_ps(0.0f, 1.0f, 0.0f, 0.0f), f);
     __m128 u2 = _mm_mul_ps(u, u);
     __m128 p = _mm_fmadd_ps(u2, _mm_set1_ps(0.1875f), _mm_set1_ps(-0.625f));
     p = _mm_fmadd_ps(u2, p, _mm_set1_ps(0.9375f));
-    /* At u = -1 and 1 this form is 0 and 1 exactly (p = 1/2 without rounding), so the ends
-     * need no pinning, unlike nf_quartic_cdf's form */
-    __m128 q = _mm_fmadd_ps(u, p, _mm_set1_ps(0.5f));
-    __m128 value = _mm_sub_ps(_mm_shuffle_ps(q, q, _MM_SHUFFLE(3, 3, 2, 1)), q);
+    /* At u = -1 and 1 this form is 0 and 1 exactly (p = 1/2 without rounding) */
+    __m128 q = _mm_fmadd_ps(u, p, _mm_set1_ps(0.5f)); /* Q(-f), Q(1 - f) in lanes 0, 1 */
+    /* the slots Q(-f) - 0, Q(1 - f) - Q(-f), 1 - Q(1 - f) */
+    __m128 upper = _mm_blend_ps(q, _mm_set1_ps(1.0f), 0xc);
+    __m128 lower = _mm_castsi128_ps(_mm_slli_si128(_mm_castps_si128(q), 4));
+    __m128 value = _mm_sub_ps(upper, lower);
     int keep[4] = {0, 0, 0, 0};
     for (int c = 0; c < 3; ++c) {
         int j = first + c;
@@ -392,30 +395,34 @@ static NF_ALWAYS_INLINE void nf_pv_bin_at(const nf_pv_spline *s, uint32_t k, nf_
 }
 
 /* y and dy/dx at x in the bin: nf_spline_bin_eval's formula, with the bin's slope and inverse
- * width given (a multiply where it divides). */
+ * width given (a multiply where it divides) and its multiply-adds fused. */
 static NF_ALWAYS_INLINE float nf_pv_bin_eval(const nf_pv_bin *b, float x, float *dydx)
 {
     float xi = nf_clampf((x - b->xk) * b->iw, 0.0f, 1.0f);
-    float sk = b->sk, e = xi * (1.0f - xi), om = 1.0f - xi;
-    float inv_den = 1.0f / (sk + (b->d1 + b->d0 - 2.0f * sk) * e);
-    float p = b->d1 * xi * xi + 2.0f * sk * e + b->d0 * om * om;
-    *dydx = sk * sk * p * inv_den * inv_den;
-    float r = (sk * xi * xi + b->d0 * e) * inv_den;
-    return xi >= 1.0f ? b->y1 : nf_clampf(b->yk + b->hk * r, 0.0f, 1.0f);
+    float sk = b->sk, om = 1.0f - xi, e = xi * om, xi2 = xi * xi;
+    /* fused, and y from one division instead of a reciprocal and a product: the chain from x
+     * to y is the layer's last stretch before the next layer can start */
+    float den = __builtin_fmaf(b->d1 + b->d0 - 2.0f * sk, e, sk);
+    float num = __builtin_fmaf(b->d0, e, sk * xi2);
+    float p = __builtin_fmaf(b->d1, xi2, __builtin_fmaf(2.0f * sk, e, b->d0 * (om * om)));
+    float slope = sk / den;
+    *dydx = slope * slope * p;
+    float y = __builtin_fmaf(b->hk, num / den, b->yk);
+    return xi >= 1.0f ? b->y1 : nf_clampf(y, 0.0f, 1.0f);
 }
 
 /* x in the bin with forward(x) = y: nf_spline_bin_solve's root 2c / (-b - sqrt(disc)), which
- * has no cancellation, in float. Without its double coefficients the root may lose
- * monotonicity in y by rounding where s_k and d_k nearly cancel; a density only needs it
+ * has no cancellation, in float, its multiply-adds fused. Without its double coefficients the root
+ * may lose monotonicity in y by rounding where s_k and d_k nearly cancel; a density only needs it
  * close, which the bound of the tests covers. */
 static NF_ALWAYS_INLINE float nf_pv_bin_solve(const nf_pv_bin *b, float y)
 {
     float hk = b->hk, d0 = b->d0, sk = b->sk;
     float t = y - b->yk, sum = b->d1 + d0 - 2.0f * sk;
-    float qa = hk * (sk - d0) + t * sum;
-    float qb = hk * d0 - t * sum;
+    float qa = __builtin_fmaf(t, sum, hk * (sk - d0));
+    float qb = __builtin_fmaf(-t, sum, hk * d0);
     float qc = -sk * t;
-    float disc = qb * qb - 4.0f * qa * qc;
+    float disc = __builtin_fmaf(qb, qb, qa * (-4.0f * qc));
     float denom = -qb - sqrtf(disc > 0.0f ? disc : 0.0f);
     float xi = denom != 0.0f ? 2.0f * qc / denom : 0.0f;
     /* one clamp, into the bin, where nf_spline_bin_solve clamps xi and then x: a root outside
