@@ -487,18 +487,12 @@ static NF_ALWAYS_INLINE nf_status nf_pv_walk_sample(const nf_model *m, const nf_
     const float eps = m->cfg.prior_epsilon, u0 = nf_clamp_unit(u[0]);
     if (m->cfg.prior != NF_PRIOR_COSINE || nf_context_in_medium(&p->context_) || !(u0 < 1.0f - eps))
         return nf_point_walk_sample(m, p, &p->context_, u, w);
-    /* nf_cosine_direction around the point's unit normal */
-    const float *n = p->frame_;
-    float t[3], b[3], d[3];
-    nf_frame(n, t, b);
-    const float uc = nf_clamp_unit(u0 / (1.0f - eps));
+    /* nf_cosine_direction around the point's unit normal, its azimuth's sincos in a vector */
+    float d[3];
     __m256 sc = nf_pv_sincos_turns(_mm_set1_ps(nf_clamp_unit(u[1])));
-    const float sin_phi = _mm256_cvtss_f32(sc);
-    const float cos_phi = _mm_cvtss_f32(_mm256_extractf128_ps(sc, 1));
-    const float r = sqrtf(uc), lx = r * cos_phi, ly = r * sin_phi;
-    const float lz = sqrtf(nf_maxf(1.0f - uc, 0.0f));
-    for (int a = 0; a < 3; ++a)
-        d[a] = lx * t[a] + ly * b[a] + lz * n[a];
+    const float lz =
+        nf_cosine_direction_at(p->frame_, nf_clamp_unit(u0 / (1.0f - eps)), _mm256_cvtss_f32(sc),
+                               _mm_cvtss_f32(_mm256_extractf128_ps(sc, 1)), d);
     nf_pv_to_square(d, w->x);
     /* q_s = sin(theta) lobe(n.w), with n.w = lz and |d| = 1 up to rounding */
     const float sin_theta = nf_maxf(sqrtf(d[0] * d[0] + d[1] * d[1]), NF_SIN_THETA_MIN);

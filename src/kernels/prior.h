@@ -38,15 +38,25 @@ static inline void nf_uniform_sphere_square(float u0, float u1, float z[2])
     z[1] = u1;
 }
 
-static inline void nf_cosine_direction(const float n[3], float u0, float u1, float w[3])
+/* The cosine lobe's direction around n for u0 and the azimuth's sine and cosine; returns
+ * cos theta = n.w. */
+static NF_ALWAYS_INLINE float nf_cosine_direction_at(const float n[3], float u0, float sin_phi,
+                                                     float cos_phi, float w[3])
 {
-    float t[3], b[3], sin_phi, cos_phi;
+    float t[3], b[3];
     nf_frame(n, t, b);
-    nf_fast_sincos_turns(u1, &sin_phi, &cos_phi);
     float r = sqrtf(u0);
     float lx = r * cos_phi, ly = r * sin_phi, lz = sqrtf(nf_maxf(1.0f - u0, 0.0f));
     for (int a = 0; a < 3; ++a)
         w[a] = lx * t[a] + ly * b[a] + lz * n[a];
+    return lz;
+}
+
+static inline void nf_cosine_direction(const float n[3], float u0, float u1, float w[3])
+{
+    float sin_phi, cos_phi;
+    nf_fast_sincos_turns(u1, &sin_phi, &cos_phi);
+    nf_cosine_direction_at(n, u0, sin_phi, cos_phi, w);
 }
 
 /* A direction drawn from the Henyey-Greenstein phase function with asymmetry g (|g| < 1)
