@@ -358,8 +358,7 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
      * search, instead of two divisions after it (lanes K and above are never read) */
     __m512 w = _mm512_sub_ps(s->x, nf_pv_shift_up(s->x, 1));
     __m512 hgt = _mm512_sub_ps(s->y, nf_pv_shift_up(s->y, 1));
-    __m512 r = _mm512_rcp14_ps(w); /* 2^-14, then one Newton step: a few ulps */
-    r = _mm512_mul_ps(r, _mm512_fnmadd_ps(w, r, _mm512_set1_ps(2.0f)));
+    __m512 r = _mm512_div_ps(_mm512_set1_ps(1.0f), w);
     s->iw = r;
     s->s = _mm512_mul_ps(hgt, r);
     s->d[0] = nf_pv_derivatives(d0);

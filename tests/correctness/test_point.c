@@ -95,10 +95,10 @@ static size_t far_pdfs, compared_pdfs;
 /* The bounds of the vector path on the randomized models of these tests (RANDOM_SCALE: sharp
  * flows, densities 7.5x and more from the prior). Measured on an Intel Xeon (AVX-512) over
  * 45,568 densities of both presets and every prior, the drawn directions' included: worst
- * relative difference 7.6e-4, 39 beyond 1e-4 (0.09 %, 0.03 % before the bins' maps fused
+ * relative difference 7.6e-4, 46 beyond 1e-4 (0.10 %; 0.03 % before the bins' maps fused
  * their multiply-adds; without the drawn directions 4.9e-4 to 5.1e-4 and 0.02-0.04 % over the
  * path's earlier versions), worst direction component 4.3e-6 to 4.7e-6. The bounds leave a
- * factor 2.6 (the fraction 2.3, directions 4). An error in the path's arithmetic fails them:
+ * factor 2.6 (the fraction 2, directions 4). An error in the path's arithmetic fails them:
  * the knots' scale off by 0.1 % moved a direction by 5.2e-4. */
 #define VECTOR_PDF_REL 2e-3
 #define VECTOR_DIR_ABS 2e-5
