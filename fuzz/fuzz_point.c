@@ -268,8 +268,8 @@ static void op_prepare(machine *mc)
     s->epoch = mc->epoch;
 }
 
-/* Whether the model's shading points take the presets' AVX-512 vector path
- * (src/kernels/point_vector.h), whose results are not the batch's bits. */
+/* Whether the model's shading points take the presets' vector path (src/kernels/point_vector.h,
+ * on the AVX2 and AVX-512 kernels), whose results are not the batch's bits. */
 static int vector_path(const nf_model *m)
 {
     nf_config c;
@@ -277,7 +277,8 @@ static int vector_path(const nf_model *m)
     int preset = c.hidden_width == 16 && c.oneblob_bins == 32 &&
                  ((c.coupling_layers == 2 && c.spline_bins == 8 && c.hidden_layers == 1) ||
                   (c.coupling_layers == 4 && c.spline_bins == 16 && c.hidden_layers == 2));
-    return preset && strcmp(nf_model_isa_name(m), "avx512") == 0;
+    const char *isa = nf_model_isa_name(m);
+    return preset && (strcmp(isa, "avx512") == 0 || strcmp(isa, "avx2") == 0);
 }
 
 /* The oracle's verdict on one value of an accepted point call (a direction component or a

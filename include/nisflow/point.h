@@ -9,12 +9,13 @@
  * the part of every conditioner's first layer that reads them. What remains per direction is
  * the pass-through coordinate's one-blob (three weight rows), the rest of each small MLP, the
  * splines and the map to the sphere. Results are bit-identical to nf_sample / nf_pdf for the
- * same model, context and inputs, except for the two presets on the AVX-512 kernels: there a
- * path designed for one direction (vectors across units and bins, sums in another order)
- * agrees with them within a bound, asserted by tests/correctness/test_point.c on randomized
- * models: densities within 2e-3 relatively (0.2 % of them beyond 1e-4; in a medium with
+ * same model, context and inputs, except for the two presets on the AVX2 and AVX-512 kernels:
+ * there a path designed for one direction (vectors across units and bins, sums in another
+ * order) agrees with them within a bound, asserted by tests/correctness/test_point.c on
+ * randomized models: densities within 2e-3 relatively (0.2 % of them beyond 1e-4; in a medium with
  * |g| > 0.9, directions in the phase function's peak within 1.5e-2), direction components
- * within 2e-5. Calls through points agree with each other to the bit on every path.
+ * within 2e-5. Calls through points agree with each other to the bit on every path, and that
+ * path gives the same bits on the AVX2 kernels as on the AVX-512 ones.
  * docs/architecture.md ("Which rule holds where") has the measured figures.
  *
  * The recipe of a guided vertex (docs/integration.md has it in full), two questions per call:
@@ -27,9 +28,9 @@
  *     nf_point_pdf(model, &sp, 2, bsdf_and_light_dirs, p);   both densities
  *
  * One direction's walk through the flow is a chain of dependent arithmetic that leaves most
- * of a core idle; with the AVX-512 kernels and a preset a call with two directions walks them
- * in step, interleaved, and costs less than two calls (docs/performance.md has the figures;
- * the other kernels and shapes walk them one after the other).
+ * of a core idle; with the AVX2 or AVX-512 kernels and a preset a call with two directions
+ * walks them in step, interleaved, and costs less than two calls (docs/performance.md has the
+ * figures; the generic kernels and other shapes walk them one after the other).
  *
  * Memory: an nf_shading_point is a plain struct (1,152 bytes on 64-bit targets) that the
  * caller owns (stack, arrays, anything). Nothing is allocated and nothing needs freeing.
@@ -126,8 +127,8 @@ NF_API nf_status nf_point_sample(const nf_model *m, const nf_shading_point *poin
  * which must be finite and non-zero (squared length above 1e-30) and is normalized by the
  * library. The same bits as nf_pdf for the point's context (within the bound above on the
  * vector path). n = 0 is a no-op. Directions go
- * two at a time, walked in step (the presets on the AVX-512 kernels): n = 2 costs less than
- * two calls of n = 1.
+ * two at a time, walked in step (the presets on the AVX2 and AVX-512 kernels): n = 2 costs
+ * less than two calls of n = 1.
  * Errors as nf_point_sample (a bad direction is NF_ERROR_INVALID_ARGUMENT, nothing written).
  * Thread-safe on a const model and point; never allocates. */
 NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n,
@@ -136,8 +137,8 @@ NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, 
 /* A guided vertex's two questions of the flow in one call: draws a direction for u (as
  * nf_point_sample with n = 1: dir, and pdf if not NULL) and returns the density of another
  * direction, eval_dir (as nf_point_pdf with n = 1: *eval_pdf), usually the light sample's,
- * for MIS. With the AVX-512 kernels the two walks through the flow run interleaved, which
- * costs less than the two calls (docs/performance.md) for the presets; the results are the
+ * for MIS. With the AVX2 or AVX-512 kernels the two walks through the flow run interleaved,
+ * which costs less than the two calls (docs/performance.md) for the presets; the results are the
  * same bits as theirs.
  * Errors: as the two calls; every input is checked before anything is written, and
  * NF_ERROR_NUMERIC (a custom prior callback returned an invalid value) writes nothing either.

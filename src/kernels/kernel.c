@@ -5,9 +5,9 @@
  * nf_kernels_<isa> (kernels.h). Inputs arrive validated from flow.c, point.c and train.c.
  * nf_sample and nf_pdf run on tiles of 16 samples (flow_tile.h), or through a shading point on
  * the stack (point.h) for calls of 1 or 2; the shading-point API runs one direction at a time,
- * on point.h, or for the presets in the AVX-512 kernels on point_vector.h (two directions at a
- * point in step); the gradient runs on tiles (flow_tile_backward.h), or per sample for calls of
- * 1 to 3.
+ * on point.h, or for the presets in the AVX2 and AVX-512 kernels on point_vector.h (two
+ * directions at a point in step); the gradient runs on tiles (flow_tile_backward.h), or per sample
+ * for calls of 1 to 3.
  */
 #include <float.h>
 #include <math.h>
@@ -97,10 +97,10 @@ NF_POINT_VARIANT(any, nf_point_shape_of(m),
                                       NF_PAD(NF_MAX_HIDDEN_WIDTH)))
 NF_POINT_CALL_PAIRS(any)
 
-/* The shading-point API's per-direction functions for one preset shape in the AVX-512 kernels
- * (point_vector.h: vectors across units and bins, within a stated bound of the tile); the same
- * signatures as NF_POINT_VARIANT's. */
-#if defined(__AVX512F__)
+/* The shading-point API's per-direction functions for one preset shape in the AVX2 and AVX-512
+ * kernels (point_vector.h: vectors across units and bins, within a stated bound of the tile);
+ * the same signatures as NF_POINT_VARIANT's. */
+#if defined(NF_PV_AVAILABLE)
 #define NF_PV_VARIANT(suffix, SHAPE)                                                               \
     static NF_NOINLINE NF_FLATTEN nf_status nf_pv_sample_##suffix(                                 \
         const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \

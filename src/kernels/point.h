@@ -12,8 +12,8 @@
  * knots' steps vectorized across bins ahead of their running sums), each is the tile's
  * operation on the same values, never a reassociated or fused one. This is the path of small
  * nf_sample / nf_pdf calls everywhere, and of the shading-point API except for the presets on
- * the AVX-512 kernels, which take point_vector.h (its own arithmetic, within a stated bound;
- * docs/architecture.md, "Which rule holds where").
+ * the AVX2 and AVX-512 kernels, which take point_vector.h (its own arithmetic, within a stated
+ * bound; docs/architecture.md, "Which rule holds where").
  */
 #ifndef NISFLOW_KERNELS_POINT_H
 #define NISFLOW_KERNELS_POINT_H

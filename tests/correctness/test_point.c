@@ -7,8 +7,9 @@
  *     contexts and inputs at the poles, on the seam, of odd lengths and out of range; the
  *     batch forms nf_points_sample / nf_points_pdf equal the batch calls; models too large
  *     for the point's cache (the uncached path) and at its edge give the same bits too;
- *     except the presets on the AVX-512 kernels (their vector path), which agree within
- *     stated bounds (VECTOR_PDF_REL, VECTOR_DIR_ABS, VECTOR_FAR_FRACTION);
+ *     except the presets on the AVX2 and AVX-512 kernels (their vector path), which agree
+ *     within stated bounds (VECTOR_PDF_REL, VECTOR_DIR_ABS, VECTOR_FAR_FRACTION) and give the
+ *     same bits on both;
  *   - the point's density integrates to one over the sphere (quadrature), and the pdf
  *     nf_point_sample returns agrees with nf_point_pdf of the direction it returned;
  *   - validity: after every change of the parameters a point is stale (NF_ERROR_STALE,
@@ -73,9 +74,9 @@ static void same_bits(const float *got, const float *want, size_t count, const c
 }
 
 /* The rule between the shading-point API and the batch calls (docs/architecture.md, "Which
- * rule holds where"): the same bits, except for the presets on the AVX-512 kernels, whose
- * per-direction path (src/kernels/point_vector.h) sums in another order and agrees within
- * the bounds below. */
+ * rule holds where"): the same bits, except for the presets on the AVX2 and AVX-512 kernels,
+ * whose per-direction path (src/kernels/point_vector.h) sums in another order and agrees
+ * within the bounds below. */
 static int vector_rule;
 
 static int uses_vector_path(const nf_model *m)
@@ -86,7 +87,8 @@ static int uses_vector_path(const nf_model *m)
                       cfg.hidden_width == 16 && cfg.oneblob_bins == 32;
     const int large = cfg.coupling_layers == 4 && cfg.spline_bins == 16 &&
                       cfg.hidden_layers == 2 && cfg.hidden_width == 16 && cfg.oneblob_bins == 32;
-    return strcmp(nf_model_isa_name(m), "avx512") == 0 && (small || large);
+    const char *isa = nf_model_isa_name(m);
+    return (strcmp(isa, "avx512") == 0 || strcmp(isa, "avx2") == 0) && (small || large);
 }
 
 static double worst_pdf_rel, worst_dir_abs;
@@ -97,9 +99,10 @@ static size_t far_pdfs, compared_pdfs;
  * 45,568 densities of both presets and every prior, the drawn directions' included: worst
  * relative difference 7.6e-4, 46 beyond 1e-4 (0.10 %; 0.03 % before the bins' maps fused
  * their multiply-adds; without the drawn directions 4.9e-4 to 5.1e-4 and 0.02-0.04 % over the
- * path's earlier versions), worst direction component 4.3e-6 to 4.7e-6. The bounds leave a
- * factor 2.6 (the fraction 2, directions 4). An error in the path's arithmetic fails them:
- * the knots' scale off by 0.1 % moved a direction by 5.2e-4. */
+ * path's earlier versions), worst direction component 4.3e-6 to 4.7e-6. The AVX2 kernels give
+ * the same bits, so a CPU with both counts each density twice. The bounds leave a factor 2.6
+ * (the fraction 2, directions 4). An error in the path's arithmetic fails them: the knots'
+ * scale off by 0.1 % moved a direction by 5.2e-4. */
 #define VECTOR_PDF_REL 2e-3
 #define VECTOR_DIR_ABS 2e-5
 #define VECTOR_FAR_FRACTION 2e-3
@@ -632,8 +635,8 @@ static void test_same_bits_as_batch(void **state)
     if ((double)far_pdfs > VECTOR_FAR_FRACTION * (double)compared_pdfs)
         fail_msg("vector path: %zu of %zu densities differ by more than 1e-4", far_pdfs,
                  compared_pdfs);
-    /* Where the AVX-512 kernels run, both presets were compared by the bound. */
-    if (isas_run[NF_ISA_AVX512] > 0)
+    /* Where the AVX2 or AVX-512 kernels run, both presets were compared by the bound. */
+    if (isas_run[NF_ISA_AVX2] + isas_run[NF_ISA_AVX512] > 0)
         assert_true(compared_pdfs > 0);
     print_message("instruction sets compared: generic %d, avx2 %d, avx512 %d models\n",
                   isas_run[NF_ISA_GENERIC], isas_run[NF_ISA_AVX2], isas_run[NF_ISA_AVX512]);
@@ -687,6 +690,63 @@ static void test_same_bits_around_cache_size(void **state)
             nf_model_destroy(m);
         }
     }
+}
+
+/* The vector path's two register layers (point_vector_avx2.h, point_vector_avx512.h) sum in
+ * the same order and divide where the other divides, so the presets' shading points give the
+ * same bits on the AVX2 and the AVX-512 kernels (docs/architecture.md). Where the CPU runs
+ * both, every prior, the inputs of make_inputs (clamped u, poles, seams, huge and tiny
+ * lengths) and contexts in media included. */
+static void test_vector_paths_same_bits_across_isas(void **state)
+{
+    (void)state;
+    int compared = 0;
+    for (int preset = 0; preset < 2; ++preset) {
+        for (int p = 0; p < 4; ++p) {
+            nf_config cfg = config_for((nf_preset)preset, all_priors[p]);
+            nf_model *m[2] = {create_on(cfg, NF_ISA_AVX2), create_on(cfg, NF_ISA_AVX512)};
+            if (!m[0] || !m[1]) {
+                nf_model_destroy(m[0]);
+                nf_model_destroy(m[1]);
+                continue;
+            }
+            for (int k = 0; k < 2; ++k) {
+                perturb(m[k], 700u + 10u * (uint64_t)p + (uint64_t)preset);
+                assert_true(uses_vector_path(m[k]));
+            }
+            enum { C = 16 };
+            nf_context ctx[C];
+            make_contexts(80u + (uint64_t)p, ctx, C);
+            nft_rng r;
+            nft_rng_seed(&r, 81u + (uint64_t)p, 4u);
+            char what[96];
+            for (int c = 0; c < C; ++c) {
+                float u[2 * K], dir_in[3 * K];
+                make_inputs(&r, u, dir_in);
+                float dir[2][3 * K], pdf[2][K], q[2][K], both[2][8];
+                for (int k = 0; k < 2; ++k) {
+                    nf_shading_point sp;
+                    assert_int_equal(nf_point_prepare(m[k], &ctx[c], NULL, &sp), NF_OK);
+                    assert_int_equal(nf_point_sample(m[k], &sp, K, u, dir[k], pdf[k]), NF_OK);
+                    assert_int_equal(nf_point_pdf(m[k], &sp, K, dir_in, q[k]), NF_OK);
+                    assert_int_equal(nf_point_sample_and_pdf(m[k], &sp, u, both[k], both[k] + 3,
+                                                             dir_in, both[k] + 4),
+                                     NF_OK);
+                }
+                snprintf(what, sizeof what, "%s preset, %s prior, context %d",
+                         preset ? "large" : "small", nft_prior_name(all_priors[p]), c);
+                same_bits(dir[1], dir[0], 3 * K, what, "nf_point_sample's direction");
+                same_bits(pdf[1], pdf[0], K, what, "nf_point_sample's pdf");
+                same_bits(q[1], q[0], K, what, "nf_point_pdf");
+                same_bits(both[1], both[0], 5, what, "nf_point_sample_and_pdf");
+                compared += 2 * K + 1;
+            }
+            nf_model_destroy(m[0]);
+            nf_model_destroy(m[1]);
+        }
+    }
+    print_message("vector paths, AVX2 against AVX-512: %d directions and densities compared\n",
+                  compared);
 }
 
 /* ---- densities: normalization and sample / pdf agreement ----------------------------------- */
@@ -756,7 +816,8 @@ static void test_point_pdf_integrates_to_one(void **state)
     }
 }
 
-/* The pdf nf_point_sample returns against nf_point_pdf of the returned direction. model.h
+/* The pdf nf_point_sample returns against nf_point_pdf of the returned direction, on every
+ * instruction set this CPU runs. model.h
  * promises a relative difference below 1e-4 away from the poles (sin theta > 1e-2) for
  * well-conditioned flows, which test_sampling.c checks for nf_sample at RANDOM_SCALE (every
  * sample within 1e-4); near the poles sin(theta) is ill-conditioned in the (theta, phi) map.
@@ -766,55 +827,54 @@ static void test_sample_pdf_agree(void **state)
     (void)state;
     enum { N = 512 };
     static float u[2 * N], dir[3 * N], pdf_s[N], pdf_p[N];
-    for (int preset = 0; preset < 2; ++preset) {
-        for (int p = 0; p < 4; ++p) {
-            nf_model *m = create_on(config_for((nf_preset)preset, all_priors[p]), NF_ISA_AUTO);
-            assert_non_null(m);
-            perturb(m, 900u + 4u * (uint64_t)p + (uint64_t)preset);
-            nf_context ctx[8];
-            make_contexts(61u + (uint64_t)p, ctx, 8);
-            nft_rng r;
-            nft_rng_seed(&r, 62u + (uint64_t)p, 2u);
-            int compared = 0;
-            double worst = 0.0;
-            for (int c = 0; c < 8; ++c) {
-                for (int i = 0; i < 2 * N; ++i)
-                    u[i] = nft_rng_float(&r);
-                u[0] = u[1] = 0.0f;
-                u[2] = u[3] = 0x1.fffffep-1f;
-                nf_shading_point sp;
-                assert_int_equal(nf_point_prepare(m, &ctx[c], NULL, &sp), NF_OK);
-                assert_int_equal(nf_point_sample(m, &sp, N, u, dir, pdf_s), NF_OK);
-                assert_int_equal(nf_point_pdf(m, &sp, N, dir, pdf_p), NF_OK);
-                for (int i = 0; i < N; ++i) {
-                    const float *w = dir + 3 * i;
-                    if (!(fabs(nft_length3f(w) - 1.0) <= 1e-5))
-                        fail_msg("sample %d has length %.9g", i, nft_length3f(w));
-                    if (!isfinite(pdf_s[i]) || !(pdf_s[i] > 0.0f) || !isfinite(pdf_p[i]) ||
-                        !(pdf_p[i] > 0.0f))
-                        fail_msg("sample %d: pdfs %g, %g", i, (double)pdf_s[i],
-                                 (double)pdf_p[i]);
-                    if (nft_sin_theta(w) > 1e-2) {
-                        ++compared;
-                        double rel = fabs((double)pdf_s[i] - (double)pdf_p[i]) / pdf_p[i];
-                        worst = fmax(worst, rel);
-                        if (!(rel < 1e-4))
-                            fail_msg("%s %s, context %d, sample %d (u = %.9g, %.9g): "
-                                     "nf_point_sample pdf %.9g, nf_point_pdf %.9g",
-                                     preset ? "large" : "small", nft_prior_name(all_priors[p]),
-                                     c, i, (double)u[2 * i], (double)u[2 * i + 1],
-                                     (double)pdf_s[i], (double)pdf_p[i]);
-                    }
+    for (int run = 0; run < 3 * 2 * 4; ++run) { /* instruction set, preset, prior */
+        const int k = run / 8, preset = run / 4 % 2, p = run % 4;
+        nf_model *m = create_on(config_for((nf_preset)preset, all_priors[p]), all_isas[k]);
+        if (!m)
+            continue; /* an instruction set this CPU or build lacks */
+        perturb(m, 900u + 4u * (uint64_t)p + (uint64_t)preset);
+        nf_context ctx[8];
+        make_contexts(61u + (uint64_t)p, ctx, 8);
+        nft_rng r;
+        nft_rng_seed(&r, 62u + (uint64_t)p, 2u);
+        int compared = 0;
+        double worst = 0.0;
+        for (int c = 0; c < 8; ++c) {
+            for (int i = 0; i < 2 * N; ++i)
+                u[i] = nft_rng_float(&r);
+            u[0] = u[1] = 0.0f;
+            u[2] = u[3] = 0x1.fffffep-1f;
+            nf_shading_point sp;
+            assert_int_equal(nf_point_prepare(m, &ctx[c], NULL, &sp), NF_OK);
+            assert_int_equal(nf_point_sample(m, &sp, N, u, dir, pdf_s), NF_OK);
+            assert_int_equal(nf_point_pdf(m, &sp, N, dir, pdf_p), NF_OK);
+            for (int i = 0; i < N; ++i) {
+                const float *w = dir + 3 * i;
+                if (!(fabs(nft_length3f(w) - 1.0) <= 1e-5))
+                    fail_msg("sample %d has length %.9g", i, nft_length3f(w));
+                if (!isfinite(pdf_s[i]) || !(pdf_s[i] > 0.0f) || !isfinite(pdf_p[i]) ||
+                    !(pdf_p[i] > 0.0f))
+                    fail_msg("sample %d: pdfs %g, %g", i, (double)pdf_s[i], (double)pdf_p[i]);
+                if (nft_sin_theta(w) > 1e-2) {
+                    ++compared;
+                    double rel = fabs((double)pdf_s[i] - (double)pdf_p[i]) / pdf_p[i];
+                    worst = fmax(worst, rel);
+                    if (!(rel < 1e-4))
+                        fail_msg("%s %s %s, context %d, sample %d (u = %.9g, %.9g): "
+                                 "nf_point_sample pdf %.9g, nf_point_pdf %.9g",
+                                 isa_names[all_isas[k]], preset ? "large" : "small",
+                                 nft_prior_name(all_priors[p]), c, i, (double)u[2 * i],
+                                 (double)u[2 * i + 1], (double)pdf_s[i], (double)pdf_p[i]);
                 }
             }
-            /* sin theta <= 1e-2 has probability ~1e-4 per sample for these densities (the
-             * contexts with the normal on the poles raise it somewhat). */
-            assert_true(compared > 8 * N * 9 / 10);
-            print_message("%s %s: worst relative difference %.3g over %d samples\n",
-                          preset ? "large" : "small", nft_prior_name(all_priors[p]), worst,
-                          compared);
-            nf_model_destroy(m);
         }
+        /* sin theta <= 1e-2 has probability ~1e-4 per sample for these densities (the
+         * contexts with the normal on the poles raise it somewhat). */
+        assert_true(compared > 8 * N * 9 / 10);
+        print_message("%s %s %s: worst relative difference %.3g over %d samples\n",
+                      isa_names[all_isas[k]], preset ? "large" : "small",
+                      nft_prior_name(all_priors[p]), worst, compared);
+        nf_model_destroy(m);
     }
 }
 
@@ -1746,6 +1806,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_same_bits_as_batch),
         cmocka_unit_test(test_same_bits_around_cache_size),
+        cmocka_unit_test(test_vector_paths_same_bits_across_isas),
         cmocka_unit_test(test_point_pdf_integrates_to_one),
         cmocka_unit_test(test_sample_pdf_agree),
         cmocka_unit_test(test_stale_after_parameter_changes),
