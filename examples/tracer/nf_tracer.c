@@ -406,6 +406,8 @@ static int run(int argc, char **argv)
         if (ok && o.load_model && o.learning_rate_given &&
             nf_set_learning_rate(model, o.learning_rate) != NF_OK)
             ok = tr_fail(&err, "--lr: %s", nf_last_error_message());
+        if (ok && o.isa != NF_ISA_AUTO && nf_model_set_isa(model, o.isa) != NF_OK)
+            ok = tr_fail(&err, "--isa: %s", nf_last_error_message());
         /* Every rank starts from the same model, or the steps would differ. */
         if (!ranks_agree(ok, &err) || !guide_models_agree(model, 0, &err)) {
             fail(NULL, &err);
@@ -427,10 +429,11 @@ static int run(int argc, char **argv)
                 fprintf(stderr, "nf_tracer: note: the loaded model's prior (%s) replaces --prior "
                         "%s\n", kinds[cfg.prior], guide_prior_name(o.prior));
         }
-        printf("guiding    prior %s, %s model (%zu parameters), lr %g, guide probability %g%s%s\n",
+        printf("guiding    prior %s, %s model (%zu parameters), %s kernels, lr %g, guide "
+               "probability %g%s%s\n",
                t.bsdf_prior ? "bsdf" : guide_prior_name((guide_prior)cfg.prior),
                cfg.coupling_layers > 2 ? "large" : "small", nf_param_count(model),
-               (double)cfg.learning_rate, (double)t.policy.mixture_prob,
+               nf_model_isa_name(model), (double)cfg.learning_rate, (double)t.policy.mixture_prob,
                o.variants ? ", variant " : "", o.variants ? o.variants : "");
         t.model = model;
         o.guide.learning_rate = cfg.learning_rate; /* --lr, or a loaded model's own rate */

@@ -66,6 +66,8 @@ void options_print_help(const char *program)
         "                        mpirun, per rank\n"
         "  --seed N              random seed (default 1); results are identical for the same\n"
         "                        seed, whatever the number of threads and of MPI ranks\n"
+        "  --isa NAME            the library's kernels: auto (default, the best this CPU\n"
+        "                        runs), generic, avx2 or avx512 (nf_model_set_isa)\n"
         "  --help                this text\n"
         "\n"
         "Several processes or machines (docs/distributed.md): mpirun -n N %s ... splits each\n"
@@ -350,6 +352,15 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
             if (errno || end == v || *end || v[0] == '-')
                 return tr_fail(err, "--seed: '%s' is not a non-negative integer", v);
             o->seed = (uint64_t)s;
+        } else if (!strcmp(a, "--isa")) {
+            static const char *const names[] = {"auto", "generic", "avx2", "avx512"};
+            int found = -1;
+            for (int k = 0; k < 4; ++k)
+                if (!strcmp(v, names[k]))
+                    found = k;
+            if (found < 0)
+                return tr_fail(err, "--isa: '%s' is not one of auto, generic, avx2, avx512", v);
+            o->isa = (nf_isa)found;
         } else if (!strcmp(a, "--time-budget"))
             ok = parse_float(a, v, 0.01, 1e6, &o->time_budget, err);
         else if (!strcmp(a, "--exposure"))

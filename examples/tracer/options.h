@@ -25,6 +25,7 @@ typedef struct options {
     int width, height;        /* 0: the scene's film                                          */
     int max_depth;            /* -2: the scene's                                              */
     int threads;
+    nf_isa isa;               /* the library's kernels (NF_ISA_AUTO: the best the CPU runs)    */
     uint64_t seed;
     int guiding;
     int reference_mode;

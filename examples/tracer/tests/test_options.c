@@ -1,6 +1,6 @@
 /*
  * test_options.c - the command line: the defaults are the library's guide defaults and the
- * best configuration of docs/equal-time.md; --variant settings (the studies' and the
+ * best configuration of docs/equal-time.md; --isa names the kernels; --variant settings (the studies' and the
  * ablations') are parsed, range-checked, and reach the options; the model settings among
  * them (prior epsilon, phi map, SH bands) reach the created model's config.
  */
@@ -103,6 +103,23 @@ static void test_defaults_are_the_best_configuration(void **state)
     assert_int_equal(o.light_mis_bsdf, 0);
     assert_int_equal(o.phi_interval, 0);
     assert_true(o.prior_epsilon < 0.0f); /* the library's */
+    assert_int_equal(o.isa, NF_ISA_AUTO);
+}
+
+/* --isa names the library's kernels; anything else is refused with a message naming it. */
+static void test_isa_is_parsed(void **state)
+{
+    (void)state;
+    static const char *const names[] = {"auto", "generic", "avx2", "avx512"};
+    static const nf_isa isas[] = {NF_ISA_AUTO, NF_ISA_GENERIC, NF_ISA_AVX2, NF_ISA_AVX512};
+    options o;
+    tr_error err;
+    for (int k = 0; k < 4; ++k) {
+        assert_true(parse(&o, "--isa", names[k], &err));
+        assert_int_equal(o.isa, isas[k]);
+    }
+    const char *const bad[] = {"", "AVX2", "avx", "sse2", "avx512f"};
+    assert_refused("--isa", bad, sizeof bad / sizeof bad[0]);
 }
 
 static void test_variants_are_parsed_and_range_checked(void **state)
@@ -202,6 +219,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_defaults_are_the_best_configuration),
         cmocka_unit_test(test_variants_are_parsed_and_range_checked),
+        cmocka_unit_test(test_isa_is_parsed),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
         cmocka_unit_test(test_phi_map_reaches_the_model),
         cmocka_unit_test(test_sh_bands_reach_the_model),
