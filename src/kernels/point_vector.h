@@ -109,6 +109,7 @@ static NF_ALWAYS_INLINE void nf_pv_to_square(const float dir_in[3], float s[2])
     s[0] = nf_clampf(theta * (1.0f / NF_PI), 0.0f, 1.0f);
     s[1] = nf_clampf(phi * (1.0f / NF_TWO_PI), 0.0f, 0x1.fffffep-1f);
 }
+
 /* y and dy/dx at x in the bin: nf_spline_bin_eval's formula, with the bin's slope and inverse
  * width given (a multiply where it divides) and its multiply-adds fused. */
 static NF_ALWAYS_INLINE float nf_pv_bin_eval(const nf_pv_bin *b, float x, float *dydx)

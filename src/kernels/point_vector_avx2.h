@@ -23,7 +23,7 @@
  * derivative d_i; of s and iw bin i's slope h_i / w_i and 1 / w_i. */
 typedef struct nf_pv_spline {
     __m256 x[2], y[2]; /* knots x_1 .. x_K, y_1 .. y_K: 8 to a register (x_K = y_K = 1) */
-    float xs[NF_PV_LANES * 2 + 8], ys[NF_PV_LANES * 2 + 8];
+    float xs[NF_PV_LANES * 2 + 1], ys[NF_PV_LANES * 2 + 1];
     float d[NF_PV_LANES * 3], s[NF_PV_LANES * 2], iw[NF_PV_LANES * 2];
     float rotation; /* a turning layer's raw rotation (circle.h) */
 } nf_pv_spline;
@@ -69,9 +69,10 @@ static NF_ALWAYS_INLINE float nf_pv_last(__m256 v)
     return _mm_cvtss_f32(_mm_permute_ps(hi, _MM_SHUFFLE(3, 3, 3, 3)));
 }
 
-/* out[c] = bias + sum_k h[k] W[k] for `regs` registers of outputs, two partial sums per
- * register (inputs k = j mod 2): 8 multiply-adds deep instead of 16, in the 16 registers AVX2
- * has. */
+/* out[c] = bias + sum_k h[k] W[k] for `regs` registers of outputs, on four partial sums per
+ * register (inputs k = j mod 4) added as point_vector_avx512.h adds them, so that both round
+ * alike. The large preset's 28 accumulators do not fit AVX2's 16 registers and some spill; two
+ * partial sums would spill none but round otherwise (docs/performance.md). */
 static NF_ALWAYS_INLINE void nf_pv_dense(const float *w, const float *bias, uint32_t stride,
                                          uint32_t regs, uint32_t inputs, const __m256 h[2],
                                          __m256 *out)
@@ -128,7 +129,7 @@ static NF_ALWAYS_INLINE void nf_pv_prefix(__m256 *e, uint32_t regs)
         e[1] = _mm256_add_ps(e[1], e[0]);
 }
 
-/* v shifted up one lane across both registers, `first` into lane 0 of the first. */
+/* v shifted up one lane, `first` (the last lane of the register before, or 0) into lane 0. */
 static NF_ALWAYS_INLINE __m256 nf_pv_shift_one(__m256 v, float first)
 {
     __m256 up = _mm256_permutevar8x32_ps(v, _mm256_setr_epi32(0, 0, 1, 2, 3, 4, 5, 6));

@@ -150,6 +150,7 @@ static NF_ALWAYS_INLINE __m512 nf_pv_derivatives(__m512 raw)
                               nf_pv_log(_mm512_add_ps(_mm512_set1_ps(1.0f), e)));
     return _mm512_add_ps(sp, _mm512_set1_ps(NF_SPLINE_MIN));
 }
+
 /* Coupling layer `layer`'s spline for the pass-through coordinate v: the conditioner from the
  * point's context sums, the clamp of nf_conditioner_forward (NaN to the lower bound), knots
  * and knot derivatives (a circular layer's d_K is d_0, circle.h). */
@@ -202,6 +203,7 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
     s->d[0] = nf_pv_derivatives(d0);
     s->d[1] = bins == 16u ? nf_pv_derivatives(d1) : s->d[0];
 }
+
 /* The bin of v among knots t_1 .. t_K: the count of interior knots <= v (nf_spline_find). */
 static NF_ALWAYS_INLINE uint32_t nf_pv_find_in(__m512 knots, uint32_t bins, float v)
 {
