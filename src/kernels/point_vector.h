@@ -157,7 +157,7 @@ static NF_ALWAYS_INLINE void nf_pv_map(const nf_model *m, nf_point_shape sh, int
     nf_pv_bin bin;
     float slope;
     if (!inverse) {
-        nf_pv_bin_at(s, nf_pv_find_x(s, sh.bins, w->x[t]), &bin);
+        nf_pv_bin_at(s, nf_pv_find(s->x, sh.bins, w->x[t]), &bin);
         w->x[t] = nf_pv_bin_eval(&bin, w->x[t], &slope);
         if (turns)
             w->x[t] = nf_wrap_unit(w->x[t] + nf_rotation(s->rotation, sh.bins));
@@ -165,7 +165,7 @@ static NF_ALWAYS_INLINE void nf_pv_map(const nf_model *m, nf_point_shape sh, int
     } else {
         if (turns)
             w->x[t] = nf_wrap_unit(w->x[t] - nf_rotation(s->rotation, sh.bins));
-        nf_pv_bin_at(s, nf_pv_find_y(s, sh.bins, w->x[t]), &bin);
+        nf_pv_bin_at(s, nf_pv_find(s->y, sh.bins, w->x[t]), &bin);
         float solved = nf_pv_bin_solve(&bin, w->x[t]);
         nf_pv_bin_eval(&bin, solved, &slope);
         w->x[t] = solved;

@@ -255,24 +255,13 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
 }
 
 /* The bin of v among knots t_1 .. t_K: the count of interior knots <= v (nf_spline_find). */
-static NF_ALWAYS_INLINE uint32_t nf_pv_find_in(const __m256 knots[2], uint32_t bins, float v)
+static NF_ALWAYS_INLINE uint32_t nf_pv_find(const __m256 knots[2], uint32_t bins, float v)
 {
     const __m256 vv = _mm256_set1_ps(v);
     unsigned le = (unsigned)_mm256_movemask_ps(_mm256_cmp_ps(knots[0], vv, _CMP_LE_OQ));
     if (bins > NF_PV_LANES)
         le |= (unsigned)_mm256_movemask_ps(_mm256_cmp_ps(knots[1], vv, _CMP_LE_OQ)) << 8;
     return (uint32_t)__builtin_popcount(le & ((1u << (bins - 1u)) - 1u));
-}
-
-/* The bin of a forward map's x, and of an inverse map's y. */
-static NF_ALWAYS_INLINE uint32_t nf_pv_find_x(const nf_pv_spline *s, uint32_t bins, float x)
-{
-    return nf_pv_find_in(s->x, bins, x);
-}
-
-static NF_ALWAYS_INLINE uint32_t nf_pv_find_y(const nf_pv_spline *s, uint32_t bins, float y)
-{
-    return nf_pv_find_in(s->y, bins, y);
 }
 
 static NF_ALWAYS_INLINE void nf_pv_bin_at(const nf_pv_spline *s, uint32_t k, nf_pv_bin *b)

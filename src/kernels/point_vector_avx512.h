@@ -205,21 +205,10 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
 }
 
 /* The bin of v among knots t_1 .. t_K: the count of interior knots <= v (nf_spline_find). */
-static NF_ALWAYS_INLINE uint32_t nf_pv_find_in(__m512 knots, uint32_t bins, float v)
+static NF_ALWAYS_INLINE uint32_t nf_pv_find(__m512 knots, uint32_t bins, float v)
 {
     __mmask16 le = _mm512_cmp_ps_mask(knots, _mm512_set1_ps(v), _CMP_LE_OQ);
     return (uint32_t)__builtin_popcount((unsigned)le & ((1u << (bins - 1u)) - 1u));
-}
-
-/* The bin of a forward map's x, and of an inverse map's y. */
-static NF_ALWAYS_INLINE uint32_t nf_pv_find_x(const nf_pv_spline *s, uint32_t bins, float x)
-{
-    return nf_pv_find_in(s->x, bins, x);
-}
-
-static NF_ALWAYS_INLINE uint32_t nf_pv_find_y(const nf_pv_spline *s, uint32_t bins, float y)
-{
-    return nf_pv_find_in(s->y, bins, y);
 }
 
 static NF_ALWAYS_INLINE void nf_pv_bin_at(const nf_pv_spline *s, uint32_t k, nf_pv_bin *b)
