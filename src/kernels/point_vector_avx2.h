@@ -56,12 +56,6 @@ static NF_ALWAYS_INLINE __m256 nf_pv_log(__m256 x)
     return nf_pv_log_reduced(_mm256_add_ps(m1, _mm256_and_ps(small, m)), e);
 }
 
-/* Lane k (0 .. 15) of the two registers h in every lane. */
-static NF_ALWAYS_INLINE __m256 nf_pv_splat(const __m256 h[2], uint32_t k)
-{
-    return _mm256_permutevar8x32_ps(h[k / NF_PV_LANES], _mm256_set1_epi32((int)(k % NF_PV_LANES)));
-}
-
 /* Lane 7 of v. */
 static NF_ALWAYS_INLINE float nf_pv_last(__m256 v)
 {
@@ -71,27 +65,26 @@ static NF_ALWAYS_INLINE float nf_pv_last(__m256 v)
 
 /* out[c] = bias + sum_k h[k] W[k] for `regs` registers of outputs, on four partial sums per
  * register (inputs k = j mod 4) added as point_vector_avx512.h adds them, so that both round
- * alike. The large preset's 28 accumulators do not fit AVX2's 16 registers and some spill; two
- * partial sums would spill none but round otherwise (docs/performance.md). */
+ * alike. One output register at a time: its four sums and a broadcast input fit in registers,
+ * where all outputs at once (16 sums for K = 8, 28 for K = 16) spill to the stack on AVX2's
+ * 16 registers. The inputs are broadcast from memory (a load each), not permuted out of h. */
 static NF_ALWAYS_INLINE void nf_pv_dense(const float *w, const float *bias, uint32_t stride,
                                          uint32_t regs, uint32_t inputs, const __m256 h[2],
                                          __m256 *out)
 {
-    __m256 acc[4][NF_PV_RAW_REGS];
+    _Alignas(32) float hs[2 * NF_PV_LANES];
+    _mm256_store_ps(hs, h[0]);
+    _mm256_store_ps(hs + NF_PV_LANES, h[1]);
     for (uint32_t c = 0; c < regs; ++c) {
-        acc[0][c] = _mm256_loadu_ps(bias + (size_t)c * NF_PV_LANES);
-        acc[1][c] = acc[2][c] = acc[3][c] = _mm256_setzero_ps();
+        const float *wc = w + (size_t)c * NF_PV_LANES;
+        __m256 acc[4];
+        acc[0] = _mm256_loadu_ps(bias + (size_t)c * NF_PV_LANES);
+        acc[1] = acc[2] = acc[3] = _mm256_setzero_ps();
+        for (uint32_t k = 0; k < inputs; ++k)
+            acc[k & 3u] = _mm256_fmadd_ps(_mm256_broadcast_ss(hs + k),
+                                          _mm256_loadu_ps(wc + (size_t)k * stride), acc[k & 3u]);
+        out[c] = _mm256_add_ps(_mm256_add_ps(acc[0], acc[1]), _mm256_add_ps(acc[2], acc[3]));
     }
-    for (uint32_t k = 0; k < inputs; ++k) {
-        __m256 hk = nf_pv_splat(h, k);
-        for (uint32_t c = 0; c < regs; ++c)
-            acc[k & 3u][c] = _mm256_fmadd_ps(
-                hk, _mm256_loadu_ps(w + (size_t)k * stride + (size_t)c * NF_PV_LANES),
-                acc[k & 3u][c]);
-    }
-    for (uint32_t c = 0; c < regs; ++c)
-        out[c] =
-            _mm256_add_ps(_mm256_add_ps(acc[0][c], acc[1][c]), _mm256_add_ps(acc[2][c], acc[3][c]));
 }
 
 /* a with its lanes below s (1, 2 or 4) taken from b. */
