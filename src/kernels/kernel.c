@@ -6,8 +6,8 @@
  * nf_sample and nf_pdf run on tiles of 16 samples (flow_tile.h), or through a shading point on
  * the stack (point.h) for calls of 1 or 2; the shading-point API runs one direction at a time,
  * on point.h, or for the presets in the AVX2 and AVX-512 kernels on point_vector.h (two
- * directions at a point in step); the gradient runs on tiles (flow_tile_backward.h), or per sample
- * for calls of 1 to 3.
+ * directions at a point in step; the AVX-512 copy hands the small preset's points to the AVX2
+ * one); the gradient runs on tiles (flow_tile_backward.h), or per sample for calls of 1 to 3.
  */
 #include <float.h>
 #include <math.h>
@@ -134,13 +134,30 @@ NF_POINT_CALL_PAIRS(any)
         const nf_point_shape sh = SHAPE;                                                           \
         return nf_pv_sample_and_pdf(m, sh, p, u, dir, pdf, eval_dir, eval_pdf);                    \
     }
-NF_PV_VARIANT(small, NF_POINT_SHAPE_SMALL)
 NF_PV_VARIANT(large, NF_POINT_SHAPE_LARGE)
-#define NF_PV(name, suffix) nf_pv_##name##_##suffix
+#define NF_PV_LARGE(name) nf_pv_##name##_large
+#else
+NF_POINT_CALL_PAIRS(large)
+#define NF_PV_LARGE(name) nf_point_##name##_large
+#endif
+
+/* The AVX-512 kernels hand the small preset's shading points (prepare, sample, pdf) to the
+ * AVX2 kernels, whose 8-lane layer gives the same bits (test_point): on an AVX-512 Xeon the
+ * 512-bit layer made the per-path tracer as a whole 8-11 % slower, beyond what its own calls
+ * cost (docs/performance.md, "The small preset's points on 256-bit code"). The large
+ * preset's 16 bins fill a 16-lane register, and its 512-bit layer measured faster. */
+#if defined(NF_PV_AVAILABLE) && defined(__AVX512F__) && defined(NF_HAVE_X86_KERNELS)
+#define NF_POINT_SMALL_KERNELS (&nf_kernels_avx2)
+#endif
+
+/* The small preset's functions where these kernels run its points themselves; in the AVX-512
+ * kernels the same-bits ones stand in the tables, never reached (NF_POINT_SMALL_KERNELS). */
+#if defined(NF_PV_AVAILABLE) && !defined(NF_POINT_SMALL_KERNELS)
+NF_PV_VARIANT(small, NF_POINT_SHAPE_SMALL)
+#define NF_PV_SMALL(name) nf_pv_##name##_small
 #else
 NF_POINT_CALL_PAIRS(small)
-NF_POINT_CALL_PAIRS(large)
-#define NF_PV(name, suffix) nf_point_##name##_##suffix
+#define NF_PV_SMALL(name) nf_point_##name##_small
 #endif
 
 typedef nf_status (*nf_point_sample_fn)(const nf_model *, const nf_shading_point *,
@@ -176,21 +193,21 @@ static nf_point_pdf_fn nf_point_evaluator(const nf_model *m)
  * nf_sample / nf_pdf calls keep the same-bits path, so that they agree with tiles. */
 static nf_point_sample_fn nf_point_api_sampler(const nf_model *m)
 {
-    static const nf_point_sample_fn fns[3] = {nf_point_sample_any, NF_PV(sample, small),
-                                              NF_PV(sample, large)};
+    static const nf_point_sample_fn fns[3] = {nf_point_sample_any, NF_PV_SMALL(sample),
+                                              NF_PV_LARGE(sample)};
     return fns[nf_point_variant(m)];
 }
 
 static nf_point_pdf_fn nf_point_api_evaluator(const nf_model *m)
 {
-    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_any, NF_PV(pdf, small), NF_PV(pdf, large)};
+    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_any, NF_PV_SMALL(pdf), NF_PV_LARGE(pdf)};
     return fns[nf_point_variant(m)];
 }
 
 static nf_point_pdf_fn nf_point_api_pair_evaluator(const nf_model *m)
 {
-    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_pair_any, NF_PV(pdf_pair, small),
-                                           NF_PV(pdf_pair, large)};
+    static const nf_point_pdf_fn fns[3] = {nf_point_pdf_pair_any, NF_PV_SMALL(pdf_pair),
+                                           NF_PV_LARGE(pdf_pair)};
     return fns[nf_point_variant(m)];
 }
 
@@ -212,10 +229,27 @@ static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const floa
     return nf_point_evaluator(m)(m, &p, ctx, dir, pdf);
 }
 
+/* nf_point_prepare. */
+static void nf_kernel_point_prepare(const nf_model *m, const nf_context *ctx,
+                                    const nf_prior_callbacks *prior, nf_shading_point *point)
+{
+#if defined(NF_POINT_SMALL_KERNELS)
+    if (nf_point_variant(m) == 1) {
+        NF_POINT_SMALL_KERNELS->point_prepare(m, ctx, prior, point);
+        return;
+    }
+#endif
+    nf_point_prepare_at(m, ctx, prior, point);
+}
+
 /* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). */
 static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points, size_t n,
                                         size_t stride, const float *u, float *dir, float *pdf)
 {
+#if defined(NF_POINT_SMALL_KERNELS)
+    if (nf_point_variant(m) == 1)
+        return NF_POINT_SMALL_KERNELS->point_sample(m, points, n, stride, u, dir, pdf);
+#endif
     const nf_point_sample_fn sample = nf_point_api_sampler(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
@@ -229,6 +263,10 @@ static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_poin
 static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *points, size_t n,
                                      size_t stride, const float *dir, float *pdf)
 {
+#if defined(NF_POINT_SMALL_KERNELS)
+    if (nf_point_variant(m) == 1)
+        return NF_POINT_SMALL_KERNELS->point_pdf(m, points, n, stride, dir, pdf);
+#endif
     const nf_point_pdf_fn eval = nf_point_api_evaluator(m);
     size_t i = 0;
     if (stride == 0) /* directions at one point: two at a time, in step (point.h) */
@@ -251,10 +289,14 @@ static nf_status nf_kernel_point_sample_and_pdf(const nf_model *m, const nf_shad
                                                 const float u[2], float dir[3], float *pdf,
                                                 const float eval_dir[3], float *eval_pdf)
 {
+#if defined(NF_POINT_SMALL_KERNELS)
+    if (nf_point_variant(m) == 1)
+        return NF_POINT_SMALL_KERNELS->point_sample_and_pdf(m, p, u, dir, pdf, eval_dir, eval_pdf);
+#endif
     typedef nf_status (*fn)(const nf_model *, const nf_shading_point *, const nf_context *,
                             const float *, float *, float *, const float *, float *);
-    static const fn fns[3] = {nf_point_sample_and_pdf_any, NF_PV(sample_and_pdf, small),
-                              NF_PV(sample_and_pdf, large)};
+    static const fn fns[3] = {nf_point_sample_and_pdf_any, NF_PV_SMALL(sample_and_pdf),
+                              NF_PV_LARGE(sample_and_pdf)};
     return fns[nf_point_variant(m)](m, p, &p->context_, u, dir, pdf, eval_dir, eval_pdf);
 }
 
@@ -420,7 +462,7 @@ const nf_kernels NF_KERNEL_CAT(nf_kernels_, NF_KERNEL_ISA) = {NF_KERNEL_STR(NF_K
                                                               nf_kernel_sample,
                                                               nf_kernel_pdf,
                                                               nf_kernel_gradient,
-                                                              nf_point_prepare_at,
+                                                              nf_kernel_point_prepare,
                                                               nf_kernel_point_sample,
                                                               nf_kernel_point_pdf,
                                                               nf_kernel_point_sample_and_pdf,

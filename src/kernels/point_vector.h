@@ -21,7 +21,8 @@
  * point_vector_avx2.h in 8-lane ones. This file walks the layers they build and maps the ends.
  *
  * It serves the two presets (16 hidden units, K = 8 or 16 spline bins, the context sums cached
- * in the point): kernel.c compiles it for their shapes, as constants.
+ * in the point): kernel.c compiles it for their shapes, as constants (in the AVX-512 kernels for
+ * the large preset only: the small one's points run the AVX2 kernels' copy).
  */
 #ifndef NISFLOW_KERNELS_POINT_VECTOR_H
 #define NISFLOW_KERNELS_POINT_VECTOR_H

@@ -2,7 +2,8 @@
  * point_vector_avx512.h - the per-direction path's coupling layer in AVX-512 registers: the
  * conditioner, the knots and their derivatives, a bin's search and its values, with the hidden
  * units, the knots and the bins of one direction each in one 16-lane register (K <= 16).
- * point_vector.h says what the path is for and walks the layers these build.
+ * point_vector.h says what the path is for and walks the layers these build. kernel.c runs
+ * it for the large preset; the small one's points go to the AVX2 kernels' layer.
  */
 #ifndef NISFLOW_KERNELS_POINT_VECTOR_AVX512_H
 #define NISFLOW_KERNELS_POINT_VECTOR_AVX512_H
