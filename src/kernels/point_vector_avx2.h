@@ -223,11 +223,12 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
     nf_pv_knots(raw, bins, s->x);
     nf_pv_knots(raw + regs, bins, s->y);
     /* the derivatives d_0 .. d_K start at raw 2K; d_K (or a turning layer's rotation) is lane
-     * 0 of the register after them */
-    for (uint32_t c = 0; c <= regs; ++c)
+     * 0 of the register after them, whose softplus a turning layer skips: its d_K is d_0 */
+    const int circular = nf_layer_circular(m, layer);
+    for (uint32_t c = 0; c < regs + (circular ? 0u : 1u); ++c)
         _mm256_storeu_ps(s->d + c * NF_PV_LANES, nf_pv_derivatives(raw[2u * regs + c]));
     s->rotation = 0.0f;
-    if (nf_layer_circular(m, layer)) {
+    if (circular) {
         s->rotation = _mm256_cvtss_f32(raw[3u * regs]);
         s->d[bins] = s->d[0];
     }
