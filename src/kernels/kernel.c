@@ -143,9 +143,9 @@ NF_POINT_CALL_PAIRS(large)
 
 /* The AVX-512 kernels hand the small preset's shading points (prepare, sample, pdf) to the
  * AVX2 kernels, whose 8-lane layer gives the same bits (test_point): on an AVX-512 Xeon the
- * 512-bit layer made the per-path tracer as a whole 8-11 % slower, beyond what its own calls
- * cost (docs/performance.md, "The small preset's points on 256-bit code"). The large
- * preset's 16 bins fill a 16-lane register, and its 512-bit layer measured faster. */
+ * 512-bit layer slowed a per-path renderer as a whole, beyond what its own calls cost
+ * (docs/performance.md, "The small preset's points on 256-bit code"). The large preset's 16
+ * bins fill a 16-lane register, and its 512-bit layer measured faster. */
 #if defined(NF_PV_AVAILABLE) && defined(__AVX512F__) && defined(NF_HAVE_X86_KERNELS)
 #define NF_POINT_SMALL_KERNELS (&nf_kernels_avx2)
 #endif
@@ -165,13 +165,18 @@ typedef nf_status (*nf_point_sample_fn)(const nf_model *, const nf_shading_point
 typedef nf_status (*nf_point_pdf_fn)(const nf_model *, const nf_shading_point *, const nf_context *,
                                      const float *, float *);
 
-/* The variant for the model's shape. Comparing the shape costs a few compares per call, far
- * less than what the constants save. */
+/* The variant for the model's shape, an index into the tables below: any shape, the small
+ * preset's, the large preset's. Comparing the shape costs a few compares per call, far less
+ * than what the constants save. */
+enum { NF_VARIANT_ANY, NF_VARIANT_SMALL, NF_VARIANT_LARGE };
+
 static int nf_point_variant(const nf_model *m)
 {
     const nf_point_shape small = NF_POINT_SHAPE_SMALL, large = NF_POINT_SHAPE_LARGE;
     nf_point_shape sh = nf_point_shape_of(m);
-    return nf_point_shape_equal(sh, small) ? 1 : nf_point_shape_equal(sh, large) ? 2 : 0;
+    return nf_point_shape_equal(sh, small)   ? NF_VARIANT_SMALL
+           : nf_point_shape_equal(sh, large) ? NF_VARIANT_LARGE
+                                             : NF_VARIANT_ANY;
 }
 
 static nf_point_sample_fn nf_point_sampler(const nf_model *m)
@@ -234,7 +239,7 @@ static void nf_kernel_point_prepare(const nf_model *m, const nf_context *ctx,
                                     const nf_prior_callbacks *prior, nf_shading_point *point)
 {
 #if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == 1) {
+    if (nf_point_variant(m) == NF_VARIANT_SMALL) {
         NF_POINT_SMALL_KERNELS->point_prepare(m, ctx, prior, point);
         return;
     }
@@ -247,7 +252,7 @@ static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_poin
                                         size_t stride, const float *u, float *dir, float *pdf)
 {
 #if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == 1)
+    if (nf_point_variant(m) == NF_VARIANT_SMALL)
         return NF_POINT_SMALL_KERNELS->point_sample(m, points, n, stride, u, dir, pdf);
 #endif
     const nf_point_sample_fn sample = nf_point_api_sampler(m);
@@ -264,7 +269,7 @@ static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *
                                      size_t stride, const float *dir, float *pdf)
 {
 #if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == 1)
+    if (nf_point_variant(m) == NF_VARIANT_SMALL)
         return NF_POINT_SMALL_KERNELS->point_pdf(m, points, n, stride, dir, pdf);
 #endif
     const nf_point_pdf_fn eval = nf_point_api_evaluator(m);
@@ -290,7 +295,7 @@ static nf_status nf_kernel_point_sample_and_pdf(const nf_model *m, const nf_shad
                                                 const float eval_dir[3], float *eval_pdf)
 {
 #if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == 1)
+    if (nf_point_variant(m) == NF_VARIANT_SMALL)
         return NF_POINT_SMALL_KERNELS->point_sample_and_pdf(m, p, u, dir, pdf, eval_dir, eval_pdf);
 #endif
     typedef nf_status (*fn)(const nf_model *, const nf_shading_point *, const nf_context *,
