@@ -18,7 +18,7 @@
  *   - a refused call writes nothing, and a refused nf_point_prepare leaves the slot's bytes;
  *   - an accepted call gives unit directions (within 2e-6, as
  *     tests/robustness/test_numeric_robustness) and finite positive densities, the same
- *     result (same_result: the same bits but on the presets' AVX-512 vector path) as
+ *     result (same_result: the same bits but on the presets' AVX2 / AVX-512 vector path) as
  *     nf_sample / nf_pdf on the point's context,
  *     as one call of n (tiled for n >= 3) or as calls of 1: a bit of the program chooses
  *     which, per operation.
