@@ -179,6 +179,18 @@ static int nf_point_variant(const nf_model *m)
                                              : NF_VARIANT_ANY;
 }
 
+/* The kernels that run this model's shading points instead of these (NF_POINT_SMALL_KERNELS),
+ * or NULL where these run them. */
+static const nf_kernels *nf_points_elsewhere(const nf_model *m)
+{
+#if defined(NF_POINT_SMALL_KERNELS)
+    return nf_point_variant(m) == NF_VARIANT_SMALL ? NF_POINT_SMALL_KERNELS : NULL;
+#else
+    (void)m;
+    return NULL;
+#endif
+}
+
 static nf_point_sample_fn nf_point_sampler(const nf_model *m)
 {
     static const nf_point_sample_fn fns[3] = {nf_point_sample_any, nf_point_sample_small,
@@ -238,12 +250,11 @@ static nf_status nf_pdf_one(const nf_model *m, const nf_context *ctx, const floa
 static void nf_kernel_point_prepare(const nf_model *m, const nf_context *ctx,
                                     const nf_prior_callbacks *prior, nf_shading_point *point)
 {
-#if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == NF_VARIANT_SMALL) {
-        NF_POINT_SMALL_KERNELS->point_prepare(m, ctx, prior, point);
+    const nf_kernels *elsewhere = nf_points_elsewhere(m);
+    if (elsewhere) {
+        elsewhere->point_prepare(m, ctx, prior, point);
         return;
     }
-#endif
     nf_point_prepare_at(m, ctx, prior, point);
 }
 
@@ -251,10 +262,9 @@ static void nf_kernel_point_prepare(const nf_model *m, const nf_context *ctx,
 static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points, size_t n,
                                         size_t stride, const float *u, float *dir, float *pdf)
 {
-#if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == NF_VARIANT_SMALL)
-        return NF_POINT_SMALL_KERNELS->point_sample(m, points, n, stride, u, dir, pdf);
-#endif
+    const nf_kernels *elsewhere = nf_points_elsewhere(m);
+    if (elsewhere)
+        return elsewhere->point_sample(m, points, n, stride, u, dir, pdf);
     const nf_point_sample_fn sample = nf_point_api_sampler(m);
     for (size_t i = 0; i < n; ++i) {
         const nf_shading_point *p = points + i * stride;
@@ -268,10 +278,9 @@ static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_poin
 static nf_status nf_kernel_point_pdf(const nf_model *m, const nf_shading_point *points, size_t n,
                                      size_t stride, const float *dir, float *pdf)
 {
-#if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == NF_VARIANT_SMALL)
-        return NF_POINT_SMALL_KERNELS->point_pdf(m, points, n, stride, dir, pdf);
-#endif
+    const nf_kernels *elsewhere = nf_points_elsewhere(m);
+    if (elsewhere)
+        return elsewhere->point_pdf(m, points, n, stride, dir, pdf);
     const nf_point_pdf_fn eval = nf_point_api_evaluator(m);
     size_t i = 0;
     if (stride == 0) /* directions at one point: two at a time, in step (point.h) */
@@ -294,10 +303,9 @@ static nf_status nf_kernel_point_sample_and_pdf(const nf_model *m, const nf_shad
                                                 const float u[2], float dir[3], float *pdf,
                                                 const float eval_dir[3], float *eval_pdf)
 {
-#if defined(NF_POINT_SMALL_KERNELS)
-    if (nf_point_variant(m) == NF_VARIANT_SMALL)
-        return NF_POINT_SMALL_KERNELS->point_sample_and_pdf(m, p, u, dir, pdf, eval_dir, eval_pdf);
-#endif
+    const nf_kernels *elsewhere = nf_points_elsewhere(m);
+    if (elsewhere)
+        return elsewhere->point_sample_and_pdf(m, p, u, dir, pdf, eval_dir, eval_pdf);
     typedef nf_status (*fn)(const nf_model *, const nf_shading_point *, const nf_context *,
                             const float *, float *, float *, const float *, float *);
     static const fn fns[3] = {nf_point_sample_and_pdf_any, NF_PV_SMALL(sample_and_pdf),
