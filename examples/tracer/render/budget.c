@@ -15,6 +15,7 @@
 #include "guide.h"
 #include "metrics.h"
 #include "parallel.h"
+#include "peaks.h"
 #include "progress.h"
 #include "ranks.h"
 #include "render.h"
@@ -23,6 +24,8 @@
 #define PASS_STREAM_BASE 0x100000u
 /* Training passes are kept in at most this many groups of equal size. */
 #define MAX_GROUPS 32
+/* A guided kind with this many passes is weighed in the image by its own passes' spread. */
+#define OWN_SPREAD_PASSES 16
 
 /* ---- Accumulating passes -------------------------------------------------------------------- */
 
@@ -155,8 +158,10 @@ static void kind_add(kind_sums *k, const image *pass, const float *moment, size_
 typedef struct pass_sums {
     kind_sums train, kind[KINDS];
     double *ref;          /* per pixel: the luminance averaged over every pass         */
+    double *peakless;     /* ref with its lone peaks lowered (sums_reference)          */
     double *pool, *pool2; /* per pixel: plain path tracing's first and second moments  */
-    size_t pixels;
+    size_t pixels, width;
+    nf_pass_measure depth[NF_GUIDE_DEPTHS]; /* the guided kinds against peakless         */
 } pass_sums;
 
 static void sums_free(pass_sums *ps)
@@ -165,25 +170,32 @@ static void sums_free(pass_sums *ps)
     for (unsigned k = 0; k < KINDS; ++k)
         kind_free(&ps->kind[k]);
     free(ps->ref);
+    free(ps->peakless);
     free(ps->pool);
     free(ps->pool2);
 }
 
-static int sums_alloc(pass_sums *ps, size_t pixels)
+static int sums_alloc(pass_sums *ps, size_t width, size_t height)
 {
+    size_t pixels = width * height;
     memset(ps, 0, sizeof *ps);
     ps->pixels = pixels;
+    ps->width = width;
     ps->ref = calloc(pixels, sizeof *ps->ref);
+    ps->peakless = calloc(pixels, sizeof *ps->peakless);
     ps->pool = calloc(pixels, sizeof *ps->pool);
     ps->pool2 = calloc(pixels, sizeof *ps->pool2);
-    int ok = kind_alloc(&ps->train, pixels) && ps->ref && ps->pool && ps->pool2;
+    int ok = kind_alloc(&ps->train, pixels) && ps->ref && ps->peakless && ps->pool && ps->pool2;
     for (unsigned k = 0; k < KINDS; ++k)
         ok = ok && kind_alloc(&ps->kind[k], pixels);
     return ok;
 }
 
 /* ps->ref: each pixel's luminance averaged over every pass, training and every kind, the
- * reference that the kinds' spreads are measured against (nf_guide_pass_variance). */
+ * reference that the kinds' spreads are measured against (nf_guide_pass_variance); and
+ * ps->peakless, the same without lone peaks (base/peaks.h), against which the guided kinds'
+ * depths are ranked: a rare bright path weighs there as it weighs in relMSE. Under ranks, the
+ * neighbours another rank renders are zero here. */
 static void sums_reference(pass_sums *ps)
 {
     double n = ps->train.n;
@@ -195,6 +207,8 @@ static void sums_reference(pass_sums *ps)
             l += ps->kind[k].lum[i];
         ps->ref[i] = n > 0.0 ? l / n : 0.0;
     }
+    if (ps->width)
+        image_lower_peaks(ps->ref, ps->width, ps->pixels / ps->width, ps->peakless);
 }
 
 /* Whether the passes of kind k measure moment m (path_state.moments): plain path tracing's
@@ -236,10 +250,14 @@ static int sums_pool(pass_sums *ps, int m)
 
 /* Writes into img the inverse-variance combination of the training groups and the render passes
  * of every kind. Each kind weighs its passes over its variance of one pass, the mean over
- * pixels (absolute): every depth's, its passes' mean squared distance to the reference (all
- * passes averaged); plain path tracing's and a shallower depth's, their second moment about the
- * reference as the passes that guide deeper tell it (sums_pool: their own passes miss the rare
- * bright paths that rule them, and with them alone they would be trusted far too much). One
+ * pixels (absolute): every depth's, and a shallower depth's once it has OWN_SPREAD_PASSES
+ * passes, its passes' mean squared distance to the reference (all passes averaged); plain path
+ * tracing's and a shallower depth's before that, their second moment about the reference as the
+ * passes that guide deeper tell it (sums_pool: their own first passes miss the rare bright paths
+ * that rule them, and with them alone they would be trusted far too much; a depth the choice
+ * keeps rendering has passes enough, and there the moments, which a single rare path of a
+ * deeper pass decides, weighed a whole kind down: docs/equal-time.md, "What the rare paths
+ * are"). One
  * weight per kind for the whole image, not per pixel: per-pixel weights follow variances
  * estimated from the same passes, and on the Cornell box, with 43 guided passes beside 800
  * plain ones, they drew almost nothing from the guided and training passes and left the image
@@ -264,7 +282,7 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
     for (unsigned k = 0; k < KINDS; ++k) {
         const double *s1 = ks[k].lum, *s2 = ks[k].sq;
         double n = ks[k].n;
-        if (k > 0) {
+        if (k == PLAIN || (k > 0 && ks[k].n < OWN_SPREAD_PASSES)) {
             n = sums_pool(ps, k == PLAIN ? 0 : (int)k);
             s1 = ps->pool;
             s2 = ps->pool2;
@@ -330,15 +348,19 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
     return train_share;
 }
 
-/* Measures every kind of render pass for nf_guide_choose_depth and nf_guide_choose_pass
- * (m[c] for guided candidate c, m[PLAIN]): passes, CPU seconds and relative variance (every
- * depth: its passes' spread; plain path tracing and the shallower kinds: their moments as
- * the passes that guide deeper tell them), the same on every rank (each rank's pixels are
- * its own: their sums add). Collective. */
+/* Measures every kind of render pass for nf_guide_choose_pass (m[c] for guided candidate c,
+ * m[PLAIN]) and nf_guide_choose_depth (ps->depth[c]): passes, CPU seconds and relative variance
+ * (every depth: its passes' spread; plain path tracing and the shallower kinds: their moments as
+ * the passes that guide deeper tell them), against ps->ref, and the guided kinds' against
+ * ps->peakless too, the same on every rank (each rank's pixels are its own: their sums add).
+ * The depths are ranked against peakless: against ref veach-bidir's rare paths were
+ * invisible, and the choice kept every depth where the first vertex alone did better
+ * (docs/equal-time.md). Collective. */
 static int measure_kinds(pass_sums *ps, nf_pass_measure m[KINDS], tr_error *err)
 {
     const kind_sums *kinds = ps->kind;
-    double v[KINDS] = {0.0};
+    /* v[k]: kind k against ref; v[KINDS + c]: guided candidate c against peakless. */
+    double v[KINDS + NF_GUIDE_DEPTHS] = {0.0};
     sums_reference(ps);
     for (unsigned k = 0; k < KINDS; ++k) {
         m[k].passes = (uint32_t)kinds[k].n;
@@ -347,24 +369,34 @@ static int measure_kinds(pass_sums *ps, nf_pass_measure m[KINDS], tr_error *err)
     /* Every depth from its own passes, the other kinds from the moments of the passes that
      * measure them (sums_pool). A non-finite pixel fails an estimate; pass_pixel keeps them
      * out, so never. */
-    if (kinds[0].n > 0 && nf_guide_pass_variance(ps->pixels, kinds[0].lum, kinds[0].sq,
-                                                 (uint32_t)kinds[0].n, ps->ref, METRIC_EPSILON,
-                                                 &v[0]) != NF_OK)
-        v[0] = 0.0;
-    for (unsigned k = 1; k < KINDS; ++k) {
+    for (unsigned k = 0; k < KINDS; ++k) {
         if (k < PLAIN && kinds[k].n == 0)
             continue;
-        int pooled = sums_pool(ps, k == PLAIN ? 0 : (int)k);
-        if (pooled > 0 && nf_guide_pass_variance(ps->pixels, ps->pool, ps->pool2,
-                                                 (uint32_t)pooled, ps->ref, METRIC_EPSILON,
-                                                 &v[k]) != NF_OK)
+        const double *s1 = kinds[k].lum, *s2 = kinds[k].sq;
+        int n = kinds[k].n;
+        if (k > 0) {
+            n = sums_pool(ps, k == PLAIN ? 0 : (int)k);
+            s1 = ps->pool;
+            s2 = ps->pool2;
+        }
+        if (n <= 0)
+            continue;
+        if (nf_guide_pass_variance(ps->pixels, s1, s2, (uint32_t)n, ps->ref, METRIC_EPSILON,
+                                   &v[k]) != NF_OK)
             v[k] = 0.0;
+        if (k < PLAIN && nf_guide_pass_variance(ps->pixels, s1, s2, (uint32_t)n, ps->peakless,
+                                                METRIC_EPSILON, &v[KINDS + k]) != NF_OK)
+            v[KINDS + k] = 0.0;
     }
     /* Each rank's mean covers its pixels (the others are zero): the ranks' means add. */
-    if (!ranks_sum_f64(v, KINDS, err))
+    if (!ranks_sum_f64(v, KINDS + NF_GUIDE_DEPTHS, err))
         return 0;
     for (unsigned k = 0; k < KINDS; ++k)
         m[k].variance = v[k];
+    for (unsigned c = 0; c < NF_GUIDE_DEPTHS; ++c) {
+        ps->depth[c] = m[c];
+        ps->depth[c].variance = v[KINDS + c];
+    }
     return 1;
 }
 
@@ -508,7 +540,7 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
     /* Every step of the setup may fail on one rank only: the ranks agree before going on. */
     int ready =
         image_alloc(img, s->width, s->height, err) && image_alloc(&pass, s->width, s->height, err);
-    int summed = sums_alloc(&sums, pixels);
+    int summed = sums_alloc(&sums, (size_t)s->width, (size_t)s->height);
     moment = calloc(PATH_MOMENTS * pixels, sizeof *moment);
     ready = ready && ((summed && moment) || tr_fail(err, "out of memory for the image sums"));
     /* The BSDF prior's callbacks find each training sample's material in its payload. */
@@ -547,7 +579,7 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
              * measure. */
             nf_depth_choice depth = {0u, (uint32_t)fixed_depth, NAN};
             nf_pass_choice choice;
-            if ((!fixed_depth && nf_guide_choose_depth(guide, measured, &depth) != NF_OK) ||
+            if ((!fixed_depth && nf_guide_choose_depth(guide, sums.depth, &depth) != NF_OK) ||
                 nf_guide_choose_pass(guide,
                                      (nf_pass_measure[2]){measured[depth.candidate],
                                                           measured[PLAIN]},
