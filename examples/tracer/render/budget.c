@@ -257,10 +257,9 @@ static int sums_pool(pass_sums *ps, int m)
  * that rule them, and with them alone they would be trusted far too much; a depth the choice
  * keeps rendering has passes enough, and there the moments, which a single rare path of a
  * deeper pass decides, weighed a whole kind down: docs/equal-time.md, "What the rare paths
- * are"). One
- * weight per kind for the whole image, not per pixel: per-pixel weights follow variances
- * estimated from the same passes, and on the Cornell box, with 43 guided passes beside 800
- * plain ones, they drew almost nothing from the guided and training passes and left the image
+ * are"). One weight per kind for the whole image, not per pixel: per-pixel weights follow
+ * variances estimated from the same passes, and on the Cornell box, with 43 guided passes beside
+ * 800 plain ones, they drew almost nothing from the guided and training passes and left the image
  * 10 % worse than one weight per kind (docs/equal-time.md, "Guided or plain passes"). Each
  * group's variance is its mean squared distance to the render passes' combined mean, less that
  * mean's own variance, and it is weighed against that mean for the whole image. The weights
