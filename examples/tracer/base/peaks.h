@@ -14,7 +14,8 @@
 #include <stddef.h>
 
 /* out[i] = min(in[i], the largest of pixel i's neighbours) for a width x height image of one
- * value per pixel, row by row. in and out must not overlap. An image of one pixel keeps it. */
+ * value per pixel, row by row, of finite values. in and out must not overlap. An image of one
+ * pixel keeps it. */
 void image_lower_peaks(const double *in, size_t width, size_t height, double *out);
 
 #endif
