@@ -14,7 +14,8 @@
  *   - the policy functions are total: probabilities in [0, 1), survival in [0, 1], the boost
  *     finite and positive when it was;
  *   - the choice of passes answers a kind and a ratio >= 0 or NaN, the variance is finite and
- *     >= 0 or refused, a plain moment is never NaN or negative.
+ *     >= 0 or refused, a plain moment is never NaN or negative, and the reference without
+ *     lone peaks keeps or lowers each pixel to a neighbour's value, or is refused untouched.
  * The model is built once per process, so that an execution costs the guide's work only.
  */
 #include <math.h>
@@ -111,6 +112,41 @@ static double next_double(reader *r)
     return d;
 }
 
+/* The reference without lone peaks for any image of up to 4 x 4, in place or shifted when the
+ * input asks: refused with out untouched, or every pixel kept or lowered to a neighbour's
+ * value (never raised, never another value). */
+static void check_peaks(reader *r)
+{
+    double in[16], out[20];
+    size_t w = next_byte(r) % 5, h = next_byte(r) % 5;
+    for (size_t i = 0; i < w * h; ++i)
+        in[i] = next_double(r);
+    for (size_t i = 0; i < 20; ++i)
+        out[i] = -7.0;
+    uint8_t where = next_byte(r) % 8;
+    double *dst = where == 0 ? in : where == 1 ? in + 1 : out;
+    nf_status st = nf_guide_lower_peaks(w, h, in, dst);
+    check_status(st, "nf_guide_lower_peaks");
+    size_t n = w * h;
+    NF_FUZZ_CHECK(st != NF_OK || dst == out || n == 0 || (dst == in + 1 && n == 1),
+                  "lower_peaks accepted overlapping arrays (%zu pixels)", n);
+    if (st != NF_OK || dst != out) {
+        for (size_t i = 0; i < 20; ++i)
+            NF_FUZZ_CHECK(out[i] == -7.0, "refused lower_peaks wrote out[%zu]", i);
+        return;
+    }
+    for (size_t i = 0; i < w * h; ++i) {
+        int from_neighbour = 0;
+        for (size_t j = 0; j < w * h; ++j) {
+            size_t dx = i % w > j % w ? i % w - j % w : j % w - i % w;
+            size_t dy = i / w > j / w ? i / w - j / w : j / w - i / w;
+            from_neighbour |= i != j && dx <= 1 && dy <= 1 && out[i] == in[j];
+        }
+        NF_FUZZ_CHECK(out[i] == in[i] || (out[i] < in[i] && from_neighbour),
+                      "pixel %zu lowered from %g to %g", i, in[i], out[i]);
+    }
+}
+
 /* The choice of passes and of their depth with any measures, the variance with any sums, the
  * training ratio and the plain and depth moments fed any floats: documented statuses, answers
  * in range, *out untouched when refused, the moments never NaN or negative. */
@@ -140,6 +176,7 @@ static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
     check_status(st, "nf_guide_pass_variance");
     NF_FUZZ_CHECK(st == NF_OK ? v >= 0.0 && isfinite(v) : v == -1.0, "variance %g (status %d)", v,
                   (int)st);
+    check_peaks(r);
     check_status(nf_guide_report_training_ratio(g, next_double(r)),
                  "nf_guide_report_training_ratio");
     nf_plain_moment pm;

@@ -1,9 +1,11 @@
 /*
  * guide_choice.c - guided or plain passes (nisflow/guide.h): the relative variance of a
- * kind of pass from per-pixel sums, and the choice of the next pass from what each kind
- * costs and buys. docs/integration.md has the recipe, docs/equal-time.md the measurements.
+ * kind of pass from per-pixel sums, the reference without lone peaks that ranks the guided
+ * depths, and the choice of the next pass from what each kind costs and buys.
+ * docs/integration.md has the recipe, docs/equal-time.md the measurements.
  */
 #include <math.h>
+#include <stdint.h>
 
 #include "guide_internal.h"
 
@@ -39,6 +41,69 @@ nf_status nf_guide_pass_variance(size_t n, const double *sum, const double *sum_
     if (!isfinite(acc))
         return nf_fail(NF_ERROR_NUMERIC, "%s: the squared distances overflow a double", fn);
     *out = n ? acc / (double)n : 0.0;
+    return NF_OK;
+}
+
+/* The values are checked finite before: a plain comparison, which compiles to one instruction
+ * where fmax's NaN rules do not. */
+static double nf_larger(double a, double b) { return a > b ? a : b; }
+
+/* The largest of row[x - 1], row[x], row[x + 1] that lie in the row. */
+static double nf_row_max3(const double *row, size_t x, size_t width)
+{
+    double m = row[x];
+    if (x > 0)
+        m = nf_larger(m, row[x - 1]);
+    if (x + 1 < width)
+        m = nf_larger(m, row[x + 1]);
+    return m;
+}
+
+nf_status nf_guide_lower_peaks(size_t width, size_t height, const double *reference, double *out)
+{
+    static const char fn[] = "nf_guide_lower_peaks";
+    if (height != 0 && width > SIZE_MAX / sizeof(double) / height)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: a %zu x %zu image overflows size_t", fn,
+                       width, height);
+    const size_t n = width * height;
+    if (n == 0)
+        return NF_OK;
+    nf_status st =
+        nf_check_pointers(fn, "reference", reference, "out", out, NULL, NULL, NULL, NULL);
+    if (st != NF_OK)
+        return st;
+    /* Whole-array bounds compared as integers: comparing pointers into different arrays is
+     * undefined in C. */
+    uintptr_t a = (uintptr_t)reference, b = (uintptr_t)out, bytes = n * sizeof(double);
+    if (a < b + bytes && b < a + bytes)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: reference and out overlap", fn);
+    for (size_t i = 0; i < n; ++i)
+        if (!isfinite(reference[i]))
+            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                           "%s: pixel %zu (x %zu, y %zu) is %g, not finite", fn, i, i % width,
+                           i / width, reference[i]);
+    if (n == 1) {
+        out[0] = reference[0];
+        return NF_OK;
+    }
+    /* A pixel's neighbours: the three above, the three below, and its left and right. */
+    for (size_t y = 0; y < height; ++y) {
+        const double *row = reference + y * width;
+        const double *above = y > 0 ? row - width : NULL;
+        const double *below = y + 1 < height ? row + width : NULL;
+        for (size_t x = 0; x < width; ++x) {
+            double peak = -INFINITY;
+            if (above)
+                peak = nf_larger(peak, nf_row_max3(above, x, width));
+            if (below)
+                peak = nf_larger(peak, nf_row_max3(below, x, width));
+            if (x > 0)
+                peak = nf_larger(peak, row[x - 1]);
+            if (x + 1 < width)
+                peak = nf_larger(peak, row[x + 1]);
+            out[y * width + x] = row[x] < peak ? row[x] : peak;
+        }
+    }
     return NF_OK;
 }
 

@@ -321,6 +321,22 @@ NF_API nf_status nf_guide_pass_variance(size_t n, const double *sum, const doubl
                                         uint32_t passes, const double *reference, double epsilon,
                                         double *out);
 
+/* The reference without lone peaks, against which the guided kinds of nf_guide_choose_depth
+ * are measured. A rare bright path lands in one pixel and sits in that pixel's mean over the
+ * passes too, so against that mean its pixel's relative variance stays near the pass count
+ * however bright the path was: the depths would be ranked as if the path were not there
+ * (docs/theory.md, "Rare bright paths in the depth choice"). Here each pixel brighter than
+ * every one of its neighbours (8; fewer at the border) takes the brightest neighbour's value:
+ *     out[i] = min(reference[i], the largest of pixel i's neighbours),
+ * for a width x height image of one value per pixel (a luminance, say), row by row; an image
+ * of one pixel is copied. Compare guided against plain passes with the reference itself:
+ * plain passes draw the same rare paths. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with
+ * width x height > 0, width x height overflowing size_t, reference and out overlapping, a value
+ * not finite: the message names the first); out is then unchanged. Thread-safe, allocates
+ * nothing, O(width x height). */
+NF_API nf_status nf_guide_lower_peaks(size_t width, size_t height, const double *reference,
+                                      double *out);
+
 /* Plain path tracing's second moment, measured on guided paths. A plain pass's variance
  * is ruled by rare bright paths that its first passes miss (a light reached through a gap),
  * so its own passes underestimate it; the guided paths find those paths often, and each one
@@ -457,11 +473,13 @@ typedef struct nf_depth_choice {
 } nf_depth_choice;
 
 /* Which kind of guided pass to render next, from the measures of the guided render passes of
- * each kind (measured[c] for candidate c, as nf_pass_measure of NF_PASS_GUIDED): first two
- * passes of each kind, in candidate order; then the kind with the lowest variance x cost per
- * pass (ties: the lower candidate, so every depth first). Its measure is the NF_PASS_GUIDED
- * one to give nf_guide_choose_pass. With pass_choice 0, always candidate 0 (every depth). Depends
- * only on the arguments and the configuration, as nf_guide_choose_pass.
+ * each kind (measured[c] for candidate c, as nf_pass_measure of NF_PASS_GUIDED, each variance
+ * against the reference without lone peaks, nf_guide_lower_peaks): first two passes of each
+ * kind, in candidate order; then the kind with the lowest variance x cost per pass (ties: the
+ * lower candidate, so every depth first). The chosen kind, its variance measured against the
+ * reference itself, is the NF_PASS_GUIDED measure to give nf_guide_choose_pass. With
+ * pass_choice 0, always candidate 0 (every depth). Depends only on the arguments and the
+ * configuration, as nf_guide_choose_pass.
  * Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not finite); *out is then
  * unchanged. Thread-safe. */
 NF_API nf_status nf_guide_choose_depth(const nf_guide *g,

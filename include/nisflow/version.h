@@ -34,7 +34,7 @@
 #endif
 
 #define NF_VERSION_MAJOR 0
-#define NF_VERSION_MINOR 6
+#define NF_VERSION_MINOR 7
 #define NF_VERSION_PATCH 0
 
 NF_EXTERN_C_BEGIN

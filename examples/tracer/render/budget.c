@@ -15,7 +15,6 @@
 #include "guide.h"
 #include "metrics.h"
 #include "parallel.h"
-#include "peaks.h"
 #include "progress.h"
 #include "ranks.h"
 #include "render.h"
@@ -158,7 +157,7 @@ static void kind_add(kind_sums *k, const image *pass, const float *moment, size_
 typedef struct pass_sums {
     kind_sums train, kind[KINDS];
     double *ref;          /* per pixel: the luminance averaged over every pass         */
-    double *peakless;     /* ref with its lone peaks lowered (sums_reference)          */
+    double *peakless;     /* ref with its lone peaks lowered (sums_peakless)           */
     double *pool, *pool2; /* per pixel: plain path tracing's first and second moments  */
     size_t pixels, width;
     nf_pass_measure depth[NF_GUIDE_DEPTHS]; /* the guided kinds against peakless         */
@@ -192,10 +191,7 @@ static int sums_alloc(pass_sums *ps, size_t width, size_t height)
 }
 
 /* ps->ref: each pixel's luminance averaged over every pass, training and every kind, the
- * reference that the kinds' spreads are measured against (nf_guide_pass_variance); and
- * ps->peakless, the same without lone peaks (base/peaks.h), against which the guided kinds'
- * depths are ranked: a rare bright path weighs there as it weighs in relMSE. Under ranks, the
- * neighbours another rank renders are zero here. */
+ * reference that the kinds' spreads are measured against (nf_guide_pass_variance). */
 static void sums_reference(pass_sums *ps)
 {
     double n = ps->train.n;
@@ -207,8 +203,17 @@ static void sums_reference(pass_sums *ps)
             l += ps->kind[k].lum[i];
         ps->ref[i] = n > 0.0 ? l / n : 0.0;
     }
-    if (ps->width)
-        image_lower_peaks(ps->ref, ps->width, ps->pixels / ps->width, ps->peakless);
+}
+
+/* ps->peakless: ps->ref without lone peaks (nf_guide_lower_peaks), against which the guided
+ * kinds' depths are ranked: a rare bright path weighs there as it weighs in relMSE. Under
+ * ranks, the neighbours another rank renders are zero here. The pixels are finite (pass_pixel
+ * keeps them so): a refusal would be a bug, and is reported. */
+static int sums_peakless(pass_sums *ps, tr_error *err)
+{
+    size_t height = ps->width ? ps->pixels / ps->width : 0;
+    return nf_guide_lower_peaks(ps->width, height, ps->ref, ps->peakless) == NF_OK ||
+           tr_fail(err, "%s", nf_last_error_message());
 }
 
 /* Whether the passes of kind k measure moment m (path_state.moments): plain path tracing's
@@ -361,6 +366,8 @@ static int measure_kinds(pass_sums *ps, nf_pass_measure m[KINDS], tr_error *err)
     /* v[k]: kind k against ref; v[KINDS + c]: guided candidate c against peakless. */
     double v[KINDS + NF_GUIDE_DEPTHS] = {0.0};
     sums_reference(ps);
+    if (!sums_peakless(ps, err))
+        return 0;
     for (unsigned k = 0; k < KINDS; ++k) {
         m[k].passes = (uint32_t)kinds[k].n;
         m[k].seconds = kinds[k].cpu;
