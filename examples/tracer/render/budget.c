@@ -25,6 +25,13 @@
 #define MAX_GROUPS 32
 /* A guided kind with this many passes is weighed in the image by its own passes' spread. */
 #define OWN_SPREAD_PASSES 16
+/* Measuring every kind reads a dozen arrays of the image (measure_kinds): 3.7 ms on 256x256,
+ * 7 % of a Cornell box pass, when it ran after every render pass. After a kind's first
+ * MEASURE_FIRST_PASSES passes its variance moves slowly, and the budget measures again only
+ * while measuring has cost at most MEASURE_SHARE of the render passes' time; the passes and
+ * seconds stay current (count_kinds). */
+#define MEASURE_FIRST_PASSES 3
+#define MEASURE_SHARE 0.01
 
 /* ---- Accumulating passes -------------------------------------------------------------------- */
 
@@ -406,6 +413,20 @@ static int measure_kinds(pass_sums *ps, nf_pass_measure m[KINDS], tr_error *err)
     return 1;
 }
 
+/* The passes and CPU seconds of every kind, as measure_kinds counts them, with the variances
+ * of its last measurement: between measurements the choice sees every pass's cost. */
+static void count_kinds(pass_sums *ps, nf_pass_measure m[KINDS])
+{
+    for (unsigned k = 0; k < KINDS; ++k) {
+        m[k].passes = (uint32_t)ps->kind[k].n;
+        m[k].seconds = ps->kind[k].cpu;
+        if (k < PLAIN) {
+            ps->depth[k].passes = m[k].passes;
+            ps->depth[k].seconds = m[k].seconds;
+        }
+    }
+}
+
 /* Tells the guide what the training pass just rendered (pass, its tracing CPU seconds `cpu`
  * on this rank) buys against plain passes: its variance about the reference x its cost over
  * a plain pass's (nf_guide_report_training_ratio). *ratio receives it (NaN before two plain
@@ -520,7 +541,7 @@ static int train_on_pass(nf_guide *g, sample_arrays *a, const record_buffer *rec
 
 /* What rank 0 decides before a pass, the same for every rank. */
 typedef struct pass_plan {
-    int32_t stop_training, stopped_early, stop, kind, depth;
+    int32_t stop_training, stopped_early, stop, kind, depth, measure;
 } pass_plan;
 
 int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, image *img,
@@ -570,12 +591,13 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
     /* A depth the user fixed (--variant guide-depth) holds for every guided pass, training
      * too, and its passes are kind 0; otherwise the guide chooses it for render passes. */
     const int fixed_depth = t->guide_depth;
+    double measure_seconds = 0.0; /* rank 0's time in measure_kinds after render passes */
     uint32_t k = 0;
     for (;; ++k) {
         double t0 = now_seconds(), c0 = cpu_seconds();
         /* Rank 0's clock decides; the held-out loss (the guide's patience) and the measures
          * are the same on every rank. */
-        pass_plan plan = {0, 0, 0, guide ? 0 : (int32_t)PLAIN, fixed_depth};
+        pass_plan plan = {0, 0, 0, guide ? 0 : (int32_t)PLAIN, fixed_depth, 0};
         if (training && !nf_guide_keep_training(guide, t0 - bs->start, bs->seconds)) {
             plan.stop_training = 1;
             plan.stopped_early = nf_guide_keep_training(guide, t0 - bs->start, 0.0) == 0;
@@ -606,6 +628,8 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
          * any kind). A budget too short for a single pass still renders one. */
         double expect = last_kind[plan.kind] > 0.0 ? last_kind[plan.kind] : last_pass;
         plan.stop = k > 0 && t0 + expect > end;
+        plan.measure = choosing && (sums.kind[plan.kind].n < MEASURE_FIRST_PASSES ||
+                                    measure_seconds <= MEASURE_SHARE * rep->render_seconds);
         if (!ranks_broadcast(&plan, sizeof plan, err))
             goto done;
         if (plan.stop_training) {
@@ -657,10 +681,14 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
             if (!ranks_sum_f64(&cpu, 1, err))
                 goto done;
             ks->cpu += cpu;
-            /* The choice reads the measures before every pass; a fixed policy only reports
-             * them, once, after the last. */
-            if (choosing && !measure_kinds(&sums, measured, err))
+            /* The choice reads the measures before every pass, measured again when the plan
+             * says (MEASURE_SHARE); a fixed policy only reports them, once, after the last. */
+            double m0 = now_seconds();
+            if (plan.measure && !measure_kinds(&sums, measured, err))
                 goto done;
+            if (!plan.measure)
+                count_kinds(&sums, measured);
+            measure_seconds += now_seconds() - m0;
             rep->render_passes++;
             last_pass = last_kind[plan.kind] = now_seconds() - t0;
             rep->render_seconds += last_pass;
