@@ -359,6 +359,20 @@ static double combine(const pass_groups *g, pass_sums *ps, image *img)
     return train_share;
 }
 
+/* The passes and CPU seconds of every kind into m and ps->depth, the variances left as the
+ * last measure_kinds found them: between measurements the choice sees every pass's cost. */
+static void count_kinds(pass_sums *ps, nf_pass_measure m[KINDS])
+{
+    for (unsigned k = 0; k < KINDS; ++k) {
+        m[k].passes = (uint32_t)ps->kind[k].n;
+        m[k].seconds = ps->kind[k].cpu;
+        if (k < PLAIN) {
+            ps->depth[k].passes = m[k].passes;
+            ps->depth[k].seconds = m[k].seconds;
+        }
+    }
+}
+
 /* Measures every kind of render pass for nf_guide_choose_pass (m[c] for guided candidate c,
  * m[PLAIN]) and nf_guide_choose_depth (ps->depth[c]): passes, CPU seconds and relative variance
  * (every depth: its passes' spread; plain path tracing and the shallower kinds: their moments as
@@ -375,10 +389,7 @@ static int measure_kinds(pass_sums *ps, nf_pass_measure m[KINDS], tr_error *err)
     sums_reference(ps);
     if (!sums_peakless(ps, err))
         return 0;
-    for (unsigned k = 0; k < KINDS; ++k) {
-        m[k].passes = (uint32_t)kinds[k].n;
-        m[k].seconds = kinds[k].cpu;
-    }
+    count_kinds(ps, m);
     /* Every depth from its own passes, the other kinds from the moments of the passes that
      * measure them (sums_pool). A non-finite pixel fails an estimate; pass_pixel keeps them
      * out, so never. */
@@ -406,25 +417,9 @@ static int measure_kinds(pass_sums *ps, nf_pass_measure m[KINDS], tr_error *err)
         return 0;
     for (unsigned k = 0; k < KINDS; ++k)
         m[k].variance = v[k];
-    for (unsigned c = 0; c < NF_GUIDE_DEPTHS; ++c) {
-        ps->depth[c] = m[c];
+    for (unsigned c = 0; c < NF_GUIDE_DEPTHS; ++c)
         ps->depth[c].variance = v[KINDS + c];
-    }
     return 1;
-}
-
-/* The passes and CPU seconds of every kind, as measure_kinds counts them, with the variances
- * of its last measurement: between measurements the choice sees every pass's cost. */
-static void count_kinds(pass_sums *ps, nf_pass_measure m[KINDS])
-{
-    for (unsigned k = 0; k < KINDS; ++k) {
-        m[k].passes = (uint32_t)ps->kind[k].n;
-        m[k].seconds = ps->kind[k].cpu;
-        if (k < PLAIN) {
-            ps->depth[k].passes = m[k].passes;
-            ps->depth[k].seconds = m[k].seconds;
-        }
-    }
 }
 
 /* Tells the guide what the training pass just rendered (pass, its tracing CPU seconds `cpu`
@@ -696,10 +691,10 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
             /* The choice reads the measures before every pass, measured again when the plan
              * says (MEASURE_SHARE); a fixed policy only reports them, once, after the last. */
             double m0 = now_seconds();
-            if (plan.measure && !measure_kinds(&sums, measured, err))
-                goto done;
             if (!plan.measure)
                 count_kinds(&sums, measured);
+            else if (!measure_kinds(&sums, measured, err))
+                goto done;
             measure_seconds += now_seconds() - m0;
             rep->render_passes++;
             last_pass = last_kind[plan.kind] = now_seconds() - t0;
