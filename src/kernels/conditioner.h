@@ -30,10 +30,19 @@ static inline void nf_normalize3(const float v[3], float out[3])
     out[2] = (float)(z * inv);
 }
 
-static inline void nf_context_features(const nf_model *m, const nf_context *ctx, nf_point *pt)
+/* t of each position axis: where the position lies in the bounds, to be one-blob encoded (and
+ * clamped to [0, 1] there). */
+static inline float nf_position_unit(const nf_config *cfg, const nf_context *ctx, uint32_t a)
+{
+    return (ctx->position[a] - cfg->bounds_min[a]) / (cfg->bounds_max[a] - cfg->bounds_min[a]);
+}
+
+/* Every feature of nf_context_features but the position's one-blob slots (pt->rows and
+ * pt->values, left unwritten): the unit normal and wo, their SH. */
+static inline void nf_context_direction_features(const nf_model *m, const nf_context *ctx,
+                                                 nf_point *pt)
 {
     const nf_config *cfg = &m->cfg;
-    const uint32_t bins = cfg->oneblob_bins;
     pt->user = ctx;
     pt->prior = &cfg->custom_prior;
     pt->ctx.position[0] = ctx->position[0];
@@ -50,13 +59,7 @@ static inline void nf_context_features(const nf_model *m, const nf_context *ctx,
         pt->ctx.phase_g = 0.0f;
     }
     nf_normalize3(ctx->wo, pt->ctx.wo);
-    /* three one-blob slots per axis (zero-valued where outside the encoding) */
     pt->row_count = 9;
-    for (uint32_t a = 0; a < 3; ++a) {
-        float t =
-            (ctx->position[a] - cfg->bounds_min[a]) / (cfg->bounds_max[a] - cfg->bounds_min[a]);
-        nf_oneblob_slots(t, bins, (a + 1) * bins, 0, pt->rows + 3 * a, pt->values + 3 * a);
-    }
     uint32_t sh = cfg->sh_bands * cfg->sh_bands;
     if (sh) {
         /* A medium's normal block is all zeros (as tile.h): no unit normal encodes so. */
@@ -66,6 +69,16 @@ static inline void nf_context_features(const nf_model *m, const nf_context *ctx,
             nf_sh_unit(pt->ctx.normal, cfg->sh_bands, pt->sh);
         nf_sh_unit(pt->ctx.wo, cfg->sh_bands, pt->sh + sh);
     }
+}
+
+static inline void nf_context_features(const nf_model *m, const nf_context *ctx, nf_point *pt)
+{
+    const uint32_t bins = m->cfg.oneblob_bins;
+    nf_context_direction_features(m, ctx, pt);
+    /* three one-blob slots per axis (zero-valued where outside the encoding) */
+    for (uint32_t a = 0; a < 3; ++a)
+        nf_oneblob_slots(nf_position_unit(&m->cfg, ctx, a), bins, (a + 1) * bins, 0,
+                         pt->rows + 3 * a, pt->values + 3 * a);
 }
 
 /* The prior's view of a point's features (prior.h): the unit normal on surfaces; in a medium

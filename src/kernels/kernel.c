@@ -70,8 +70,14 @@
         return nf_point_pdf_one(m, sh, p, user, dir, pdf, &sc);                                    \
     }
 
-/* A shape's two questions at one point as two calls of its functions. */
+/* A shape's two questions at one point as two calls of its functions, and its points
+ * prepared with the tile's arithmetic. */
 #define NF_POINT_CALL_PAIRS(suffix)                                                                \
+    static void nf_point_prepare_##suffix(const nf_model *m, const nf_context *ctx,                \
+                                          const nf_prior_callbacks *prior, nf_shading_point *p)    \
+    {                                                                                              \
+        nf_point_prepare_at(m, ctx, prior, p);                                                     \
+    }                                                                                              \
     static nf_status nf_point_pdf_pair_##suffix(const nf_model *m, const nf_shading_point *p,      \
                                                 const nf_context *user, const float dir[6],        \
                                                 float pdf[2])                                      \
@@ -102,6 +108,13 @@ NF_POINT_CALL_PAIRS(any)
  * the same signatures as NF_POINT_VARIANT's. */
 #if defined(NF_PV_AVAILABLE)
 #define NF_PV_VARIANT(suffix, SHAPE)                                                               \
+    static NF_NOINLINE NF_FLATTEN void nf_pv_prepare_##suffix(                                     \
+        const nf_model *m, const nf_context *ctx, const nf_prior_callbacks *prior,                 \
+        nf_shading_point *p)                                                                       \
+    {                                                                                              \
+        const nf_point_shape sh = SHAPE;                                                           \
+        nf_pv_prepare(m, sh, ctx, prior, p);                                                       \
+    }                                                                                              \
     static NF_NOINLINE NF_FLATTEN nf_status nf_pv_sample_##suffix(                                 \
         const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \
         float dir[3], float *pdf)                                                                  \
@@ -221,6 +234,16 @@ static nf_point_pdf_fn nf_point_api_evaluator(const nf_model *m)
     return fns[nf_point_variant(m)];
 }
 
+typedef void (*nf_point_prepare_fn)(const nf_model *, const nf_context *,
+                                    const nf_prior_callbacks *, nf_shading_point *);
+
+static nf_point_prepare_fn nf_point_api_preparer(const nf_model *m)
+{
+    static const nf_point_prepare_fn fns[3] = {nf_point_prepare_any, NF_PV_SMALL(prepare),
+                                               NF_PV_LARGE(prepare)};
+    return fns[nf_point_variant(m)];
+}
+
 static nf_point_pdf_fn nf_point_api_pair_evaluator(const nf_model *m)
 {
     static const nf_point_pdf_fn fns[3] = {nf_point_pdf_pair_any, NF_PV_SMALL(pdf_pair),
@@ -255,7 +278,7 @@ static void nf_kernel_point_prepare(const nf_model *m, const nf_context *ctx,
         elsewhere->point_prepare(m, ctx, prior, point);
         return;
     }
-    nf_point_prepare_at(m, ctx, prior, point);
+    nf_point_api_preparer(m)(m, ctx, prior, point);
 }
 
 /* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). */

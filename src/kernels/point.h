@@ -314,12 +314,12 @@ static inline void nf_point_prior_view(const nf_shading_point *p, const nf_conte
     }
 }
 
-/* Writes the point for a validated context; prior NULL keeps the model's callbacks. */
-static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
-                                       const nf_prior_callbacks *prior, nf_shading_point *p)
+/* Writes the point for a validated context from its features; prior NULL keeps the model's
+ * callbacks. */
+static NF_ALWAYS_INLINE void nf_point_prepare_from(const nf_model *m, const nf_context *ctx,
+                                                   const nf_prior_callbacks *prior,
+                                                   const nf_point *feat, nf_shading_point *p)
 {
-    nf_point feat;
-    nf_context_features(m, ctx, &feat);
     const uint32_t layers = m->cfg.coupling_layers, hp = m->packed_linear[0][0].stride;
     p->context_ = *ctx;
     p->magic_ = NF_POINT_MAGIC;
@@ -327,7 +327,7 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
     p->generation_ = nf_generation_read(m); /* before any weight is read */
     p->prior_ = prior ? *prior : m->cfg.custom_prior;
     for (uint32_t a = 0; a < 3; ++a)
-        p->frame_[a] = feat.ctx.normal[a];
+        p->frame_[a] = feat->ctx.normal[a];
     p->cached_ = (size_t)layers * hp <= NF_SHADING_POINT_CACHE_FLOATS;
     p->zero_ = 0;
     for (uint32_t r = 0; r < sizeof p->reserved_ / sizeof p->reserved_[0]; ++r)
@@ -335,15 +335,25 @@ static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
     p->check_ = 0; /* nf_point_prepare (point.c) seals public points; stack points need none */
     if (p->cached_) {
         for (uint32_t i = 0; i < layers; ++i)
-            nf_point_layer_sums(m, feat.rows, feat.values, feat.sh, i, p->cache_ + (size_t)i * hp);
+            nf_point_layer_sums(m, feat->rows, feat->values, feat->sh, i,
+                                p->cache_ + (size_t)i * hp);
         return;
     }
     for (uint32_t r = 0; r < 9; ++r) {
-        p->cache_[NF_POINT_ROWS + r] = (float)feat.rows[r];
-        p->cache_[NF_POINT_VALUES + r] = feat.values[r];
+        p->cache_[NF_POINT_ROWS + r] = (float)feat->rows[r];
+        p->cache_[NF_POINT_VALUES + r] = feat->values[r];
     }
     for (uint32_t k = 0; k < 2u * m->cfg.sh_bands * m->cfg.sh_bands; ++k)
-        p->cache_[NF_POINT_SH + k] = feat.sh[k];
+        p->cache_[NF_POINT_SH + k] = feat->sh[k];
+}
+
+/* The point of the same-bits path (the tile's arithmetic throughout). */
+static inline void nf_point_prepare_at(const nf_model *m, const nf_context *ctx,
+                                       const nf_prior_callbacks *prior, nf_shading_point *p)
+{
+    nf_point feat;
+    nf_context_features(m, ctx, &feat);
+    nf_point_prepare_from(m, ctx, prior, &feat, p);
 }
 
 /* A walk through the flow for one direction: forward from a latent point (sampling) or

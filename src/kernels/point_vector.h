@@ -269,6 +269,27 @@ static NF_ALWAYS_INLINE nf_status nf_pv_walk_density(const nf_model *m, const nf
     return NF_OK;
 }
 
+/* nf_point_prepare_at with the position's one-blob slots from nf_pv_oneblob, three axes in
+ * three vectors where the tile's polynomial runs twelve times in scalar code: the point's
+ * context sums then differ from the tile's by rounding, within the path's bound. */
+static NF_ALWAYS_INLINE void nf_pv_prepare(const nf_model *m, nf_point_shape sh,
+                                           const nf_context *ctx, const nf_prior_callbacks *prior,
+                                           nf_shading_point *p)
+{
+    nf_point feat;
+    nf_context_direction_features(m, ctx, &feat);
+    for (uint32_t a = 0; a < 3; ++a) {
+        float v[4];
+        _mm_storeu_ps(v, nf_pv_oneblob(nf_position_unit(&m->cfg, ctx, a), sh.blob_bins, 0,
+                                       feat.rows + 3 * a));
+        for (uint32_t c = 0; c < 3; ++c) {
+            feat.rows[3 * a + c] += (a + 1) * sh.blob_bins;
+            feat.values[3 * a + c] = v[c];
+        }
+    }
+    nf_point_prepare_from(m, ctx, prior, &feat, p);
+}
+
 static inline nf_status nf_pv_sample_one(const nf_model *m, nf_point_shape sh,
                                          const nf_shading_point *p, const float u[2], float dir[3],
                                          float *pdf)
