@@ -53,7 +53,8 @@
         const nf_model *m, const nf_shading_point *p, const nf_context *user, const float u[2],    \
         float dir[3], float *pdf)                                                                  \
     {                                                                                              \
-        const nf_point_shape sh = SHAPE_EXPR;                                                      \
+        nf_point_shape sh = SHAPE_EXPR;                                                            \
+        sh.circular = m->cfg.phi_map == NF_PHI_CIRCULAR;                                           \
         float work[WORK_FLOATS];                                                                   \
         nf_point_scratch sc;                                                                       \
         nf_point_scratch_in(work, sh, &sc);                                                        \
@@ -63,7 +64,8 @@
         const nf_model *m, const nf_shading_point *p, const nf_context *user, const float dir[3],  \
         float *pdf)                                                                                \
     {                                                                                              \
-        const nf_point_shape sh = SHAPE_EXPR;                                                      \
+        nf_point_shape sh = SHAPE_EXPR;                                                            \
+        sh.circular = m->cfg.phi_map == NF_PHI_CIRCULAR;                                           \
         float work[WORK_FLOATS];                                                                   \
         nf_point_scratch sc;                                                                       \
         nf_point_scratch_in(work, sh, &sc);                                                        \
@@ -112,7 +114,8 @@ NF_POINT_CALL_PAIRS(any)
         const nf_model *m, const nf_context *ctx, const nf_prior_callbacks *prior,                 \
         nf_shading_point *p)                                                                       \
     {                                                                                              \
-        const nf_point_shape sh = SHAPE;                                                           \
+        nf_point_shape sh = SHAPE;                                                                 \
+        sh.circular = m->cfg.phi_map == NF_PHI_CIRCULAR;                                           \
         nf_pv_prepare(m, sh, ctx, prior, p);                                                       \
     }                                                                                              \
     static NF_NOINLINE NF_FLATTEN nf_status nf_pv_sample_##suffix(                                 \
@@ -120,7 +123,8 @@ NF_POINT_CALL_PAIRS(any)
         float dir[3], float *pdf)                                                                  \
     {                                                                                              \
         (void)user;                                                                                \
-        const nf_point_shape sh = SHAPE;                                                           \
+        nf_point_shape sh = SHAPE;                                                                 \
+        sh.circular = m->cfg.phi_map == NF_PHI_CIRCULAR;                                           \
         return nf_pv_sample_one(m, sh, p, u, dir, pdf);                                            \
     }                                                                                              \
     static NF_NOINLINE NF_FLATTEN nf_status nf_pv_pdf_##suffix(                                    \
@@ -128,7 +132,8 @@ NF_POINT_CALL_PAIRS(any)
         float *pdf)                                                                                \
     {                                                                                              \
         (void)user;                                                                                \
-        const nf_point_shape sh = SHAPE;                                                           \
+        nf_point_shape sh = SHAPE;                                                                 \
+        sh.circular = m->cfg.phi_map == NF_PHI_CIRCULAR;                                           \
         return nf_pv_pdf_one(m, sh, p, dir, pdf);                                                  \
     }                                                                                              \
     static NF_NOINLINE NF_FLATTEN nf_status nf_pv_pdf_pair_##suffix(                               \
@@ -136,7 +141,8 @@ NF_POINT_CALL_PAIRS(any)
         float pdf[2])                                                                              \
     {                                                                                              \
         (void)user;                                                                                \
-        const nf_point_shape sh = SHAPE;                                                           \
+        nf_point_shape sh = SHAPE;                                                                 \
+        sh.circular = m->cfg.phi_map == NF_PHI_CIRCULAR;                                           \
         return nf_pv_pdf_pair(m, sh, p, dir, pdf);                                                 \
     }                                                                                              \
     static NF_NOINLINE NF_FLATTEN nf_status nf_pv_sample_and_pdf_##suffix(                         \
@@ -144,7 +150,8 @@ NF_POINT_CALL_PAIRS(any)
         float dir[3], float *pdf, const float eval_dir[3], float *eval_pdf)                        \
     {                                                                                              \
         (void)user;                                                                                \
-        const nf_point_shape sh = SHAPE;                                                           \
+        nf_point_shape sh = SHAPE;                                                                 \
+        sh.circular = m->cfg.phi_map == NF_PHI_CIRCULAR;                                           \
         return nf_pv_sample_and_pdf(m, sh, p, u, dir, pdf, eval_dir, eval_pdf);                    \
     }
 NF_PV_VARIANT(large, NF_POINT_SHAPE_LARGE)

@@ -40,6 +40,9 @@ typedef struct nf_point_shape {
     uint32_t lanes;      /* 1: a preset's shape, whose conditioner may keep its hidden units
                             in registers (nf_point_conditioner); 0: any shape, whose calls
                             keep the smaller stack frame of the path through memory */
+    uint32_t circular;   /* the model's phi map is NF_PHI_CIRCULAR: read once per call, not
+                            per layer, where the compiler must assume a vector store may have
+                            changed the configuration (not part of the shape's identity) */
 } nf_point_shape;
 
 static inline nf_point_shape nf_point_shape_of(const nf_model *m)
@@ -52,8 +55,26 @@ static inline nf_point_shape nf_point_shape_of(const nf_model *m)
                         NF_PAD(m->cfg.hidden_width),
                         m->raw_dim,
                         NF_PAD(m->raw_dim),
-                        0u};
+                        0u,
+                        m->cfg.phi_map == NF_PHI_CIRCULAR};
     return s;
+}
+
+/* The circle's flags of layer `layer` (circle.h's nf_layer_circular, nf_layer_turns,
+ * nf_layer_wraps) from the shape. */
+static inline int nf_shape_circular(nf_point_shape sh, uint32_t layer)
+{
+    return sh.circular && nf_transformed(layer) == 1u;
+}
+
+static inline int nf_shape_turns(nf_point_shape sh, uint32_t layer)
+{
+    return sh.circular && layer == ((sh.layers - 1u) & ~1u);
+}
+
+static inline int nf_shape_wraps(nf_point_shape sh, uint32_t layer)
+{
+    return sh.circular && nf_transformed(layer) == 0u;
 }
 
 /* The knot derivatives a direction computes: all K + 1 of them, in whole vectors of NF_CHUNK
@@ -251,7 +272,7 @@ static NF_ALWAYS_INLINE void nf_point_conditioner(const nf_model *m, nf_point_sh
     const float *ctx = nf_point_context_sums(m, p, layer, sc->act[0]);
     uint32_t rows[3];
     float vals[3];
-    nf_oneblob_slots(v, sh.blob_bins, 0, nf_layer_wraps(m, layer), rows, vals);
+    nf_oneblob_slots(v, sh.blob_bins, 0, nf_shape_wraps(sh, layer), rows, vals);
     if (sh.lanes && hp == NF_CHUNK && sh.raw_stride <= NF_POINT_LANES_RAW) {
         /* nf_input_layer_blob, nf_relu and nf_dense_one on registers: same operations */
         nf_lanes h, row, zero, out[NF_POINT_LANES_RAW / NF_CHUNK];
@@ -405,11 +426,11 @@ static inline uint32_t nf_point_walk_layer(nf_point_shape sh, int inverse, uint3
 /* Step j's map, once its conditioner and spline are in sc: the spline applied (forward) or
  * inverted (inverse), with a turning layer's rotation after it (forward) or before it
  * (inverse), as flow.h. */
-static inline void nf_point_walk_map(const nf_model *m, nf_point_shape sh, int inverse, uint32_t j,
-                                     nf_point_walk *w, const nf_point_scratch *sc)
+static inline void nf_point_walk_map(nf_point_shape sh, int inverse, uint32_t j, nf_point_walk *w,
+                                     const nf_point_scratch *sc)
 {
     uint32_t i = nf_point_walk_layer(sh, inverse, j), t = nf_transformed(i);
-    const int turns = nf_layer_turns(m, i);
+    const int turns = nf_shape_turns(sh, i);
     nf_spline_bin bin;
     float slope;
     if (!inverse) {
@@ -438,8 +459,8 @@ static NF_ALWAYS_INLINE void nf_point_walk_layers(const nf_model *m, nf_point_sh
     for (uint32_t j = 0; j < sh.layers; ++j) {
         const uint32_t layer = nf_point_walk_layer(sh, inverse, j);
         nf_point_conditioner(m, sh, p, layer, w->x[1u - nf_transformed(layer)], sc);
-        nf_point_spline(sh.bins, sh.raw_stride, nf_layer_circular(m, layer), sc);
-        nf_point_walk_map(m, sh, inverse, j, w, sc);
+        nf_point_spline(sh.bins, sh.raw_stride, nf_shape_circular(sh, layer), sc);
+        nf_point_walk_map(sh, inverse, j, w, sc);
     }
 }
 
@@ -496,11 +517,11 @@ static inline nf_status nf_point_pdf_one(const nf_model *m, nf_point_shape sh,
 /* The presets' shapes (nisflow/model.h: NF_PRESET_SMALL, NF_PRESET_LARGE). */
 #define NF_POINT_SHAPE_SMALL                                                                       \
     {                                                                                              \
-        2u, 8u, 32u, 1u, 16u, 16u, 25u, 32u, 1u                                                    \
+        2u, 8u, 32u, 1u, 16u, 16u, 25u, 32u, 1u, 0u /* circular: set per call */                   \
     }
 #define NF_POINT_SHAPE_LARGE                                                                       \
     {                                                                                              \
-        4u, 16u, 32u, 2u, 16u, 16u, 49u, 64u, 1u                                                   \
+        4u, 16u, 32u, 2u, 16u, 16u, 49u, 64u, 1u, 0u                                               \
     }
 
 static inline int nf_point_shape_equal(nf_point_shape a, nf_point_shape b)

@@ -150,11 +150,11 @@ static NF_ALWAYS_INLINE float nf_pv_bin_solve(const nf_pv_bin *b, float y)
 /* Step j's map with the layer's spline in s (nf_point_walk_map's, on the vector knots). Both
  * directions multiply w->det by the slope: an inverse walk's det is the forward |det J|, which
  * nf_pv_walk_density divides by once. */
-static NF_ALWAYS_INLINE void nf_pv_map(const nf_model *m, nf_point_shape sh, int inverse,
-                                       uint32_t j, nf_point_walk *w, const nf_pv_spline *s)
+static NF_ALWAYS_INLINE void nf_pv_map(nf_point_shape sh, int inverse, uint32_t j, nf_point_walk *w,
+                                       const nf_pv_spline *s)
 {
     uint32_t i = nf_point_walk_layer(sh, inverse, j), t = nf_transformed(i);
-    const int turns = nf_layer_turns(m, i);
+    const int turns = nf_shape_turns(sh, i);
     nf_pv_bin bin;
     float slope;
     if (!inverse) {
@@ -186,7 +186,7 @@ static NF_ALWAYS_INLINE void nf_pv_walks(const nf_model *m, nf_point_shape sh,
             nf_pv_layer(m, sh, p, layer, w[d].x[1u - nf_transformed(layer)], &s[d]);
         }
         for (uint32_t d = 0; d < count; ++d)
-            nf_pv_map(m, sh, inverse[d], j, &w[d], &s[d]);
+            nf_pv_map(sh, inverse[d], j, &w[d], &s[d]);
     }
 }
 

@@ -193,7 +193,7 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
     const float *packed = m->packed;
     const nf_linear *lin = m->packed_linear[layer];
     uint32_t rows[3];
-    __m128 vals = nf_pv_oneblob(v, sh.blob_bins, nf_layer_wraps(m, layer), rows);
+    __m128 vals = nf_pv_oneblob(v, sh.blob_bins, nf_shape_wraps(sh, layer), rows);
     const __m256 slot[3] = {_mm256_broadcastss_ps(vals),
                             _mm256_broadcastss_ps(_mm_movehdup_ps(vals)),
                             _mm256_broadcastss_ps(_mm_movehl_ps(vals, vals))};
@@ -224,7 +224,7 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
     nf_pv_knots(raw + regs, bins, s->y);
     /* the derivatives d_0 .. d_K start at raw 2K; d_K (or a turning layer's rotation) is lane
      * 0 of the register after them, whose softplus a turning layer skips: its d_K is d_0 */
-    const int circular = nf_layer_circular(m, layer);
+    const int circular = nf_shape_circular(sh, layer);
     for (uint32_t c = 0; c < regs + (circular ? 0u : 1u); ++c)
         _mm256_storeu_ps(s->d + c * NF_PV_LANES, nf_pv_derivatives(raw[2u * regs + c]));
     s->rotation = 0.0f;

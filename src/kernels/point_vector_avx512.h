@@ -163,7 +163,7 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
     const nf_linear *lin = m->packed_linear[layer];
     uint32_t rows[3];
     __m512 vals =
-        _mm512_castps128_ps512(nf_pv_oneblob(v, sh.blob_bins, nf_layer_wraps(m, layer), rows));
+        _mm512_castps128_ps512(nf_pv_oneblob(v, sh.blob_bins, nf_shape_wraps(sh, layer), rows));
     const float *w0 = packed + lin[0].weight;
     __m512 h = _mm512_loadu_ps(p->cache_ + (size_t)layer * NF_CHUNK);
     for (uint32_t k = 0; k < 3; ++k)
@@ -187,7 +187,7 @@ static NF_ALWAYS_INLINE void nf_pv_layer(const nf_model *m, nf_point_shape sh,
     if (bins == 16u)
         d1 = nf_pv_window(raw, chunks, 3u * bins);
     s->rotation = 0.0f;
-    if (nf_layer_circular(m, layer)) {
+    if (nf_shape_circular(sh, layer)) {
         s->rotation = _mm512_cvtss_f32(nf_pv_window(raw, chunks, 3u * bins));
         if (bins < 16u)
             d0 = _mm512_mask_mov_ps(d0, (__mmask16)(1u << bins), nf_pv_splat(d0, 0));
