@@ -64,6 +64,26 @@ static exr_context_initializer_t exr_initializer(void)
     return init;
 }
 
+/* A chunk's compressor, kept while exr_compress_keeping_raw stands in for it. */
+typedef struct exr_compressor {
+    exr_result_t (*fn)(exr_encode_pipeline_t *pipeline);
+} exr_compressor;
+
+/* A reader takes a chunk whose compressed size equals its raw size for raw bytes, and the
+ * OpenEXR 3.1 of Debian 12 keeps zlib's output when it comes out exactly that long (fixed
+ * upstream in 2026, OpenEXR issue 2306): that chunk reads back as noise. It happened to the
+ * last 4 lines of a 320 x 180 plain render, and a reference with NaNs turns every error
+ * metric into NaN. Such a chunk gets the raw bytes, as the file format asks. */
+static exr_result_t exr_compress_keeping_raw(exr_encode_pipeline_t *e)
+{
+    const exr_compressor *next = e->encoding_user_data;
+    exr_result_t rv = next->fn(e);
+    if (rv == EXR_ERR_SUCCESS && e->compressed_bytes == e->packed_bytes &&
+        e->compressed_buffer != e->packed_buffer)
+        memcpy(e->compressed_buffer, e->packed_buffer, e->packed_bytes);
+    return rv;
+}
+
 int image_write_exr(const image *img, const char *path, tr_error *err)
 {
     exr_context_initializer_t init = exr_initializer();
@@ -93,6 +113,7 @@ int image_write_exr(const image *img, const char *path, tr_error *err)
     if ((rv = exr_get_scanlines_per_chunk(ctx, part, &lines)) != EXR_ERR_SUCCESS)
         goto fail;
     exr_encode_pipeline_t encoder = EXR_ENCODE_PIPELINE_INITIALIZER;
+    exr_compressor compressor = {NULL};
     int have_encoder = 0;
     for (int y = 0; y < img->height; y += lines) {
         exr_chunk_info_t cinfo;
@@ -116,6 +137,11 @@ int image_write_exr(const image *img, const char *path, tr_error *err)
             if ((rv = exr_encoding_choose_default_routines(ctx, part, &encoder)) != EXR_ERR_SUCCESS)
                 break;
             have_encoder = 1;
+            if (encoder.compress_fn) {
+                compressor.fn = encoder.compress_fn;
+                encoder.encoding_user_data = &compressor;
+                encoder.compress_fn = exr_compress_keeping_raw;
+            }
         }
         if ((rv = exr_encoding_run(ctx, part, &encoder)) != EXR_ERR_SUCCESS)
             break;

@@ -1,8 +1,8 @@
 /*
  * test_exr.c - image files and metrics: float RGB OpenEXR round trips bit for bit (odd
- * sizes, so that the last ZIP chunk is partial; extreme and special values), unreadable
- * files are errors, PNG previews are written, and MAPE / relMSE / downsampling compute what
- * their definitions say.
+ * sizes, so that the last ZIP chunk is partial; extreme and special values; a chunk that zlib
+ * cannot shrink, which must be stored raw), unreadable files are errors, PNG previews are
+ * written, and MAPE / relMSE / downsampling compute what their definitions say.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -14,6 +14,8 @@
 #include <unistd.h>
 
 #include <cmocka.h>
+#include <openexr.h>
+#include <zlib.h>
 
 #include "image.h"
 #include "metrics.h"
@@ -64,6 +66,58 @@ static void test_exr_round_trip_is_bit_exact(void **state)
     round_trip(37, 23, 2);   /* 23 lines: one full 16-line ZIP chunk and a partial one */
     round_trip(256, 129, 3);
     round_trip(5, 300, 4);
+}
+
+/* What OpenEXR's ZIP compressor feeds zlib: the bytes split into even and odd halves, then
+ * each byte replaced by its difference to the one before, plus 128. */
+static void zip_predict(const uint8_t *raw, size_t n, uint8_t *out)
+{
+    for (size_t i = 0; i < n; ++i)
+        out[(i & 1u) ? (n + 1) / 2 + i / 2 : i / 2] = raw[i];
+    for (size_t i = n; i-- > 1;)
+        out[i] = (uint8_t)(out[i] - out[i - 1] + 128);
+}
+
+/* A chunk whose zlib output is exactly as long as its raw bytes: a reader takes it for raw
+ * bytes, so the writer must store it raw (OpenEXR 3.1 kept zlib's output and the chunk read
+ * back as noise). The chunk is one line of 64 pixels, B, G and R planes of floats as OpenEXR
+ * packs them; the candidates have 12 or 13 random low bits, where zlib's output straddles
+ * the raw size (about 1 in 50 lands on it with the zlib of Debian 12). */
+static void test_exr_chunk_zlib_cannot_shrink_is_stored_raw(void **state)
+{
+    (void)state;
+    enum { W = 64, FLOATS = 3 * W, BYTES = 4 * FLOATS };
+    uint32_t bits[FLOATS];
+    uint8_t predicted[BYTES], packed[BYTES + 64];
+    int level = -1;
+    exr_get_default_zip_compression_level(&level);
+    rng r = rng_seed(7, RNG_TEST, 0, 0);
+    int found = 0;
+    for (int trial = 0; trial < 100000 && !found; ++trial) {
+        uint32_t mask = (1u << (12 + trial % 2)) - 1u;
+        for (int i = 0; i < FLOATS; ++i)
+            bits[i] = (rng_next_u32(&r) & mask) | (0x3f000000u & ~mask);
+        zip_predict((const uint8_t *)bits, BYTES, predicted);
+        uLongf size = sizeof packed;
+        assert_int_equal(compress2(packed, &size, predicted, BYTES, level), Z_OK);
+        found = size == BYTES;
+    }
+    assert_true(found); /* else the search needs other candidates for this zlib */
+    image a, b;
+    tr_error err;
+    char path[1024];
+    tmp_path(path, sizeof path, "zlib_cannot_shrink.exr");
+    assert_true(image_alloc(&a, W, 1, &err));
+    for (int x = 0; x < W; ++x) /* the planes in OpenEXR's channel order: B, G, R */
+        for (int c = 0; c < 3; ++c)
+            memcpy(&a.data[3 * x + 2 - c], &bits[c * W + x], sizeof(float));
+    if (!image_write_exr(&a, path, &err))
+        fail_msg("%s", err.msg);
+    if (!image_read_exr(path, &b, &err))
+        fail_msg("%s", err.msg);
+    assert_memory_equal(a.data, b.data, sizeof bits); /* bit-exact */
+    image_free(&a);
+    image_free(&b);
 }
 
 static void test_exr_errors(void **state)
@@ -197,6 +251,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_exr_round_trip_is_bit_exact),
+        cmocka_unit_test(test_exr_chunk_zlib_cannot_shrink_is_stored_raw),
         cmocka_unit_test(test_exr_errors),
         cmocka_unit_test(test_png_preview),
         cmocka_unit_test(test_metrics),
