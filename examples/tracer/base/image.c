@@ -71,7 +71,7 @@ typedef struct exr_compressor {
 
 /* A reader takes a chunk whose compressed size equals its raw size for raw bytes, and the
  * OpenEXR 3.1 of Debian 12 keeps zlib's output when it comes out exactly that long (fixed
- * upstream in 2026, OpenEXR issue 2306): that chunk reads back as noise. It happened to the
+ * upstream in 2026): that chunk reads back as noise. It happened to the
  * last 4 lines of a 320 x 180 plain render, and a reference with NaNs turns every error
  * metric into NaN. Such a chunk gets the raw bytes, as the file format asks. */
 static exr_result_t exr_compress_keeping_raw(exr_encode_pipeline_t *e)
