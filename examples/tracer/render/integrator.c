@@ -97,15 +97,6 @@ static float power_heuristic(float a, float b)
     return a2 + b2 > 0.0f ? a2 / (a2 + b2) : 0.0f;
 }
 
-/* A ray origin pushed off the surface, to the side that `dir` leaves towards, so that the
- * ray does not hit the triangle it starts on. The offset grows with the coordinates'
- * magnitude because so does their rounding error. */
-static vec3 offset_origin(vec3 p, vec3 ng, vec3 dir)
-{
-    float eps = 1e-5f * (1.0f + v3_max_abs(p));
-    return v3_add(p, v3_scale(ng, v3_dot(dir, ng) > 0.0f ? eps : -eps));
-}
-
 /* What a recorded vertex keeps beside the library's nf_path_vertex (nisflow/path.h, which
  * does the backward walk): the material, for the BSDF prior. */
 typedef struct vertex_extra {
@@ -332,9 +323,8 @@ static int nee_plan_media(const tracer *t, vertex_plan *vp, const path_state *ps
     if (rgb_is_black(f) || rgb_is_black(ls->radiance))
         return 0;
     ray shadow;
-    shadow.o = vp->volume ? vp->p : offset_origin(vp->p, vp->sh.ng, ls->wi);
-    shadow.d = ls->wi;
-    shadow.tmax = isinf(ls->dist) ? INFINITY : ls->dist * (1.0f - 1e-4f);
+    scene_shadow_ray(vp->p, vp->volume ? v3(0.0f, 0.0f, 0.0f) : vp->sh.ng, ls->wi, ls->dist,
+                     &shadow);
     if (!scene_ray_valid(&shadow)) { /* never within the loader's world range */
         st->invalid_rays++;
         return 0;
@@ -366,9 +356,7 @@ static int nee_plan(const tracer *t, vertex_plan *vp, const path_state *ps, rng 
     if (rgb_is_black(f) || rgb_is_black(ls.radiance))
         return 0;
     ray shadow;
-    shadow.o = offset_origin(vp->p, vp->sh.ng, ls.wi);
-    shadow.d = ls.wi;
-    shadow.tmax = isinf(ls.dist) ? INFINITY : ls.dist * (1.0f - 1e-4f);
+    scene_shadow_ray(vp->p, vp->sh.ng, ls.wi, ls.dist, &shadow);
     if (!scene_ray_valid(&shadow)) { /* never within the loader's world range */
         st->invalid_rays++;
         return 0;
@@ -553,7 +541,7 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
     ray ry = ps->ry;
     const int depth = ++ps->depth;
     hit h;
-    float travelled = 0.0f; /* from the previous vertex to ry.o, across null surfaces */
+    int crossed = 0; /* null surfaces crossed since the previous vertex */
     int found;
     for (;;) {
         if (!scene_ray_valid(&ry)) { /* never within the loader's world range */
@@ -583,8 +571,8 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
         surface nf;
         scene_surface(s, &h, &ry, &nf);
         ps->medium = scene_medium_after(s, h.shape, nf.ng, ry.d, ps->medium);
-        travelled += h.t;
-        ry.o = offset_origin(nf.p, nf.ng, ry.d);
+        crossed = 1;
+        ry.o = scene_offset_origin(nf.p, nf.ng, ry.d);
         ry.tmax = INFINITY;
     }
     if (!found) {
@@ -609,9 +597,13 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
 
     if (shp->emissive && v3_dot(wo, sf.ng) > 0.0f) {
         float w = 1.0f, w_plain = 1.0f;
-        if (ps->prev_pdf > 0.0f || ps->prev_p_bsdf > 0.0f)
-            emission_weights(ps, light_pdf_area(s, h.shape, h.prim, ry.d, travelled + h.t,
-                                                sf.ng), &w, &w_plain);
+        if (ps->prev_pdf > 0.0f || ps->prev_p_bsdf > 0.0f) {
+            /* The light sample's distance is from the vertex: across null surfaces, measure
+             * it from the segment's start rather than add up lengths between offsets. */
+            float dist = crossed ? v3_length(v3_sub(sf.p, ps->ry.o)) : h.t;
+            emission_weights(ps, light_pdf_area(s, h.shape, h.prim, ry.d, dist, sf.ng), &w,
+                             &w_plain);
+        }
         if (!(depth == 1 && s->hide_emitters))
             path_add(ps, shp->radiance, w, w_plain);
         if (prev) {
@@ -778,7 +770,7 @@ static int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
             return 1;
         }
     }
-    ps->ry.o = offset_origin(vp->p, vp->sh.ng, wi);
+    ps->ry.o = scene_offset_origin(vp->p, vp->sh.ng, wi);
     ps->ry.d = wi;
     ps->ry.tmax = INFINITY;
     return 1;

@@ -445,6 +445,48 @@ int scene_medium_after(const scene *s, int shape, vec3 ng, vec3 d, int med)
     return v3_dot(d, ng) < 0.0f ? sh->interior : sh->exterior;
 }
 
+vec3 scene_offset_origin(vec3 p, vec3 ng, vec3 dir)
+{
+    float eps = SCENE_OFFSET_EPS * (1.0f + v3_max_abs(p));
+    return v3_add(p, v3_scale(ng, v3_dot(dir, ng) > 0.0f ? eps : -eps));
+}
+
+/* The ray from o to end (not o itself: the caller offsets), tmax its length; tmax 0 when end
+ * is not ahead of o along `along` by more than rounding, so that nothing fits between. */
+static void ray_to(vec3 o, vec3 end, vec3 along, ray *out)
+{
+    vec3 v = v3_sub(end, o);
+    float len = v3_length(v);
+    out->o = o;
+    if (!(len > 0.0f) || !(v3_dot(v, along) > 0.0f)) {
+        out->d = along;
+        out->tmax = 0.0f;
+        return;
+    }
+    out->d = v3_scale(v, 1.0f / len);
+    out->tmax = len;
+}
+
+void scene_shadow_ray(vec3 p, vec3 ng, vec3 wi, float dist, ray *out)
+{
+    vec3 o = v3_dot(ng, ng) > 0.0f ? scene_offset_origin(p, ng, wi) : p;
+    if (isinf(dist)) {
+        out->o = o;
+        out->d = wi;
+        out->tmax = INFINITY;
+        return;
+    }
+    vec3 target = v3_add(p, v3_scale(wi, dist));
+    float gap = fmaxf(1e-4f * dist, SCENE_OFFSET_EPS * (1.0f + v3_max_abs(target)));
+    if (!(dist > gap)) {
+        out->o = o;
+        out->d = wi;
+        out->tmax = 0.0f;
+        return;
+    }
+    ray_to(o, v3_add(p, v3_scale(wi, dist - gap)), wi, out);
+}
+
 rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays)
 {
     if (!s->has_media) {
@@ -453,6 +495,8 @@ rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays)
     }
     rgb tr = rgb_gray(1.0f);
     ray seg = *r;
+    const int bounded = !isinf(r->tmax);
+    const vec3 end = bounded ? v3_add(r->o, v3_scale(r->d, r->tmax)) : r->o;
     for (int crossings = 0; crossings <= 64; ++crossings) {
         hit h;
         if (!scene_ray_valid(&seg))
@@ -472,13 +516,20 @@ rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays)
         surface sf;
         scene_surface(s, &h, &seg, &sf);
         med = scene_medium_after(s, h.shape, sf.ng, seg.d, med);
-        /* Continue just past the boundary (the offset grows with the coordinates, as the
-         * integrator's does) for the rest of the distance. */
-        float eps = 1e-5f * (1.0f + v3_max_abs(sf.p));
-        seg.o = v3_add(sf.p, v3_scale(sf.ng, v3_dot(seg.d, sf.ng) > 0.0f ? eps : -eps));
-        seg.tmax = isinf(seg.tmax) ? INFINITY : seg.tmax - h.t;
-        if (!(seg.tmax > 0.0f))
+        /* Go on from just past the boundary towards the same far end: the offset along the
+         * boundary's normal must not move the end (into the light the ray was aimed at). */
+        vec3 o = scene_offset_origin(sf.p, sf.ng, seg.d);
+        if (!bounded) {
+            seg.o = o;
+            continue;
+        }
+        float rest = seg.tmax - h.t;
+        ray_to(o, end, seg.d, &seg);
+        if (!(seg.tmax > 0.0f)) { /* the end lies within the offset: nothing fits between */
+            if (med >= 0 && rest > 0.0f)
+                tr = rgb_mul(tr, medium_transmittance(&s->media[med], rest));
             return tr;
+        }
     }
     return rgb_gray(0.0f); /* more null crossings than any scene here has: treat as blocked */
 }

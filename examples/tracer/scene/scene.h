@@ -154,10 +154,31 @@ typedef struct hit {
 int scene_intersect(const scene *s, const ray *r, hit *h);
 int scene_occluded(const scene *s, const ray *r);
 
+/* A ray origin pushed off a surface of unit geometric normal ng, to the side that `dir`
+ * leaves towards, so that the ray does not hit the triangle it starts on. The offset,
+ * SCENE_OFFSET_EPS (1 + the largest |coordinate| of p), grows with the coordinates' magnitude
+ * because so does their rounding error. */
+#define SCENE_OFFSET_EPS 1e-5f
+vec3 scene_offset_origin(vec3 p, vec3 ng, vec3 dir);
+
+/* A shadow ray from p towards the point p + wi dist (a light sample; dist INFINITY: the
+ * direction wi, unbounded). p lies on a surface of unit geometric normal ng, or in a medium
+ * (ng zero: no offset). The origin is offset off the surface (scene_offset_origin) and the
+ * ray re-aimed from there, so that it ends where it must whatever the offset: short of the
+ * light's point by 1e-4 of dist or by the offset at that point, whichever is larger, and
+ * never inside the light that was sampled (an offset along ng moves a ray's far end by as
+ * much; on a light parallel to the surface, a light sample at a grazing angle then ends
+ * behind the light and is occluded by it). A light closer than that gap gives tmax 0: no
+ * occluder fits between. */
+void scene_shadow_ray(vec3 p, vec3 ng, vec3 wi, float dist, ray *out);
+
 /* The transmittance along a shadow ray that starts in medium `med` (-1: vacuum) and ends at
  * r->tmax: zero when a surface other than a null one is in the way; null surfaces are
  * crossed (at most 64 of them), switching the medium as a path does (scene_medium_after).
- * *rays counts the rays traced. Scenes without media: scene_occluded's answer. */
+ * After a crossing the ray goes on from just past the boundary re-aimed at the same far end
+ * (r->o + r->d r->tmax), which an offset along the boundary's normal would otherwise move
+ * into the light that was sampled. *rays counts the rays traced. Scenes without media:
+ * scene_occluded's answer. */
 rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays);
 
 /* The medium a ray travelling along d is in after crossing shape `shape` whose geometric
