@@ -365,6 +365,10 @@ static int run(int argc, char **argv)
     if (!s.has_lights && ranks_rank() == 0)
         fprintf(stderr, "nf_tracer: warning: the scene has no emitters (no area light, no "
                 "environment): the image will be black\n");
+    if (s.media_ignored && ranks_rank() == 0)
+        fprintf(stderr, "nf_tracer: warning: the scene's media are ignored: the path "
+                "integrator renders none, as in Mitsuba 3 (<integrator type=\"volpath\"> "
+                "renders them)\n");
     const double t_job = now_seconds(); /* a time budget counts from here */
 
     int status = 1;

@@ -61,6 +61,9 @@ typedef struct scene {
     int max_depth;              /* longest path in segments; -1: unlimited                 */
     int rr_depth;               /* the depth from which Russian roulette may stop a path   */
     int hide_emitters;
+    int volumetric;             /* the integrator is volpath, which renders media; path
+                                 * (Mitsuba 3's default) ignores them, as Mitsuba's does   */
+    int media_ignored;          /* the scene names media that path ignores (nf_tracer says so) */
 
     shape *shapes;
     int nshapes;

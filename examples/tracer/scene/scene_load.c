@@ -337,8 +337,10 @@ static int parse_integrator(loader *L, xml_node *n)
     n->used = 1;
     if (!type || !check_plugin_attrs(L, n))
         return 0;
-    if (strcmp(type, "path"))
-        return fail_at(L, n, "unsupported integrator '%s' (path)", type);
+    /* volpath renders media; path ignores them (ignore_media), as in Mitsuba 3. */
+    if (strcmp(type, "path") && strcmp(type, "volpath"))
+        return fail_at(L, n, "unsupported integrator '%s' (path, volpath)", type);
+    L->s->volumetric = !strcmp(type, "volpath");
     if (!get_int(L, n, "max_depth", -1, &L->s->max_depth) ||
         !get_int(L, n, "rr_depth", 5, &L->s->rr_depth) ||
         !get_bool(L, n, "hide_emitters", 0, &L->s->hide_emitters))
@@ -399,6 +401,22 @@ static int substitute(loader *L, xml_node *n, const parameter *params, int npara
 }
 
 /* ---- The scene ---------------------------------------------------------------------------- */
+
+/* Mitsuba 3's path integrator (the default one) renders no media: it starts every path in
+ * vacuum and changes medium nowhere. Null surfaces stay invisible boundaries (tracer.md lists
+ * how Mitsuba's path treats them instead). The media stay loaded and checked. */
+static void ignore_media(scene *s)
+{
+    s->media_ignored = s->nmedia > 0;
+    s->camera_medium = -1;
+    s->has_media = 0;
+    for (int i = 0; i < s->nshapes; ++i) {
+        shape *sh = &s->shapes[i];
+        sh->interior = sh->exterior = -1;
+        sh->media_boundary = 0;
+        s->has_media |= sh->null_surface;
+    }
+}
 
 static int load_tree(loader *L, xml_node *root)
 {
@@ -466,6 +484,8 @@ static int load_tree(loader *L, xml_node *root)
     progress_finish(&bar);
     if (ok && !L->have_sensor)
         ok = fail_at(L, root, "the scene has no <sensor>");
+    if (ok && !s->volumetric)
+        ignore_media(s);
     return ok;
 }
 

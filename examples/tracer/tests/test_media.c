@@ -48,7 +48,7 @@ static const char *furnace_xml(int camera_inside, const char *boundary)
     static char xml[4096];
     snprintf(xml, sizeof xml,
         "<scene version=\"3.0.0\">\n"
-        "<integrator type=\"path\"><integer name=\"max_depth\" value=\"-1\"/></integrator>\n"
+        "<integrator type=\"volpath\"><integer name=\"max_depth\" value=\"-1\"/></integrator>\n"
         "<medium type=\"homogeneous\" id=\"fog\">\n"
         "  <rgb name=\"albedo\" value=\"1\"/><rgb name=\"sigma_t\" value=\"0.25, 0.5, 1\"/>\n"
         "  <phase type=\"hg\"><float name=\"g\" value=\"0.6\"/></phase>\n"

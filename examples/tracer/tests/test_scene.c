@@ -282,6 +282,10 @@ static void test_error_bad_number(void **state)
                  NULL);
     expect_error(HEAD "<integrator type=\"path\"><integer name=\"max_depth\" value=\"6.5\"/></integrator>\n</scene>",
                  "<string>:4:", "'6.5' is not an integer", NULL);
+    expect_error(HEAD "<integrator type=\"volpath\"><integer name=\"rr_depth\" value=\"0\"/></integrator>\n</scene>",
+                 "<string>:4:", "rr_depth must be >= 1", NULL);
+    expect_error(HEAD "<integrator type=\"volpathmis\"/>\n</scene>",
+                 "<string>:4:", "unsupported integrator 'volpathmis' (path, volpath)", NULL);
     expect_error(HEAD "<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0.5, x, 0.5\"/></bsdf>\n</scene>",
                  "<string>:4:", "is not a number", NULL);
     expect_error(HEAD "<shape type=\"rectangle\"><transform name=\"to_world\">\n"

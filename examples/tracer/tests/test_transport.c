@@ -55,7 +55,7 @@ static int light_part(char *out, size_t cap, double cx, double cz, double hx, do
 }
 
 /* The scene, with `medium` (XML of a null cube and its medium, or "") added, rendered by
- * `integrator`. */
+ * `integrator` (volpath renders media, path ignores them). */
 static const char *transport_xml(const char *integrator, const char *medium)
 {
     static char xml[8192];
@@ -131,6 +131,7 @@ static void check(const char *label, const char *integrator, const char *medium,
     tr_error err;
     if (!scene_load_string(transport_xml(integrator, medium), TRACER_TEST_TMP_DIR, &s, &err))
         fail_msg("%s", err.msg);
+    assert_int_equal(s.media_ignored, medium[0] && strcmp(integrator, "volpath"));
     tracer t = {.s = &s};
     image img;
     assert_true(image_alloc(&img, s.width, s.height, &err));
@@ -175,7 +176,7 @@ static void check(const char *label, const char *integrator, const char *medium,
 static void test_short_shadow_rays(void **state)
 {
     (void)state;
-    check("vacuum, light 0.05 above the floor", "path", "", 0.0, SPP);
+    check("vacuum, light 0.05 above the floor", "volpath", "", 0.0, SPP);
 }
 
 /* An absorbing slab between floor and light: every light sample crosses two null boundaries
@@ -184,7 +185,7 @@ static void test_short_shadow_rays(void **state)
 static void test_slab(void **state)
 {
     (void)state;
-    check("absorbing slab between floor and light", "path",
+    check("absorbing slab between floor and light", "volpath",
           medium_box(SLAB_SIGMA, -0.5, 0.5, SLAB_LO, SLAB_HI, -0.5, 0.5), SLAB_SIGMA, 3 * SPP);
 }
 
@@ -192,14 +193,14 @@ static void test_slab(void **state)
 static void test_light_just_inside(void **state)
 {
     (void)state;
-    check("light 0.001 inside a transparent medium", "path",
+    check("light 0.001 inside a transparent medium", "volpath",
           medium_box(1e-6, -0.5, 0.5, H - 0.001, 0.3, -0.5, 0.5), 0.0, SPP);
 }
 
 static void test_light_just_outside(void **state)
 {
     (void)state;
-    check("light 0.001 outside a transparent medium", "path",
+    check("light 0.001 outside a transparent medium", "volpath",
           medium_box(1e-6, -0.5, 0.5, 0.01, H - 0.001, -0.5, 0.5), 0.0, SPP);
 }
 
@@ -208,8 +209,16 @@ static void test_light_just_outside(void **state)
 static void test_grazing_boundary(void **state)
 {
     (void)state;
-    check("boundary through the light, grazed", "path",
+    check("boundary through the light, grazed", "volpath",
           medium_box(1e-6, 0.0, 0.5, -0.1, 0.3, -0.5, 0.5), 0.0, SPP);
+}
+
+/* Mitsuba 3's path integrator renders no media: the slab is not there. */
+static void test_path_ignores_media(void **state)
+{
+    (void)state;
+    check("path: the slab ignored", "path",
+          medium_box(SLAB_SIGMA, -0.5, 0.5, SLAB_LO, SLAB_HI, -0.5, 0.5), 0.0, SPP);
 }
 
 /* The light sample of a point in a medium (no surface offset) that crosses a null boundary
@@ -222,7 +231,7 @@ static void test_null_crossing_keeps_far_end(void **state)
     const double sigma = 20.0;
     scene s;
     tr_error err;
-    if (!scene_load_string(transport_xml("path", medium_box(sigma, -0.5, 0.5, H - 0.001, 0.3, -0.5, 0.5)),
+    if (!scene_load_string(transport_xml("volpath", medium_box(sigma, -0.5, 0.5, H - 0.001, 0.3, -0.5, 0.5)),
                            TRACER_TEST_TMP_DIR, &s, &err))
         fail_msg("%s", err.msg);
     int checked = 0;
@@ -262,6 +271,7 @@ int main(void)
         cmocka_unit_test(test_light_just_inside),
         cmocka_unit_test(test_light_just_outside),
         cmocka_unit_test(test_grazing_boundary),
+        cmocka_unit_test(test_path_ignores_media),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
