@@ -316,7 +316,7 @@ static int medium_towards(const scene *s, const vertex_plan *vp, const path_stat
 /* nee_plan in a scene with media: the light sample's transmittance through media and null
  * surfaces (scene_transmittance), the phase function at volume vertices. */
 static int nee_plan_media(const tracer *t, vertex_plan *vp, const path_state *ps,
-                          const light_sample *ls, path_stats *st)
+                          const light_sample *ls, rng *r, path_stats *st)
 {
     const scene *s = t->s;
     rgb f = vertex_eval(vp, ls->wi);
@@ -329,7 +329,7 @@ static int nee_plan_media(const tracer *t, vertex_plan *vp, const path_state *ps
         st->invalid_rays++;
         return 0;
     }
-    rgb tr = scene_transmittance(s, &shadow, medium_towards(s, vp, ps, ls->wi), &st->rays);
+    rgb tr = scene_transmittance(s, &shadow, medium_towards(s, vp, ps, ls->wi), r, &st->rays);
     if (rgb_is_black(tr))
         return 0;
     vp->nee_value = rgb_mul(rgb_mul(f, tr), ls->radiance);
@@ -350,7 +350,7 @@ static int nee_plan(const tracer *t, vertex_plan *vp, const path_state *ps, rng 
     if (!light_sample_from(s, vp->p, u_pick, u0, u1, &ls))
         return 0;
     if (s->has_media)
-        return nee_plan_media(t, vp, ps, &ls, st);
+        return nee_plan_media(t, vp, ps, &ls, r, st);
     vec3 wi_l;
     rgb f = shading_eval(&vp->sh, ls.wi, &wi_l);
     if (rgb_is_black(f) || rgb_is_black(ls.radiance))
@@ -554,10 +554,10 @@ static int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats 
             break;
         if (ps->medium >= 0) {
             const medium *m = &s->media[ps->medium];
-            float u_channel = rng_next(r), u = rng_next(r), tm;
+            float tm;
             rgb w;
-            int scattered = medium_sample_distance(m, ps->throughput, found ? h.t : INFINITY,
-                                                   u_channel, u, &tm, &w);
+            int scattered = medium_sample_flight(m, ps->throughput, ry.o, ry.d,
+                                                 found ? h.t : INFINITY, r, &tm, &w);
             ps->throughput = rgb_mul(ps->throughput, w);
             if (rgb_is_black(ps->throughput) || !rgb_is_finite(ps->throughput))
                 return 0;

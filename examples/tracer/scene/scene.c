@@ -24,6 +24,8 @@ void scene_free(scene *s)
     }
     free(s->shapes);
     free(s->bsdfs);
+    for (int i = 0; i < s->nmedia; ++i)
+        medium_free(&s->media[i]);
     free(s->media);
     for (int i = 0; i < s->ntextures; ++i) {
         texture_free(s->textures[i]);
@@ -487,7 +489,7 @@ void scene_shadow_ray(vec3 p, vec3 ng, vec3 wi, float dist, ray *out)
     ray_to(o, v3_add(p, v3_scale(wi, dist - gap)), wi, out);
 }
 
-rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays)
+rgb scene_transmittance(const scene *s, const ray *r, int med, rng *rn, uint64_t *rays)
 {
     if (!s->has_media) {
         ++*rays;
@@ -504,13 +506,14 @@ rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays)
         ++*rays;
         if (!scene_intersect(s, &seg, &h)) {
             if (med >= 0)
-                tr = rgb_mul(tr, medium_transmittance(&s->media[med], seg.tmax));
+                tr = rgb_mul(tr, medium_segment_transmittance(&s->media[med], seg.o, seg.d,
+                                                              seg.tmax, rn));
             return tr;
         }
         if (!s->shapes[h.shape].null_surface)
             return rgb_gray(0.0f);
         if (med >= 0)
-            tr = rgb_mul(tr, medium_transmittance(&s->media[med], h.t));
+            tr = rgb_mul(tr, medium_segment_transmittance(&s->media[med], seg.o, seg.d, h.t, rn));
         if (rgb_is_black(tr))
             return tr;
         surface sf;
@@ -527,7 +530,8 @@ rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays)
         ray_to(o, end, seg.d, &seg);
         if (!(seg.tmax > 0.0f)) { /* the end lies within the offset: nothing fits between */
             if (med >= 0 && rest > 0.0f)
-                tr = rgb_mul(tr, medium_transmittance(&s->media[med], rest));
+                tr = rgb_mul(tr, medium_segment_transmittance(&s->media[med], o, seg.d, rest,
+                                                              rn));
             return tr;
         }
     }

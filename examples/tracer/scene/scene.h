@@ -180,9 +180,10 @@ void scene_shadow_ray(vec3 p, vec3 ng, vec3 wi, float dist, ray *out);
  * crossed (at most 64 of them), switching the medium as a path does (scene_medium_after).
  * After a crossing the ray goes on from just past the boundary re-aimed at the same far end
  * (r->o + r->d r->tmax), which an offset along the boundary's normal would otherwise move
- * into the light that was sampled. *rays counts the rays traced. Scenes without media:
- * scene_occluded's answer. */
-rgb scene_transmittance(const scene *s, const ray *r, int med, uint64_t *rays);
+ * into the light that was sampled. Heterogeneous media estimate their part by ratio tracking
+ * with numbers from rn (homogeneous ones draw none). *rays counts the rays traced. Scenes
+ * without media: scene_occluded's answer. */
+rgb scene_transmittance(const scene *s, const ray *r, int med, rng *rn, uint64_t *rays);
 
 /* The medium a ray travelling along d is in after crossing shape `shape` whose geometric
  * normal there is ng, coming from medium `med`: the shape's interior when d goes against

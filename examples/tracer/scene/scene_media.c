@@ -1,7 +1,8 @@
 /*
  * scene_media.c - participating media in the scene file: <medium type="homogeneous"> with
- * its albedo, sigma_t, scale and a nested <phase type="isotropic|hg">, and the check that a
- * shape bounding a medium is closed (docs/tracer.md, "Participating media").
+ * its albedo, sigma_t, scale and a nested <phase type="isotropic|hg">; <medium
+ * type="heterogeneous"> with <volume type="gridvolume"> grids for sigma_t and the albedo; and
+ * the check that a shape bounding a medium is closed (docs/tracer.md, "Participating media").
  */
 #include <math.h>
 #include <stdlib.h>
@@ -44,50 +45,138 @@ static int parse_phase(loader *L, xml_node *n, float *g)
     return check_all_used(L, n);
 }
 
+/* <volume type="gridvolume" name=...>: the grid of its file, placed by its to_world. Values
+ * must lie in [lo, hi]; `what` names them in messages. *out is owned by the caller. */
+static int parse_gridvolume(loader *L, xml_node *n, const char *what, float lo, float hi,
+                            placed_grid **out)
+{
+    *out = NULL;
+    const char *type = plugin_type(L, n);
+    n->used = 1;
+    if (!type || !check_plugin_attrs(L, n))
+        return 0;
+    if (strcmp(type, "gridvolume"))
+        return fail_at(L, n, "unsupported volume type '%s' (gridvolume)", type);
+    const char *file, *filter, *wrap_mode;
+    int raw, use_grid_bbox;
+    mat4 to_world, to_local;
+    if (!get_string(L, n, "filename", NULL, &file) ||
+        !get_string(L, n, "filter_type", "trilinear", &filter) ||
+        !get_string(L, n, "wrap_mode", "clamp", &wrap_mode) || !get_bool(L, n, "raw", 0, &raw) ||
+        !get_bool(L, n, "use_grid_bbox", 0, &use_grid_bbox) ||
+        !get_transform(L, n, "to_world", &to_world) || !check_all_used(L, n))
+        return 0;
+    if (!file)
+        return fail_at(L, n, "missing parameter 'filename'");
+    if (strcmp(filter, "trilinear") && strcmp(filter, "nearest"))
+        return fail_at(L, n, "filter_type '%s' is not supported (trilinear or nearest)", filter);
+    if (strcmp(wrap_mode, "clamp"))
+        return fail_at(L, n, "wrap_mode '%s' is not supported (clamp)", wrap_mode);
+    if (use_grid_bbox)
+        return fail_at(L, n, "use_grid_bbox = true is not supported (the grid fills the unit "
+                       "cube that to_world places)");
+    if (!mat4_inverse(&to_world, &to_local))
+        return fail_at(L, n, "to_world is not invertible");
+    char path[4096];
+    if (!resolve_path(L, n, file, path, sizeof path))
+        return 0;
+    placed_grid *pg = calloc(1, sizeof *pg);
+    if (!pg)
+        return fail_at(L, n, "out of memory");
+    tr_error e;
+    if (!volume_grid_read(path, what, lo, hi, &pg->grid, &e)) {
+        free(pg);
+        return fail_at(L, n, "%s", e.msg);
+    }
+    pg->grid.nearest = !strcmp(filter, "nearest");
+    for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 4; ++c)
+            pg->to_local[r][c] = (float)to_local.m[r][c];
+    *out = pg;
+    return 1;
+}
+
+/* The coefficients of <medium type="heterogeneous">: sigma_t a one-channel grid (a grey
+ * extinction), albedo a constant or a grid of one or three channels. */
+static int parse_heterogeneous(loader *L, xml_node *n, medium *m)
+{
+    xml_node *sn, *an;
+    if (!find_prop(L, n, "sigma_t", &sn) || !find_prop(L, n, "albedo", &an))
+        return 0;
+    if (!sn)
+        return fail_at(L, n, "a heterogeneous medium needs sigma_t as <volume "
+                       "type=\"gridvolume\"> (a constant one is <medium type=\"homogeneous\">)");
+    if (strcmp(sn->name, "volume"))
+        return fail_at(L, sn, "sigma_t of a heterogeneous medium must be a <volume "
+                       "type=\"gridvolume\"> (a constant one is <medium type=\"homogeneous\">)");
+    if (!parse_gridvolume(L, sn, "density", 0.0f, 1e30f, &m->density))
+        return 0;
+    if (m->density->grid.channels != 1)
+        return fail_at(L, sn, "sigma_t's grid has %d channels: only a grey extinction (1 "
+                       "channel) is supported", m->density->grid.channels);
+    if (an && !strcmp(an->name, "volume"))
+        return parse_gridvolume(L, an, "albedo", 0.0f, 1.0f, &m->albedo_grid);
+    m->albedo = rgb_gray(0.75f); /* Mitsuba's default */
+    return !an || (get_rgb(L, n, "albedo", m->albedo, &m->albedo) &&
+                   check_channels(L, n, "albedo", m->albedo, 0.0f, 1.0f, "[0, 1]"));
+}
+
 int parse_medium(loader *L, xml_node *n, int *index)
 {
     const char *type = plugin_type(L, n);
     n->used = 1;
     if (!type || !check_plugin_attrs(L, n))
         return 0;
-    if (strcmp(type, "homogeneous"))
-        return fail_at(L, n, "unsupported medium type '%s' (homogeneous)", type);
+    const int heterogeneous = !strcmp(type, "heterogeneous");
+    if (!heterogeneous && strcmp(type, "homogeneous"))
+        return fail_at(L, n, "unsupported medium type '%s' (homogeneous, heterogeneous)", type);
     medium m;
+    memset(&m, 0, sizeof m);
     float scale;
-    int sample_emitters, spectral;
+    int sample_emitters, spectral, ok;
     /* Mitsuba's defaults: albedo 0.75, sigma_t 1, scale 1, isotropic. */
-    if (!get_rgb(L, n, "albedo", rgb_gray(0.75f), &m.albedo) ||
-        !get_rgb(L, n, "sigma_t", rgb_gray(1.0f), &m.sigma_t) ||
-        !get_float(L, n, "scale", 1.0f, &scale) ||
-        !get_bool(L, n, "sample_emitters", 1, &sample_emitters) ||
-        !get_bool(L, n, "has_spectral_extinction", 1, &spectral))
-        return 0;
-    if (!check_channels(L, n, "albedo", m.albedo, 0.0f, 1.0f, "[0, 1]") ||
-        !check_channels(L, n, "sigma_t", m.sigma_t, 0.0f, 1e30f, "[0, 1e30]") ||
-        !check_channels(L, n, "scale", rgb_gray(scale), 0.0f, 1e30f, "[0, 1e30]"))
-        return 0;
-    if (!sample_emitters)
-        return fail_at(L, n, "sample_emitters = false is not supported (next-event estimation "
-                       "is always on)");
-    m.sigma_t = rgb_scale(m.sigma_t, scale);
-    if (!check_channels(L, n, "scale x sigma_t", m.sigma_t, 0.0f, 1e30f, "[0, 1e30]"))
-        return 0;
+    if (heterogeneous)
+        ok = parse_heterogeneous(L, n, &m);
+    else
+        ok = get_rgb(L, n, "albedo", rgb_gray(0.75f), &m.albedo) &&
+             get_rgb(L, n, "sigma_t", rgb_gray(1.0f), &m.sigma_t) &&
+             check_channels(L, n, "albedo", m.albedo, 0.0f, 1.0f, "[0, 1]") &&
+             check_channels(L, n, "sigma_t", m.sigma_t, 0.0f, 1e30f, "[0, 1e30]");
+    ok = ok && get_float(L, n, "scale", 1.0f, &scale) &&
+         get_bool(L, n, "sample_emitters", 1, &sample_emitters) &&
+         get_bool(L, n, "has_spectral_extinction", 1, &spectral) &&
+         check_channels(L, n, "scale", rgb_gray(scale), 0.0f, 1e30f, "[0, 1e30]");
+    if (ok && !sample_emitters)
+        ok = fail_at(L, n, "sample_emitters = false is not supported (next-event estimation "
+                     "is always on)");
+    if (ok && heterogeneous) {
+        m.scale = scale;
+        m.majorant = scale * m.density->grid.max;
+        ok = check_channels(L, n, "scale x the density's maximum", rgb_gray(m.majorant), 0.0f,
+                            1e30f, "[0, 1e30]");
+    } else if (ok) {
+        m.sigma_t = rgb_scale(m.sigma_t, scale);
+        ok = check_channels(L, n, "scale x sigma_t", m.sigma_t, 0.0f, 1e30f, "[0, 1e30]");
+    }
     m.g = 0.0f;
     int phases = 0;
-    for (int i = 0; i < n->nchildren; ++i) {
+    for (int i = 0; ok && i < n->nchildren; ++i) {
         xml_node *c = n->children[i];
         if (strcmp(c->name, "phase"))
             continue;
         if (phases++)
-            return fail_at(L, c, "a medium takes one phase function");
-        if (!parse_phase(L, c, &m.g))
-            return 0;
+            ok = fail_at(L, c, "a medium takes one phase function");
+        else
+            ok = parse_phase(L, c, &m.g);
     }
-    if (!check_all_used(L, n))
+    ok = ok && check_all_used(L, n);
+    medium *grown = ok ? realloc(L->s->media, (size_t)(L->s->nmedia + 1) * sizeof *grown) : NULL;
+    if (ok && !grown)
+        ok = fail_at(L, n, "out of memory");
+    if (!ok) {
+        medium_free(&m);
         return 0;
-    medium *grown = realloc(L->s->media, (size_t)(L->s->nmedia + 1) * sizeof *grown);
-    if (!grown)
-        return fail_at(L, n, "out of memory");
+    }
     L->s->media = grown;
     *index = L->s->nmedia;
     L->s->media[L->s->nmedia++] = m;

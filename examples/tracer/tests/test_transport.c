@@ -245,7 +245,8 @@ static void test_null_crossing_keeps_far_end(void **state)
             ray r;
             scene_shadow_ray(p, v3(0.0f, 0.0f, 0.0f), wi, dist, &r);
             uint64_t rays = 0;
-            rgb tr = scene_transmittance(&s, &r, -1, &rays);
+            rng rn = {1, 1}; /* a homogeneous medium draws nothing */
+            rgb tr = scene_transmittance(&s, &r, -1, &rn, &rays);
             double expected = exp(-sigma * 0.001 / wi.y);
             /* The stretch inside is 0.001 / cos less the offset past the boundary and the gap
              * before the light (scene.h: each at most 1e-5 (1 + 0.5) along the normal, the
