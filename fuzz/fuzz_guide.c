@@ -9,6 +9,7 @@
  * Invariants (abort, which libFuzzer reports, when broken):
  *   - every call returns NF_OK or a documented error with a message;
  *   - a refused add leaves the store as it was (the next pass sees only accepted samples);
+ *     no add is refused as busy;
  *   - the training model's parameters stay finite, and the published model acquire hands out
  *     has the parameters of the last successful publish;
  *   - the policy functions are total: probabilities in [0, 1), survival in [0, 1], the boost
@@ -298,6 +299,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             st = nf_guide_add_samples(g, n, next_byte(&r) % 4 ? key : NULL, ctx, dir, weight,
                                       next_byte(&r) % 2 ? payload : NULL);
             check_status(st, "nf_guide_add_samples");
+            NF_FUZZ_CHECK(st != NF_ERROR_BUSY, "an add was refused as busy");
             if (st == NF_OK)
                 accepted += positive;
             break;

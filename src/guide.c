@@ -89,13 +89,29 @@ void nf_guide_destroy(nf_guide *g)
     if (!g)
         return;
     nf_model_destroy(g->train);
-    nf_model_destroy(g->pub[0]);
-    nf_model_destroy(g->pub[1]);
-    void *arrays[] = {g->stage,    g->ring,        g->stage_payload, g->ring_payload,
-                      g->order,    g->order_tmp,   g->quantile_work, g->step_ctx,
-                      g->step_dir, g->step_weight, g->step_slot,     g->grads,
-                      g->F,        g->FL,          g->group_status,  g->group_message,
-                      g->fixed,    g->mean,        g->group_top};
+    for (int i = 0; i < NF_GUIDE_PUBLISHED; ++i)
+        nf_model_destroy(g->pub[i]);
+    void *arrays[] = {g->stage[0],
+                      g->stage[1],
+                      g->stage_payload[0],
+                      g->stage_payload[1],
+                      g->ring,
+                      g->ring_payload,
+                      g->order,
+                      g->order_tmp,
+                      g->quantile_work,
+                      g->step_ctx,
+                      g->step_dir,
+                      g->step_weight,
+                      g->step_slot,
+                      g->grads,
+                      g->F,
+                      g->FL,
+                      g->group_status,
+                      g->group_message,
+                      g->fixed,
+                      g->mean,
+                      g->group_top};
     for (size_t i = 0; i < sizeof arrays / sizeof arrays[0]; ++i)
         nf_guide_free_one(g, arrays[i]);
     nf_allocator alloc = g->alloc;
@@ -126,13 +142,16 @@ nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_g
     g->cfg = *gc;
     g->alloc = alloc;
     atomic_init(&g->newest, 0);
-    atomic_init(&g->holders[0], 0u);
-    atomic_init(&g->holders[1], 0u);
-    atomic_init(&g->adding, 0u);
+    for (int i = 0; i < NF_GUIDE_PUBLISHED; ++i)
+        atomic_init(&g->holders[i], 0u);
     atomic_init(&g->training, 0);
-    atomic_init(&g->staged, (size_t)0);
+    atomic_init(&g->intake, 0);
+    for (int i = 0; i < 2; ++i) {
+        atomic_init(&g->adders[i], 0u);
+        atomic_init(&g->staged[i], (size_t)0);
+    }
     atomic_init(&g->dropped, 0ull);
-    for (int i = 0; i < 3; ++i) {
+    for (int i = 0; i < 1 + NF_GUIDE_PUBLISHED; ++i) {
         nf_model **slot = i == 0 ? &g->train : &g->pub[i - 1];
         if ((st = nf_model_clone(model, slot)) != NF_OK ||
             (st = nf_set_learning_rate(*slot, gc->learning_rate)) != NF_OK) {
@@ -149,9 +168,11 @@ nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_g
     size_t groups = gc->groups;
     g->params = nf_param_count(model);
     int ok = 1;
-    g->stage = nf_guide_alloc(g, cap, sizeof *g->stage, &ok);
+    for (int i = 0; i < 2; ++i) {
+        g->stage[i] = nf_guide_alloc(g, cap, sizeof *g->stage[i], &ok);
+        g->stage_payload[i] = nf_guide_alloc(g, cap, pb, &ok);
+    }
     g->ring = nf_guide_alloc(g, cap, sizeof *g->ring, &ok);
-    g->stage_payload = nf_guide_alloc(g, cap, pb, &ok);
     g->ring_payload = nf_guide_alloc(g, cap, pb, &ok);
     g->order = nf_guide_alloc(g, cap, sizeof *g->order, &ok);
     g->order_tmp = nf_guide_alloc(g, cap, sizeof *g->order_tmp, &ok);
@@ -189,11 +210,12 @@ const nf_guide_config *nf_guide_get_config(const nf_guide *g) { return g ? &g->c
 nf_model *nf_guide_training_model(nf_guide *g) { return g ? g->train : NULL; }
 
 /* ---- Publication ----------------------------------------------------------------------------
- * Two published models and a hold count each. A reader counts itself into the newest, then
- * checks that it is still the newest; publish writes only the model nobody holds. With
- * sequentially consistent atomics, a reader that re-reads `newest` unchanged holds a model
- * that no publish is writing: a publish that began writing it did so after the swap away from
- * it, and the reader's re-read would then see the other one and retry. */
+ * NF_GUIDE_PUBLISHED published models and a hold count each. A reader counts itself into the
+ * newest, then checks that it is still the newest; publish writes only a model that is not
+ * the newest and that nobody holds. With sequentially consistent atomics, a reader that
+ * re-reads `newest` unchanged holds a model that no publish is writing: a publish that began
+ * writing it did so while it was not the newest, and the reader's re-read would then see
+ * another one and retry. */
 
 nf_status nf_guide_acquire(nf_guide *g, const nf_model **out)
 {
@@ -215,7 +237,10 @@ nf_status nf_guide_release(nf_guide *g, const nf_model *m)
     static const char fn[] = "nf_guide_release";
     if (!g || !m)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn, !g ? "g" : "m");
-    int i = m == g->pub[0] ? 0 : m == g->pub[1] ? 1 : -1;
+    int i = -1;
+    for (int k = 0; k < NF_GUIDE_PUBLISHED; ++k)
+        if (m == g->pub[k])
+            i = k;
     if (i < 0)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: m was not handed out by this guide", fn);
     unsigned held = atomic_load(&g->holders[i]);
@@ -227,21 +252,16 @@ nf_status nf_guide_release(nf_guide *g, const nf_model *m)
     return NF_OK;
 }
 
-/* Marks a training call in flight; refuses when samples are being added (or another training
- * call runs). The two flags are set before the other is read (Dekker's pattern, sequentially
- * consistent), so an add and a training call can never both go ahead. */
+/* Marks a training call or publish in flight; refuses another one meanwhile. Adds and
+ * acquires go on: they touch only the intake and the hold counts. */
 nf_status nf_guide_begin_exclusive(nf_guide *g, const char *fn)
 {
     int expected = 0;
     if (!atomic_compare_exchange_strong(&g->training, &expected, 1))
-        return nf_fail(NF_ERROR_BUSY, "%s: another training call or publish is running", fn);
-    if (atomic_load(&g->adding) != 0u) {
-        atomic_store(&g->training, 0);
         return nf_fail(NF_ERROR_BUSY,
-                       "%s: nf_guide_add_samples is running on another thread: train after "
-                       "the pass's threads have finished",
+                       "%s: another training call or nf_guide_publish is running on another "
+                       "thread: they must take turns (guide.h)",
                        fn);
-    }
     return NF_OK;
 }
 
@@ -255,13 +275,21 @@ nf_status nf_guide_publish(nf_guide *g)
     nf_status st = nf_guide_begin_exclusive(g, fn);
     if (st != NF_OK)
         return st;
-    int back = 1 - atomic_load(&g->newest);
-    if (atomic_load(&g->holders[back]) != 0u) {
+    /* Any copy but the newest that nobody holds: a reader that counts itself into it now
+     * sees that it is not the newest and moves on (above). */
+    const int newest = atomic_load(&g->newest);
+    int back = -1;
+    for (int k = 1; k < NF_GUIDE_PUBLISHED && back < 0; ++k) {
+        int j = (newest + k) % NF_GUIDE_PUBLISHED;
+        if (atomic_load(&g->holders[j]) == 0u)
+            back = j;
+    }
+    if (back < 0) {
         nf_guide_end_exclusive(g);
         return nf_fail(NF_ERROR_BUSY,
-                       "%s: both published models are held: release the older one "
-                       "(nf_guide_release) first",
-                       fn);
+                       "%s: the %d older published models are all still held (threads hold "
+                       "%d generations): release one (nf_guide_release) first",
+                       fn, NF_GUIDE_PUBLISHED - 1, NF_GUIDE_PUBLISHED);
     }
     st = nf_model_copy(g->pub[back], g->train);
     if (st == NF_OK)
@@ -278,26 +306,33 @@ nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key, const
     static const char fn[] = "nf_guide_add_samples";
     if (!g)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: g is NULL", fn);
+    if (n == 0) /* an empty batch, whatever its pointers (an empty std::vector's are NULL) */
+        return NF_OK;
     size_t kept = 0;
     nf_status st = nf_check_pointers(fn, "ctx", ctx, "dir", dir, "weight", weight, NULL, NULL);
-    if (st != NF_OK || n == 0 ||
-        (st = nf_validate_samples(fn, n, ctx, dir, weight, NULL, &kept)) != NF_OK)
+    if (st != NF_OK || (st = nf_validate_samples(fn, n, ctx, dir, weight, NULL, &kept)) != NF_OK)
         return st;
-    atomic_fetch_add(&g->adding, 1u);
-    if (atomic_load(&g->training) != 0) {
-        atomic_fetch_sub(&g->adding, 1u);
-        return nf_fail(NF_ERROR_BUSY,
-                       "%s: a training call is running: add the pass's samples before it", fn);
+    /* Count into the intake's stage, then check it is still the intake: a pass that turned it
+     * meanwhile may already be waiting for this stage's adds to end, or have drained it. */
+    int in;
+    for (;;) {
+        in = atomic_load(&g->intake);
+        atomic_fetch_add(&g->adders[in], 1u);
+        if (atomic_load(&g->intake) == in)
+            break;
+        atomic_fetch_sub(&g->adders[in], 1u);
     }
     size_t cap = g->cfg.store_capacity, pb = g->cfg.payload_bytes;
-    size_t slot = atomic_fetch_add(&g->staged, kept);
+    nf_guide_entry *stage = g->stage[in];
+    unsigned char *stage_payload = g->stage_payload[in];
+    size_t slot = atomic_fetch_add(&g->staged[in], kept);
     for (size_t i = 0; i < n; ++i) {
         if (!(weight[i] > 0.0f))
             continue;
         if (slot >= cap) {
             atomic_fetch_add(&g->dropped, 1ull);
         } else {
-            nf_guide_entry *e = &g->stage[slot];
+            nf_guide_entry *e = &stage[slot];
             e->ctx = ctx[i];
             /* A surface's phase_g is never read and may be garbage: stored as 0, so that the
              * store's order (equal keys sort by their bytes) does not depend on it. */
@@ -307,7 +342,7 @@ nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key, const
             e->weight = weight[i];
             e->key = key ? key[i] : 0u;
             if (pb) {
-                unsigned char *dst = g->stage_payload + slot * pb;
+                unsigned char *dst = stage_payload + slot * pb;
                 if (payload)
                     memcpy(dst, (const unsigned char *)payload + i * pb, pb);
                 else
@@ -316,8 +351,20 @@ nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key, const
         }
         ++slot;
     }
-    atomic_fetch_sub(&g->adding, 1u);
+    atomic_fetch_sub(&g->adders[in], 1u);
     return NF_OK;
+}
+
+int nf_guide_swap_intake(nf_guide *g)
+{
+    const int in = atomic_load(&g->intake);
+    atomic_store(&g->intake, 1 - in);
+    /* An add that counted itself into `in` and then saw it still the intake did both before
+     * the store above (sequential consistency), so its count shows here: wait for it. Adds
+     * copy at most store_capacity samples and take no lock, so this wait is short. */
+    while (atomic_load(&g->adders[in]) != 0u)
+        ;
+    return in;
 }
 
 const void *nf_guide_payload(const nf_guide *g, const nf_context *ctx)

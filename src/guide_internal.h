@@ -21,20 +21,31 @@ typedef struct nf_guide_entry {
 #define NF_GUIDE_ENTRY_BYTES 52u
 #define NF_GUIDE_MESSAGE 160
 
+/* Published copies of the model: acquire hands out the newest; publish writes one that no
+ * thread holds, so holders of one older generation never hold publication up. */
+#define NF_GUIDE_PUBLISHED 3
+
 struct nf_guide {
     nf_guide_config cfg;
     nf_allocator alloc;
-    nf_model *train;  /* what steps change; never handed out                               */
-    nf_model *pub[2]; /* published copies; `newest` is what acquire hands out              */
+    nf_model *train;                   /* what steps change; never handed out              */
+    nf_model *pub[NF_GUIDE_PUBLISHED]; /* published copies; `newest` is what acquire hands out */
     atomic_int newest;
-    atomic_uint holders[2];
-    atomic_uint adding;   /* nf_guide_add_samples calls in flight                          */
-    atomic_int training;  /* a training call or publish in flight                          */
-    atomic_size_t staged; /* slots reserved in `stage` this pass (may exceed capacity)     */
+    atomic_uint holders[NF_GUIDE_PUBLISHED];
+    atomic_int training; /* a training call or publish in flight                           */
+
+    /* The intake: two stages. Adds go to stage `intake`; a training pass turns the intake to
+     * the other stage, waits for the adds still writing into its own (adders), and drains
+     * it, while new adds fill the other one for the next pass. */
+    atomic_int intake;
+    atomic_uint adders[2];   /* nf_guide_add_samples calls writing into each stage        */
+    atomic_size_t staged[2]; /* slots reserved in each stage (may exceed capacity)        */
     atomic_ullong dropped;
 
-    nf_guide_entry *stage, *ring; /* capacity each                                           */
-    unsigned char *stage_payload, *ring_payload;
+    nf_guide_entry *stage[2], *ring; /* capacity each                                        */
+    unsigned char *stage_payload[2], *ring_payload;
+    const nf_guide_entry *drain; /* the stage a pass drains (its sort reads it)   */
+    const unsigned char *drain_payload;
     size_t ring_next, ring_count;
     uint32_t *order, *order_tmp; /* capacity each: the sort and the held-out shuffle          */
     float *quantile_work;        /* capacity                                                  */
@@ -68,9 +79,14 @@ struct nf_guide {
 };
 
 /* Marks the start and end of a training call or publish (guide.c): NF_ERROR_BUSY while
- * nf_guide_add_samples or another such call runs. */
+ * another such call runs. */
 nf_status nf_guide_begin_exclusive(nf_guide *g, const char *fn);
 void nf_guide_end_exclusive(nf_guide *g);
+
+/* Turns the intake to the other stage and waits until no add writes into the one it left;
+ * returns that stage's index, whose staged samples the caller then drains (guide.c). Call
+ * between begin and end_exclusive. */
+int nf_guide_swap_intake(nf_guide *g);
 
 /* Whether the guided / plain ratios reported by nf_guide_report_training_ratio still say
  * that training pays (guide_choice.c). */

@@ -280,13 +280,13 @@ nf_status nf_guide_train_batch(nf_guide *g, size_t n, const nf_context *ctx, con
  * which thread added a sample first. */
 static int nf_entry_before(const nf_guide *g, uint32_t a, uint32_t b)
 {
-    const nf_guide_entry *x = &g->stage[a], *y = &g->stage[b];
+    const nf_guide_entry *x = &g->drain[a], *y = &g->drain[b];
     if (x->key != y->key)
         return x->key < y->key;
     int c = memcmp(x, y, NF_GUIDE_ENTRY_BYTES);
     if (c == 0 && g->cfg.payload_bytes)
-        c = memcmp(g->stage_payload + (size_t)a * g->cfg.payload_bytes,
-                   g->stage_payload + (size_t)b * g->cfg.payload_bytes, g->cfg.payload_bytes);
+        c = memcmp(g->drain_payload + (size_t)a * g->cfg.payload_bytes,
+                   g->drain_payload + (size_t)b * g->cfg.payload_bytes, g->cfg.payload_bytes);
     return c < 0;
 }
 
@@ -384,9 +384,13 @@ static nf_status nf_train_pass_locked(nf_guide *g, const nf_parallel *par, const
                                       nf_guide_pass_report *rep, const char *fn)
 {
     const size_t cap = g->cfg.store_capacity, pb = g->cfg.payload_bytes;
-    size_t staged = atomic_load(&g->staged);
+    /* The samples added up to now; adds from here on fill the other stage for the next pass. */
+    const int drained = nf_guide_swap_intake(g);
+    size_t staged = atomic_load(&g->staged[drained]);
     size_t n = staged < cap ? staged : cap;
-    atomic_store(&g->staged, (size_t)0);
+    atomic_store(&g->staged[drained], (size_t)0);
+    g->drain = g->stage[drained];
+    g->drain_payload = g->stage_payload[drained];
     nf_status st;
 
     /* The clamp: the q-quantile of the pass's weights (the largest of the processes'), folded
@@ -396,7 +400,7 @@ static nf_status nf_train_pass_locked(nf_guide *g, const nf_parallel *par, const
         double v = 0.0;
         if (n > 0) {
             for (size_t i = 0; i < n; ++i)
-                g->quantile_work[i] = g->stage[i].weight;
+                g->quantile_work[i] = g->drain[i].weight;
             v = nf_select(g->quantile_work, n, (size_t)(g->cfg.clamp_quantile * (float)(n - 1)));
         }
         if ((st = nf_reduce_max(red, &v, 1, fn)) != NF_OK)
@@ -410,9 +414,9 @@ static nf_status nf_train_pass_locked(nf_guide *g, const nf_parallel *par, const
     size_t first = g->ring_next;
     for (size_t i = 0; i < n; ++i) {
         uint32_t s = g->order[i];
-        g->ring[g->ring_next] = g->stage[s];
+        g->ring[g->ring_next] = g->drain[s];
         if (pb)
-            memcpy(g->ring_payload + g->ring_next * pb, g->stage_payload + (size_t)s * pb, pb);
+            memcpy(g->ring_payload + g->ring_next * pb, g->drain_payload + (size_t)s * pb, pb);
         g->ring_next = (g->ring_next + 1) % cap;
         if (g->ring_count < cap)
             g->ring_count++;

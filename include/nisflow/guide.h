@@ -4,8 +4,9 @@
  * A model (model.h) samples and evaluates directions; a guide trains one while a renderer
  * renders with it. It holds:
  *
- *   - a store of training samples that the render threads fill without a lock (bounded: the
- *     newest samples are kept, as a replay buffer);
+ *   - a store of training samples that the render threads fill without a lock, at any time,
+ *     also while a training pass runs (bounded: the newest samples are kept, as a replay
+ *     buffer);
  *   - the training schedule that docs/equal-time.md measured: after each training pass, one
  *     step on the pass's new samples (its loss, before the step, is a held-out loss), then
  *     steps on samples drawn from the store (weights optionally clamped at a running
@@ -15,9 +16,9 @@
  *     caller supplies (the library starts no threads), summed exactly in fixed point, so that
  *     the model has the same bits for any number of threads; with a caller-supplied allreduce
  *     (MPI or any other) the same exact sum spans processes (docs/distributed.md);
- *   - two published copies of the model that render threads sample while the next step
- *     trains a private one (double-buffered: training and sampling at the same time is safe,
- *     or refused with NF_ERROR_BUSY, never silently wrong);
+ *   - three published copies of the model that render threads sample while the next step
+ *     trains a private one (training and sampling at the same time is safe, never silently
+ *     wrong; a thread that still holds an older generation does not hold publication up);
  *   - the path policy the study measured: the mixture probability and its boost cap, the
  *     Russian roulette rule, which vertices weigh light samples by the flow;
  *   - the choice, after training, between guided and plain passes, and of how deep guided
@@ -40,11 +41,12 @@
  *     }
  *
  * Memory: everything is allocated by nf_guide_create, from the model's allocator: about
- * store_capacity x (2 x (64 + payload_bytes) + 12) bytes for the store, step_samples x 64
- * bytes for a step, groups x (4 x nf_param_count + 200) bytes for the gradients, and three
- * copies of the model; nothing later allocates. Stack: the training calls need
- * NF_TRAINING_STACK_BYTES (train.h) on every thread that runs their tasks, the calling
- * thread included when it runs them itself; the other calls hold no buffers on the stack.
+ * store_capacity x (3 x (64 + payload_bytes) + 12) bytes for the store and its two intake
+ * stages, step_samples x 64 bytes for a step, groups x (4 x nf_param_count + 200) bytes for
+ * the gradients, and four copies of the model; nothing later allocates. Stack: the training
+ * calls need NF_TRAINING_STACK_BYTES (train.h) on every thread that runs their tasks, the
+ * calling thread included when it runs them itself; the other calls hold no buffers on the
+ * stack.
  * Every function returns a status with a message (status.h) or is documented as total.
  */
 #ifndef NISFLOW_GUIDE_H
@@ -219,11 +221,15 @@ NF_API nf_status nf_guide_release(nf_guide *g, const nf_model *m);
  * equal keys by their bytes) before training, so that training is the same bits however the
  * threads interleaved their calls; give distinct keys (a pixel and vertex index, say).
  * key NULL: keys 0 (the bytes decide). payload: n x payload_bytes bytes, or NULL (zeros).
- * Samples with weight 0 are skipped (they carry nothing for the loss). A pass can hold
- * store_capacity samples: the rest are dropped and counted (nf_guide_stats). Validated as
- * nf_train_step; a refused call adds nothing. n = 0 is a no-op.
- * Thread-safe with other nf_guide_add_samples, acquire, release and sampling, lock-free; not
- * with the training calls (refused with NF_ERROR_BUSY when it overlaps one). */
+ * Samples with weight 0 are skipped (they carry nothing for the loss). Validated as
+ * nf_train_step; a refused call adds nothing. n = 0 is a no-op whatever the pointers.
+ *
+ * When samples are trained on: the samples added before a training pass starts are that
+ * pass's new samples; those added while it runs wait for the next pass (the intake has two
+ * stages: a pass drains one while adds fill the other). Each stage holds store_capacity
+ * samples: the rest are dropped at once and counted (nf_guide_stats.dropped), never refused.
+ * Thread-safe with every call but nf_guide_destroy, the training calls included; lock-free.
+ * Never NF_ERROR_BUSY. */
 NF_API nf_status nf_guide_add_samples(nf_guide *g, size_t n, const uint64_t *key,
                                       const nf_context *ctx, const float *dir, const float *weight,
                                       const void *payload);
@@ -248,10 +254,12 @@ typedef struct nf_guide_pass_report {
  * summed exactly (through `red` across processes). The held-out loss, averaged over about
  * three passes, feeds the patience. The training model changes; the published ones do not
  * (nf_guide_publish). rep may be NULL.
- * Collective over `red`'s processes. Errors: NF_ERROR_BUSY when nf_guide_add_samples runs
- * meanwhile, NF_ERROR_INVALID_ARGUMENT, a reduce hook's status; the model is then as before
- * the failing step. Not thread-safe with other training calls or publish; safe while other
- * threads sample acquired models. Uses NF_TRAINING_STACK_BYTES of each task's stack. */
+ * Collective over `red`'s processes. Errors: NF_ERROR_BUSY when another training call or
+ * nf_guide_publish runs meanwhile (on two threads they must take turns; the overlap is
+ * detected, not silently wrong), NF_ERROR_INVALID_ARGUMENT, a reduce hook's status; the model
+ * is then as before the failing step. Safe while other threads add samples (they go to the
+ * next pass), acquire and sample acquired models. Uses NF_TRAINING_STACK_BYTES of each task's
+ * stack. */
 NF_API nf_status nf_guide_train_pass(nf_guide *g, const nf_parallel *par, const nf_reduce *red,
                                      nf_guide_pass_report *rep);
 
@@ -487,10 +495,13 @@ NF_API nf_status nf_guide_choose_depth(const nf_guide *g,
                                        nf_depth_choice *out);
 
 /* Copies the training model (parameters and optimizer state, nf_model_copy) into the
- * published model that no thread holds, and makes it the newest: acquire hands it out from
- * now on. NF_ERROR_BUSY, the newest staying as it was, when both published models are still
- * held (release one first), or when nf_guide_add_samples or a training call runs meanwhile.
- * Safe while other threads sample acquired models. */
+ * published model that is not the newest and that no thread holds, and makes it the newest:
+ * acquire hands it out from now on. There are three, so publication needs one of the two
+ * copies older than the newest free: threads that hold the newest and one older generation
+ * never hold it up. A holder sees its model unchanged until it releases it. NF_ERROR_BUSY,
+ * the newest staying as it was, when threads still hold both older copies (release one
+ * first), or when a training call runs meanwhile. Safe while other threads add samples, acquire and
+ * sample acquired models. */
 NF_API nf_status nf_guide_publish(nf_guide *g);
 
 /* The model that training changes, for saving (nf_model_save), inspection or nf_set_params.

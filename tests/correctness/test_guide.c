@@ -225,8 +225,13 @@ static void test_store_bounds(void **state)
                      NF_ERROR_INVALID_ARGUMENT);
     assert_non_null(strstr(nf_last_error_message(), "weight[70]"));
     s.weight[70] = keep;
-    assert_int_equal(nf_guide_add_samples(g, 0, NULL, NULL, s.dir, s.weight, NULL),
-                     NF_ERROR_INVALID_ARGUMENT); /* n = 0 still checks its arguments */
+    /* n = 0 is a no-op whatever the pointers (an empty std::vector's data() may be NULL);
+     * the guide itself must still be given. */
+    assert_int_equal(nf_guide_add_samples(g, 0, NULL, NULL, NULL, NULL, NULL), NF_OK);
+    assert_int_equal(nf_guide_add_samples(NULL, 0, NULL, NULL, NULL, NULL, NULL),
+                     NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_add_samples(g, s.n, s.key, NULL, s.dir, s.weight, NULL),
+                     NF_ERROR_INVALID_ARGUMENT);
     assert_non_null(strstr(nf_last_error_message(), "ctx is NULL"));
 
     assert_int_equal(nf_guide_add_samples(g, s.n, s.key, s.ctx, s.dir, s.weight, NULL), NF_OK);
@@ -521,9 +526,26 @@ static void test_publish(void **state)
     params_of(g, a);
     assert_memory_equal(a, b, P * sizeof *a); /* the newest is the trained one */
 
-    /* Both held: publication is refused and changes nothing. */
+    /* Two generations held, the older by a thread that lags: publication goes on into the
+     * third copy, and neither held model changes. */
+    float *c = malloc(P * sizeof *c);
+    assert_non_null(c);
+    assert_int_equal(nf_get_params(other, c), NF_OK);
+    assert_int_equal(nf_guide_publish(g), NF_OK);
+    assert_int_equal(nf_get_params(held, b), NF_OK);
+    assert_int_equal(nf_get_params(other, a), NF_OK);
+    assert_memory_equal(a, c, P * sizeof *a);
+    const nf_model *third = NULL;
+    assert_int_equal(nf_guide_acquire(g, &third), NF_OK);
+    assert_ptr_not_equal(third, held);
+    assert_ptr_not_equal(third, other);
+    /* Three generations held: publication is refused, says why, and changes nothing. */
     assert_int_equal(nf_guide_publish(g), NF_ERROR_BUSY);
+    assert_non_null(strstr(nf_last_error_message(), "3 generations"));
     assert_non_null(strstr(nf_last_error_message(), "release"));
+    assert_int_equal(nf_get_params(other, a), NF_OK);
+    assert_memory_equal(a, c, P * sizeof *a);
+    free(c);
     /* Releasing what was not handed out, or twice, is refused. */
     assert_int_equal(nf_guide_release(g, m), NF_ERROR_INVALID_ARGUMENT);
     assert_int_equal(nf_guide_release(g, held), NF_OK);
@@ -531,6 +553,7 @@ static void test_publish(void **state)
     assert_non_null(strstr(nf_last_error_message(), "more often"));
     assert_int_equal(nf_guide_publish(g), NF_OK);
     assert_int_equal(nf_guide_release(g, other), NF_OK);
+    assert_int_equal(nf_guide_release(g, third), NF_OK);
     free_samples(&s);
     free(a);
     free(b);

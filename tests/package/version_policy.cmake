@@ -13,6 +13,8 @@
 #    INSTALL_FROM (a shared build) the library is installed into INSTALL_PREFIX and the
 #    installed file is read, and the file named by the SONAME must exist there (it is what the
 #    dynamic loader opens); otherwise LIBRARY is a probe built with the same properties.
+# 3. With -DDOCS=<file;file;...>, every find_package(nisflow X.Y...) those files show a user is
+#    one that the version file accepts (the README's went stale at 0.5 against 0.7).
 cmake_minimum_required(VERSION 3.20)
 
 foreach(var VERSION VERSION_FILE LIBRARY)
@@ -117,5 +119,23 @@ else()
         message(SEND_ERROR "${library}: SONAME ${CMAKE_MATCH_1}, the policy says ${soname}")
     else()
         message(STATUS "${library}: SONAME ${CMAKE_MATCH_1}")
+    endif()
+endif()
+
+# --- 3. The find_package lines the docs show ---------------------------------------------
+
+if(DEFINED DOCS)
+    set(found 0)
+    foreach(doc IN LISTS DOCS)
+        file(STRINGS "${doc}" lines REGEX "find_package\\(nisflow [0-9]")
+        foreach(line IN LISTS lines)
+            string(REGEX MATCH "find_package\\(nisflow ([0-9]+\\.[0-9]+(\\.[0-9]+)?)" _m "${line}")
+            nf_check_request("${CMAKE_MATCH_1}" TRUE)
+            message(STATUS "${doc}: find_package(nisflow ${CMAKE_MATCH_1}) is accepted")
+            math(EXPR found "${found} + 1")
+        endforeach()
+    endforeach()
+    if(found EQUAL 0)
+        message(SEND_ERROR "no find_package(nisflow X.Y) line in ${DOCS}")
     endif()
 endif()
