@@ -22,6 +22,7 @@ TRACER=build/examples/nf_tracer
 REF=examples/scenes/$SCENE/reference.exr
 case $SCENE in
     veach-ajar-fog) SIZE="--width 320 --height 180" ;;
+    cornell-box-haze|cornell-box-plume) SIZE="--width 128 --height 128" ;;
     *) SIZE="--width 256 --height 256" ;;
 esac
 [ -x "$TRACER" ] || { echo "equal-time-media.sh: build $TRACER first" >&2; exit 1; }
