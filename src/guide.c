@@ -30,33 +30,40 @@ void nf_guide_config_init(nf_guide_config *gc)
 
 static nf_status nf_guide_config_check(const nf_guide_config *gc, const char *fn)
 {
-#define NF_RANGE(cond, field)                                                                      \
+    /* Each refusal names the field, its value and its range, as guide.h states them. */
+#define NF_RANGE(cond, field, value, range)                                                        \
     if (!(cond))                                                                                   \
-    return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: gc->%s is out of range (guide.h)", fn, field)
+    return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: gc->%s = %g is out of range: it must be %s",    \
+                   fn, field, (double)(value), range)
     if (gc->magic_ != NF_GUIDE_CONFIG_MAGIC)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: gc was not filled by nf_guide_config_init (call it, then change "
                        "the fields you need)",
                        fn);
-    NF_RANGE(gc->store_capacity >= 1 && gc->store_capacity <= ((size_t)1 << 26), "store_capacity");
-    NF_RANGE(gc->payload_bytes <= 4096, "payload_bytes");
-    NF_RANGE(gc->step_samples >= 1 && gc->step_samples <= (1u << 20), "step_samples");
-    NF_RANGE(gc->steps_per_pass >= 1 && gc->steps_per_pass <= 4096, "steps_per_pass");
-    NF_RANGE(gc->groups >= 1 && gc->groups <= 256, "groups");
+    NF_RANGE(gc->store_capacity >= 1 && gc->store_capacity <= ((size_t)1 << 26), "store_capacity",
+             gc->store_capacity, "in [1, 2^26 = 67108864]");
+    NF_RANGE(gc->payload_bytes <= 4096, "payload_bytes", gc->payload_bytes, "in [0, 4096]");
+    NF_RANGE(gc->step_samples >= 1 && gc->step_samples <= (1u << 20), "step_samples",
+             gc->step_samples, "in [1, 2^20 = 1048576]");
+    NF_RANGE(gc->steps_per_pass >= 1 && gc->steps_per_pass <= 4096, "steps_per_pass",
+             gc->steps_per_pass, "in [1, 4096]");
+    NF_RANGE(gc->groups >= 1 && gc->groups <= 256, "groups", gc->groups, "in [1, 256]");
     NF_RANGE(gc->clamp_quantile == 0.0f || (gc->clamp_quantile > 0.0f && gc->clamp_quantile < 1.0f),
-             "clamp_quantile");
-    NF_RANGE(gc->train_fraction >= 0.0f && gc->train_fraction <= 1.0f, "train_fraction");
-    NF_RANGE(gc->pass_choice <= 1, "pass_choice");
-    NF_RANGE(gc->explore_share >= 0.0f && gc->explore_share <= 0.5f, "explore_share");
+             "clamp_quantile", gc->clamp_quantile, "0 (no clamp) or in (0, 1)");
+    NF_RANGE(gc->train_fraction >= 0.0f && gc->train_fraction <= 1.0f, "train_fraction",
+             gc->train_fraction, "in [0, 1]");
+    NF_RANGE(gc->pass_choice <= 1, "pass_choice", gc->pass_choice, "0 or 1");
+    NF_RANGE(gc->explore_share >= 0.0f && gc->explore_share <= 0.5f, "explore_share",
+             gc->explore_share, "in [0, 0.5]");
     NF_RANGE(gc->policy.mixture_prob >= 0.0f && gc->policy.mixture_prob < 1.0f,
-             "policy.mixture_prob");
+             "policy.mixture_prob", gc->policy.mixture_prob, "in [0, 1)");
     NF_RANGE(gc->policy.max_boost == 0.0f ||
                  (gc->policy.max_boost >= 1.0f && isfinite(gc->policy.max_boost)),
-             "policy.max_boost");
+             "policy.max_boost", gc->policy.max_boost, "0 (no cap) or finite and >= 1");
     NF_RANGE(gc->policy.max_survival > 0.0f && gc->policy.max_survival <= 1.0f,
-             "policy.max_survival");
+             "policy.max_survival", gc->policy.max_survival, "in (0, 1]");
     NF_RANGE(gc->policy.min_roughness >= 0.0f && gc->policy.min_roughness <= 1.0f,
-             "policy.min_roughness");
+             "policy.min_roughness", gc->policy.min_roughness, "in [0, 1]");
 #undef NF_RANGE
     /* The learning rate is checked by nf_set_learning_rate, against the model's decay. */
     return NF_OK;
@@ -151,6 +158,10 @@ nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_g
         atomic_init(&g->staged[i], (size_t)0);
     }
     atomic_init(&g->dropped, 0ull);
+    atomic_init(&g->job_open, 0);
+    atomic_init(&g->job_next, (size_t)0);
+    atomic_init(&g->job_done, (size_t)0);
+    atomic_init(&g->job_helpers, 0u);
     for (int i = 0; i < 1 + NF_GUIDE_PUBLISHED; ++i) {
         nf_model **slot = i == 0 ? &g->train : &g->pub[i - 1];
         if ((st = nf_model_clone(model, slot)) != NF_OK ||

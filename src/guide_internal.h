@@ -42,6 +42,15 @@ struct nf_guide {
     atomic_size_t staged[2]; /* slots reserved in each stage (may exceed capacity)        */
     atomic_ullong dropped;
 
+    /* The job of nf_guide_helpers' parallel-for (guide_help.c): its fields are written
+     * before job_open is set and read by helpers only after they see it set. */
+    atomic_int job_open;
+    atomic_size_t job_next, job_done;
+    atomic_uint job_helpers;
+    nf_task_fn job_task;
+    void *job_data;
+    size_t job_count;
+
     nf_guide_entry *stage[2], *ring; /* capacity each                                        */
     unsigned char *stage_payload[2], *ring_payload;
     const nf_guide_entry *drain; /* the stage a pass drains (its sort reads it)   */

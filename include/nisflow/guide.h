@@ -275,6 +275,22 @@ NF_API nf_status nf_guide_train_batch(nf_guide *g, size_t n, const nf_context *c
                                       const size_t *group_end, size_t ngroups,
                                       const nf_parallel *par, const nf_reduce *red, float *loss);
 
+/* A parallel-for for renderers without a task system: the guide's own, run by helpers.
+ * A training call given it (nf_guide_train_pass(g, &par, ...)) runs its step's tasks on the
+ * calling thread and lets any thread that calls nf_guide_help meanwhile take some; the calling
+ * thread runs whatever nobody took, so training never waits for a helper and the library
+ * starts no thread. The bits are the same however many threads helped. NULL g gives a NULL
+ * run (the calling thread alone). Thread-safe, total. */
+NF_API nf_parallel nf_guide_helpers(nf_guide *g);
+
+/* Helps the training call in progress, if it runs with nf_guide_helpers and has tasks left:
+ * runs some of them on this thread and returns how many (0 at once when there is nothing to
+ * do: two atomic loads). Call it from render threads between tiles, or from idle threads in
+ * a loop; each task needs NF_TRAINING_STACK_BYTES (train.h) of this thread's stack and lasts
+ * one gradient group (a fraction of a millisecond for the small preset's 2048-sample step in
+ * 16 groups). NULL is a no-op. Thread-safe with every call but nf_guide_destroy; lock-free. */
+NF_API size_t nf_guide_help(nf_guide *g);
+
 /* Whether training still pays: 0 once `elapsed` reaches train_fraction of `budget` (both in
  * the caller's unit, seconds say; budget <= 0: no budget), the held-out loss has not
  * improved by 1 % for `patience` passes, or the reported training ratios say it buys too

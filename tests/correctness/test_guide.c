@@ -127,7 +127,14 @@ static void test_config_checked(void **state)
     nf_guide_config_init(&gc);
     gc.store_capacity = 0;
     assert_int_equal(nf_guide_create(m, &gc, &g), NF_ERROR_INVALID_ARGUMENT);
-    assert_non_null(strstr(nf_last_error_message(), "store_capacity"));
+    /* The message names the field, the value and the range. */
+    assert_non_null(strstr(nf_last_error_message(),
+                           "gc->store_capacity = 0 is out of range: it must be in [1, 2^26"));
+    nf_guide_config_init(&gc);
+    gc.groups = 300;
+    assert_int_equal(nf_guide_create(m, &gc, &g), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "gc->groups = 300 is out of range: it must "
+                                                     "be in [1, 256]"));
     nf_guide_config_init(&gc);
     gc.clamp_quantile = 1.0f;
     assert_int_equal(nf_guide_create(m, &gc, &g), NF_ERROR_INVALID_ARGUMENT);

@@ -7,6 +7,9 @@
  *      own (a shading point's density equals nf_pdf's on the same model, to the bit), no add
  *      is refused, and no sample is lost: every one added is trained on or counted as
  *      dropped. .ci/robustness runs this under ThreadSanitizer too: it has no data race.
+ *   1b. render threads that help with the guide's steps between tiles (nf_guide_help) take
+ *      tasks of a training call run with nf_guide_helpers, and the model has the same bits
+ *      as one trained alone.
  *   2. misuse of a bare model: a thread prepares shading points while another takes
  *      nf_train_step on the same model. No point prepared during a step may be accepted
  *      afterwards; every point still accepted must agree with the final model to the bit.
@@ -191,6 +194,88 @@ static void test_guide_train_while_sampling(void **state)
     nf_model_destroy(m);
 }
 
+/* ---- 1b. Training helped by render threads (nf_guide_helpers, nf_guide_help) ------------ */
+
+typedef struct helping {
+    nf_guide *g;
+    atomic_int stop;
+    atomic_ulong helped;
+} helping;
+
+/* A render thread between its tiles: helps whenever a step is in progress. */
+static void *helper_thread(void *arg)
+{
+    helping *h = arg;
+    while (!atomic_load(&h->stop)) {
+        size_t ran = nf_guide_help(h->g);
+        atomic_fetch_add(&h->helped, (unsigned long)ran);
+        if (ran == 0)
+            nanosleep(&(struct timespec){0, 2000}, NULL); /* a tile's worth of rendering */
+    }
+    return NULL;
+}
+
+/* Two guides train on the same samples, one alone, one with two helper threads: the helpers
+ * must take tasks (else nf_guide_help does nothing) and the models end with the same bits. */
+static void test_guide_helped_by_render_threads(void **state)
+{
+    (void)state;
+    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    shared *s = calloc(1, sizeof *s);
+    assert_non_null(s);
+    fill(s, 4);
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.store_capacity = 4096;
+    gc.step_samples = 256;
+    gc.steps_per_pass = 4;
+    nf_guide *alone, *helped;
+    assert_int_equal(nf_guide_create(m, &gc, &alone), NF_OK);
+    assert_int_equal(nf_guide_create(m, &gc, &helped), NF_OK);
+    helping h = {.g = helped};
+    atomic_init(&h.stop, 0);
+    atomic_init(&h.helped, 0ul);
+    pthread_t t[2];
+    for (int i = 0; i < 2; ++i)
+        assert_int_equal(pthread_create(&t[i], NULL, helper_thread, &h), 0);
+    uint64_t key[SAMPLES];
+    for (int i = 0; i < SAMPLES; ++i)
+        key[i] = (uint64_t)i;
+    const nf_parallel par = nf_guide_helpers(helped);
+    assert_non_null(par.run);
+    /* Until the helpers took tasks, or a bound (on a loaded machine they may wait long for a
+     * core): each pass is 4 steps of 16 groups. */
+    int passes = 0;
+    for (; passes < 400 && (passes < 10 || atomic_load(&h.helped) == 0); ++passes) {
+        for (int k = 0; k < 2; ++k)
+            assert_int_equal(nf_guide_add_samples(k ? helped : alone, SAMPLES, key, s->ctx,
+                                                  s->dir, s->weight, NULL),
+                             NF_OK);
+        assert_int_equal(nf_guide_train_pass(alone, NULL, NULL, NULL), NF_OK);
+        assert_int_equal(nf_guide_train_pass(helped, &par, NULL, NULL), NF_OK);
+    }
+    atomic_store(&h.stop, 1);
+    for (int i = 0; i < 2; ++i)
+        pthread_join(t[i], NULL);
+    assert_int_equal(nf_guide_help(helped), 0); /* no step in progress: nothing to do */
+    const size_t P = nf_param_count(m);
+    float *a = malloc(P * sizeof *a), *b = malloc(P * sizeof *b);
+    assert_non_null(a);
+    assert_non_null(b);
+    assert_int_equal(nf_get_params(nf_guide_training_model(alone), a), NF_OK);
+    assert_int_equal(nf_get_params(nf_guide_training_model(helped), b), NF_OK);
+    print_message("helpers: %d passes, %lu of %d tasks run by the two helpers\n", passes,
+                  atomic_load(&h.helped), passes * 4 * 16);
+    assert_true(atomic_load(&h.helped) > 0);
+    assert_memory_equal(a, b, P * sizeof *a);
+    free(a);
+    free(b);
+    nf_guide_destroy(alone);
+    nf_guide_destroy(helped);
+    free(s);
+    nf_model_destroy(m);
+}
+
 /* ---- 2. A bare model trained while points are prepared ------------------------------------ */
 
 #define POINTS 4000
@@ -297,6 +382,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_guide_train_while_sampling),
+        cmocka_unit_test(test_guide_helped_by_render_threads),
         cmocka_unit_test(test_bare_model_misuse_detected),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
