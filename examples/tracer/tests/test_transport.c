@@ -221,23 +221,33 @@ static void test_path_ignores_media(void **state)
           medium_box(SLAB_SIGMA, -0.5, 0.5, SLAB_LO, SLAB_HI, -0.5, 0.5), 0.0, SPP);
 }
 
-/* The shipped scene file at `path`, with `from` replaced by `to` (which must occur once). */
-static char *scene_text(const char *path, const char *from, const char *to)
+/* The shipped scene file at `path`, in one of two static buffers (so that a second call
+ * keeps the first's text). */
+static char *scene_file(const char *path)
 {
-    FILE *f = fopen(path, "rb");
-    assert_non_null(f);
     static char text[2][16384];
     static int which;
-    char *in = text[which ^= 1], out_buf[16384];
-    size_t n = fread(in, 1, sizeof text[0] - 1, f);
+    char *out = text[which ^= 1];
+    FILE *f = fopen(path, "rb");
+    assert_non_null(f);
+    size_t n = fread(out, 1, sizeof text[0] - 1, f);
     fclose(f);
-    in[n] = '\0';
-    char *at = strstr(in, from);
+    out[n] = '\0';
+    return out;
+}
+
+/* Replaces `from` (which must occur once) by `to` in text, in place. */
+static char *replace_once(char *text, const char *from, const char *to)
+{
+    char *at = strstr(text, from);
     assert_non_null(at);
     assert_null(strstr(at + 1, from));
-    snprintf(out_buf, sizeof out_buf, "%.*s%s%s", (int)(at - in), in, to, at + strlen(from));
-    snprintf(in, sizeof text[0], "%s", out_buf);
-    return in;
+    char rest[16384];
+    snprintf(rest, sizeof rest, "%s", at + strlen(from));
+    assert_true((size_t)(at - text) + strlen(to) + strlen(rest) < 16384);
+    strcpy(at, to);
+    strcat(at, rest);
+    return text;
 }
 
 /* Renders a scene given as XML text at SIZE2 x SIZE2 (files relative to dir). */
@@ -258,24 +268,28 @@ static void render_text(const char *xml, const char *dir, int spp, image *img)
     scene_free(&s);
 }
 
-/* The haze of the shipped box lit indirectly (examples/scenes/cornell-box-haze), made nearly
- * transparent (sigma_t 1e-6), must render what the box without it renders: there the light,
- * inside the haze, reaches the room only through the ceiling outside it, so that every path
- * crosses the haze's null boundary twice and light samples from the ceiling end at a light
- * inside. The pixel-wise difference of the two renders has mean 0; its standard error over the
- * pixels (independent) bounds it. */
-static void test_transparent_haze_in_indirect_box(void **state)
+/* The shipped box lit indirectly through haze (examples/scenes/cornell-box-haze), its haze
+ * made nearly transparent (sigma_t 1e-6), must render what the box without the haze renders:
+ * the light, inside the haze, reaches the room only through the ceiling outside it, so that
+ * every path crosses the haze's null boundary and light samples from the ceiling cross it
+ * before they reach the light. `cube` replaces the haze cube's transform. The pixel-wise
+ * difference of the two renders has mean 0; its standard error over the pixels (independent)
+ * bounds it. */
+static void check_haze(const char *label, const char *cube)
 {
-    (void)state;
     const char *file = TRACER_SCENES_DIR "/cornell-box-haze/scene.xml",
                *dir = TRACER_SCENES_DIR "/cornell-box-haze";
+    const char *shipped = "<scale x=\"0.97\" y=\"0.91\" z=\"0.97\"/><translate x=\"0\" "
+                          "y=\"0.92\" z=\"0\"/>";
     const char *haze = "<float name=\"sigma_t\" value=\"0.15\"/>";
     const char *boundary = "<bsdf type=\"null\"/>\n\t\t<ref name=\"interior\" id=\"Haze\"/>";
     image with, without;
-    render_text(scene_text(file, haze, "<float name=\"sigma_t\" value=\"1e-6\"/>"), dir,
+    char *xml = replace_once(scene_file(file), shipped, cube);
+    render_text(replace_once(xml, haze, "<float name=\"sigma_t\" value=\"1e-6\"/>"), dir,
                 2 * SPP, &with);
     /* Without: the cube stays, a null surface that names no medium, which no ray notices. */
-    render_text(scene_text(file, boundary, "<bsdf type=\"null\"/>"), dir, 2 * SPP, &without);
+    render_text(replace_once(scene_file(file), boundary, "<bsdf type=\"null\"/>"), dir,
+                2 * SPP, &without);
     double sa = 0.0, sd = 0.0, sd2 = 0.0;
     const int n = with.width * with.height;
     for (int y = 0; y < with.height; ++y)
@@ -287,18 +301,29 @@ static void test_transparent_haze_in_indirect_box(void **state)
             sd2 += d * d;
         }
     double mean = sa / n, diff = sd / n, se = sqrt(fmax(sd2 / n - diff * diff, 0.0) / (n - 1));
-    printf("  transparent haze in the indirectly lit box: mean %.5f, with - without %.5f +- "
-           "%.5f (%.2f %%)\n", mean, diff, se, 100.0 * diff / mean);
+    printf("  %-44s mean %.5f, with - without %.5f +- %.5f (%.2f %%)\n", label, mean, diff, se,
+           100.0 * diff / mean);
     /* 4 standard errors (6e-5 by chance, fixed seeds); they must stay below 2 % of the mean
      * so that a loss of light at the boundary shows (sanitizer builds, with 8x fewer samples,
      * check the first part only). */
     if (!(fabs(diff) < 4.0 * se))
-        fail_msg("the transparent haze changes the image by %g +- %g of %g", diff, se, mean);
+        fail_msg("%s: the transparent haze changes the image by %g +- %g of %g", label, diff, se,
+                 mean);
 #ifndef TRACER_SANITIZED
     assert_true(4.0 * se <= 0.02 * mean);
 #endif
     image_free(&with);
     image_free(&without);
+}
+
+/* As shipped: the haze's top 0.13 above the light. (The far-end bug that 2e27e98 fixed does
+ * not show here: the offset moves a far end by less than the gap before the light. The
+ * quadrature tests above see it. This one guards the haze's boundary as a whole.) */
+static void test_transparent_haze_in_indirect_box(void **state)
+{
+    (void)state;
+    check_haze("haze box, as shipped", "<scale x=\"0.97\" y=\"0.91\" z=\"0.97\"/><translate "
+               "x=\"0\" y=\"0.92\" z=\"0\"/>");
 }
 
 /* The light sample of a point in a medium (no surface offset) that crosses a null boundary
