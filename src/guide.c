@@ -392,6 +392,15 @@ const void *nf_guide_payload(const nf_guide *g, const nf_context *ctx)
     return g->step_payload_base + g->step_slot[i] * g->cfg.payload_bytes;
 }
 
+size_t nf_guide_pending(const nf_guide *g)
+{
+    if (!g)
+        return 0;
+    nf_guide *m = (nf_guide *)g; /* atomics are read, not written */
+    size_t n = atomic_load(&m->staged[atomic_load(&m->intake)]);
+    return n < g->cfg.store_capacity ? n : g->cfg.store_capacity;
+}
+
 nf_status nf_guide_get_stats(const nf_guide *g, nf_guide_stats *out)
 {
     if (!g || !out)

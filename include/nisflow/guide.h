@@ -545,6 +545,12 @@ typedef struct nf_guide_stats {
  * changes meanwhile. */
 NF_API nf_status nf_guide_get_stats(const nf_guide *g, nf_guide_stats *out);
 
+/* The samples added since the last training pass began, which the next pass will train on
+ * (at most store_capacity; the rest are dropped), adds still running included: a trainer on
+ * its own thread can wait for enough of them before it trains. 0 for NULL. Thread-safe with
+ * every call but nf_guide_destroy; lock-free. */
+NF_API size_t nf_guide_pending(const nf_guide *g);
+
 NF_EXTERN_C_END
 
 #endif /* NISFLOW_GUIDE_H */

@@ -241,9 +241,14 @@ static void test_store_bounds(void **state)
                      NF_ERROR_INVALID_ARGUMENT);
     assert_non_null(strstr(nf_last_error_message(), "ctx is NULL"));
 
+    assert_int_equal(nf_guide_pending(g), 0);
     assert_int_equal(nf_guide_add_samples(g, s.n, s.key, s.ctx, s.dir, s.weight, NULL), NF_OK);
+    /* Waiting for the next pass: the kept ones, at most the capacity. */
+    assert_int_equal(nf_guide_pending(g), 100);
+    assert_int_equal(nf_guide_pending(NULL), 0);
     nf_guide_pass_report rep;
     assert_int_equal(nf_guide_train_pass(g, NULL, NULL, &rep), NF_OK);
+    assert_int_equal(nf_guide_pending(g), 0);
     nf_guide_stats st;
     assert_int_equal(nf_guide_get_stats(g, &st), NF_OK);
     /* Zero weights are skipped; beyond the capacity, samples are dropped and counted. */
