@@ -308,8 +308,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             nf_guide_stats before, after;
             NF_FUZZ_CHECK(nf_guide_get_stats(g, &before) == NF_OK, "stats");
             nf_guide_pass_report rep;
-            st = nf_guide_train_pass(g, NULL, NULL, &rep);
+            NF_FUZZ_CHECK(nf_guide_pending(g) <= gc.store_capacity, "pending above capacity");
+            /* Sometimes through the guide's own parallel-for (no helper: the caller runs it). */
+            const nf_parallel helpers = nf_guide_helpers(g);
+            st = nf_guide_train_pass(g, next_byte(&r) % 2 ? &helpers : NULL, NULL, &rep);
             check_status(st, "nf_guide_train_pass");
+            NF_FUZZ_CHECK(nf_guide_help(g) == 0, "help outside a training call ran tasks");
+            if (st == NF_OK)
+                NF_FUZZ_CHECK(nf_guide_pending(g) == 0, "samples pending after a pass");
             NF_FUZZ_CHECK(nf_guide_get_stats(g, &after) == NF_OK, "stats");
             if (st == NF_OK)
                 NF_FUZZ_CHECK(after.samples + after.dropped == accepted,

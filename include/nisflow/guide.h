@@ -40,6 +40,10 @@
  *         }
  *     }
  *
+ * or with training beside rendering: a trainer thread loops over nf_guide_train_pass (with
+ * nf_guide_helpers' parallel-for) and nf_guide_publish while the render threads go on adding
+ * samples, which are never refused, and call nf_guide_help between their tiles.
+ *
  * Memory: everything is allocated by nf_guide_create, from the model's allocator: about
  * store_capacity x (3 x (64 + payload_bytes) + 12) bytes for the store and its two intake
  * stages, step_samples x 64 bytes for a step, groups x (4 x nf_param_count + 200) bytes for
