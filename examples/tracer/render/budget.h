@@ -57,7 +57,7 @@ typedef struct budget_report {
     double depth_cpu_seconds[NF_GUIDE_DEPTHS];
     double depth_variance[NF_GUIDE_DEPTHS];
     int depth;                 /* the depth of the last choice, 0: every depth             */
-    int depth_fixed;           /* the user fixed it (tracer.h guide_depth)                 */
+    int depth_fixed;           /* the user fixed it (integrator.h guide_depth)            */
     double depth_ratio;        /* the last choice's variance x cost over every depth's; NaN:
                                 * none made                                                 */
     int explored;              /* guided passes kept while plain ones measured better       */

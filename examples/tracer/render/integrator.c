@@ -23,7 +23,7 @@
  *     sample then asks the flow nothing.
  * Which vertices are guided: non-delta ones, not rough conductors smoother than the policy's
  * min_roughness (their lobe is sharper than the flow learns). The ablation switches of
- * tracer.h (guide_depth, light_mis_bsdf) restrict that further.
+ * the tracer struct (integrator.h: guide_depth, light_mis_bsdf) restrict that further.
  *
  * A vertex runs in three steps: vertex_plan_next traces the segment to it and draws every
  * random number the vertex needs (light sample, roulette, technique, BSDF direction), stating
