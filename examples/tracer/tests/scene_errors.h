@@ -8,6 +8,16 @@
 #include <stdarg.h>
 #include <string.h>
 
+/* The first fragment of `ap` (up to a NULL) that `msg` lacks, or NULL: the caller ends ap
+ * before it fails, as a failure jumps out of the test. */
+static const char *missing_fragment(const char *msg, va_list ap)
+{
+    for (const char *frag = va_arg(ap, const char *); frag; frag = va_arg(ap, const char *))
+        if (!strstr(msg, frag))
+            return frag;
+    return NULL;
+}
+
 /* Loads `xml` (which must fail) and checks that the message contains every fragment given
  * after it, up to a NULL. */
 static void expect_error(const char *xml, ...)
@@ -20,12 +30,10 @@ static void expect_error(const char *xml, ...)
     }
     va_list ap;
     va_start(ap, xml);
-    for (const char *frag = va_arg(ap, const char *); frag; frag = va_arg(ap, const char *))
-        if (!strstr(err.msg, frag)) {
-            va_end(ap);
-            fail_msg("error message\n  %s\nlacks '%s'", err.msg, frag);
-        }
+    const char *lacks = missing_fragment(err.msg, ap);
     va_end(ap);
+    if (lacks)
+        fail_msg("error message\n  %s\nlacks '%s'", err.msg, lacks);
 }
 
 #endif /* TRACER_TEST_SCENE_ERRORS_H */

@@ -36,12 +36,10 @@ static void expect_vol_error(size_t size, ...)
     assert_non_null(strstr(err.msg, "bad.vol: "));
     va_list ap;
     va_start(ap, size);
-    for (const char *frag = va_arg(ap, const char *); frag; frag = va_arg(ap, const char *))
-        if (!strstr(err.msg, frag)) {
-            va_end(ap);
-            fail_msg("error message\n  %s\nlacks '%s'", err.msg, frag);
-        }
+    const char *lacks = missing_fragment(err.msg, ap);
     va_end(ap);
+    if (lacks)
+        fail_msg("error message\n  %s\nlacks '%s'", err.msg, lacks);
 }
 
 static void test_bad_files(void **state)
