@@ -218,56 +218,59 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
     if (!ok)
         return 0;
     *stats = br.stats;
+    const nf_schedule_report *sr = &br.sched;
     if (*model)
-        printf("trained    %d passes, %d steps on %llu samples in %.2f s (steps %.2f s), last "
+        printf("trained    %u passes, %d steps on %llu samples in %.2f s (steps %.2f s), last "
                "loss %.4f%s\n",
-               br.train_passes, br.steps, (unsigned long long)br.samples, br.train_seconds,
+               sr->train_passes, br.steps, (unsigned long long)br.samples, br.train_seconds,
                br.step_seconds, (double)br.last_loss,
-               br.stopped_early ? ", stopped: the loss or the gain stopped improving" : "");
-    if (*model && isfinite(br.train_ratio))
+               sr->stopped_early ? ", stopped: the loss or the gain stopped improving" : "");
+    if (*model && isfinite(sr->train_ratio))
         printf("training   its last pass's variance x time was %.3g of a plain pass's\n",
-               br.train_ratio);
-    printf("budget     %.2f s of %.2f: %d training passes, %d render passes in %.2f s; the "
+               sr->train_ratio);
+    printf("budget     %.2f s of %.2f: %u training passes, %u render passes in %.2f s; the "
            "training passes weigh %.2f of the image\n",
-           br.seconds, (double)o->time_budget, br.train_passes, br.render_passes,
-           br.render_seconds, br.train_weight);
+           br.seconds, (double)o->time_budget, sr->train_passes, sr->render_passes,
+           sr->render_seconds, sr->train_weight);
     uint64_t paths = stats->paths ? stats->paths : 1;
     printf("paths      %.2f rays and %.2f guided vertices per path\n",
            (double)stats->rays / (double)paths, (double)stats->guided_vertices / (double)paths);
     /* The choice between guided and plain render passes (nisflow/guide.h), and its figures. */
     const char *kind_name[2] = {"guided", "plain"};
-    double cpu_all = br.kind_cpu_seconds[0] + br.kind_cpu_seconds[1];
+    double cpu_all = sr->kind_cpu_seconds[0] + sr->kind_cpu_seconds[1];
     for (int k = 0; k < 2; ++k)
-        if (br.kind_passes[k])
-            printf("%-10s %d render passes, %.3f CPU s each, relative variance %.4g per pass; "
+        if (sr->kind_passes[k])
+            printf("%-10s %u render passes, %.3f CPU s each, relative variance %.4g per pass; "
                    "%.0f %% of the render passes' CPU time\n",
-                   kind_name[k], br.kind_passes[k], br.kind_cpu_seconds[k] / br.kind_passes[k],
-                   br.kind_variance[k],
-                   cpu_all > 0.0 ? 100.0 * br.kind_cpu_seconds[k] / cpu_all : 0.0);
+                   kind_name[k], sr->kind_passes[k],
+                   sr->kind_cpu_seconds[k] / sr->kind_passes[k], sr->kind_variance[k],
+                   cpu_all > 0.0 ? 100.0 * sr->kind_cpu_seconds[k] / cpu_all : 0.0);
     /* How deep the guided render passes guided (nf_guide_choose_depth). */
-    if (br.depth_fixed && br.kind_passes[NF_PASS_GUIDED])
-        printf("depth      fixed: guided passes guide vertices up to depth %d\n", br.depth);
+    if (br.depth_fixed && sr->kind_passes[NF_PASS_GUIDED])
+        printf("depth      fixed: guided passes guide vertices up to depth %u\n",
+               sr->depth);
     for (uint32_t c = 0; c < NF_GUIDE_DEPTHS && !br.depth_fixed; ++c) {
-        if (!br.depth_passes[c])
+        if (!sr->depth_passes[c])
             continue;
         char name[32];
         if (nf_guide_depth_of(c))
             snprintf(name, sizeof name, "up to depth %u", nf_guide_depth_of(c));
         else
             snprintf(name, sizeof name, "every depth");
-        printf("depth      %-14s %d guided passes, %.3f CPU s each, relative variance %.4g per "
+        printf("depth      %-14s %u guided passes, %.3f CPU s each, relative variance %.4g per "
                "pass\n",
-               name, br.depth_passes[c], br.depth_cpu_seconds[c] / br.depth_passes[c],
-               br.depth_variance[c]);
+               name, sr->depth_passes[c], sr->depth_cpu_seconds[c] / sr->depth_passes[c],
+               sr->depth_variance[c]);
     }
-    if (isfinite(br.depth_ratio))
-        printf("choice     guided passes guide %s%.0d: variance x time %.3g of guiding every "
+    if (isfinite(sr->depth_ratio))
+        printf("choice     guided passes guide %s%.0u: variance x time %.3g of guiding every "
                "depth\n",
-               br.depth ? "vertices up to depth " : "every depth", br.depth, br.depth_ratio);
-    if (isfinite(br.ratio))
+               sr->depth ? "vertices up to depth " : "every depth", sr->depth,
+               sr->depth_ratio);
+    if (isfinite(sr->ratio))
         printf("choice     a guided pass's variance x time is %.3g of a plain pass's: %s pays "
-               "(%d guided passes kept while plain ones measured better)\n",
-               br.ratio, br.ratio <= 1.0 ? "guiding" : "plain path tracing", br.explored);
+               "(%u guided passes kept while plain ones measured better)\n",
+               sr->ratio, sr->ratio <= 1.0 ? "guiding" : "plain path tracing", sr->explored);
     return 1;
 }
 

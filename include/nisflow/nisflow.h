@@ -9,6 +9,7 @@
  *   train.h    loss, gradients, AdamW steps, parameter access
  *   path.h     training samples from a traced path (the backward radiance walk)
  *   guide.h    the guide: sample store, training schedule, sharded steps, path policy
+ *   schedule.h the schedule: train, guided or plain passes in a time budget, the image
  *   io.h       save / load / serialize
  *   blocks.h   spline, encodings and direction <-> square maps
  */
@@ -22,6 +23,7 @@
 #include "train.h"
 #include "path.h"
 #include "guide.h"
+#include "schedule.h"
 #include "io.h"
 #include "blocks.h"
 

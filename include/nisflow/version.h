@@ -34,8 +34,8 @@
 #endif
 
 #define NF_VERSION_MAJOR 0
-#define NF_VERSION_MINOR 7
-#define NF_VERSION_PATCH 1
+#define NF_VERSION_MINOR 8
+#define NF_VERSION_PATCH 0
 
 NF_EXTERN_C_BEGIN
 

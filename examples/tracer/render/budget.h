@@ -2,22 +2,12 @@
  * budget.h - a whole render in a wall-clock budget: the time-budgeted job behind
  * `nf_tracer --time-budget`, and what docs/equal-time.md measures.
  *
- * The job is a sequence of passes of one path per pixel (render_pass):
- *   0. with the guide's choice of passes (nf_guide_config.pass_choice), two plain passes,
- *      the yardstick that training measures itself against;
- *   1. training passes, guided by the guide's published model: their records go to the
- *      guide, which trains after each pass (nisflow/guide.h: its store, its steps, its
- *      schedule), and their radiance is kept, not thrown away;
- *   2. render passes with the model frozen, each guided or plain as nf_guide_choose_pass
- *      says, a guided one guiding as deep as nf_guide_choose_depth says, until the next pass
- *      would overrun the budget.
- * Every pass also writes its paths' estimates of the second moments of plain path tracing and
- * of guiding less deep than the pass (nf_plain_moment, nf_depth_moment), which measure those
- * kinds. Training stops when the guide says (nf_guide_keep_training: its share of the
- * budget, the held-out loss's patience, or the training passes' ratio to a plain pass). The
- * image is the inverse-variance combination of the training passes (grouped) and the render
- * passes of every kind, one weight per kind (docs/tracer.md, "The time budget"). Without a
- * guide every pass is a plain render pass.
+ * The library's schedule (nisflow/schedule.h) says what to render next: plain passes first,
+ * training passes whose records go to the guide (which trains after each), then render
+ * passes guided (to a depth) or plain, until the budget ends; it combines them into the
+ * image. This file is the tracer's loop around it: it renders the passes (render_pass), hands
+ * the training records to the guide, trains and publishes, and keeps the ranks in step.
+ * Without a guide every pass is a plain render pass.
  */
 #ifndef TRACER_BUDGET_H
 #define TRACER_BUDGET_H
@@ -38,35 +28,14 @@ typedef struct budget_settings {
 } budget_settings;
 
 typedef struct budget_report {
-    int train_passes, render_passes, steps;
+    nf_schedule_report sched;  /* the passes, their kinds and the image's weights          */
+    int steps;
     uint64_t samples;          /* training samples used                                     */
     double train_seconds;      /* tracing and stepping of the training passes               */
     double step_seconds;       /* of which optimizer steps                                  */
-    double render_seconds;
-    double render_cpu_seconds; /* CPU time of the render passes, all threads                */
-    /* The render passes by kind, [NF_PASS_GUIDED] and [NF_PASS_PLAIN] (nisflow/guide.h); a
-     * guided pass's variance is its kinds' weighted by their passes:                       */
-    int kind_passes[2];
-    double kind_cpu_seconds[2];
-    double kind_variance[2];   /* relative variance of one pass (nf_guide_pass_variance)    */
-    double ratio;              /* the last choice's guided / plain variance x cost; NaN:
-                                * none made (no guide, or too few passes)                   */
-    /* The guided render passes by the guide's depth candidates (nf_guide_depth_of), summed
-     * in kind_*[NF_PASS_GUIDED]; with a fixed depth (depth_fixed), all of them in [0]:       */
-    int depth_passes[NF_GUIDE_DEPTHS];
-    double depth_cpu_seconds[NF_GUIDE_DEPTHS];
-    double depth_variance[NF_GUIDE_DEPTHS];
-    int depth;                 /* the depth of the last choice, 0: every depth             */
-    int depth_fixed;           /* the user fixed it (integrator.h guide_depth)            */
-    double depth_ratio;        /* the last choice's variance x cost over every depth's; NaN:
-                                * none made                                                 */
-    int explored;              /* guided passes kept while plain ones measured better       */
-    double train_ratio;        /* the last training pass's guided / plain variance x cost   */
     double seconds;            /* the whole job                                             */
-    double train_weight;       /* the training passes' share of the combined image, [0, 1]  */
+    int depth_fixed;           /* the user fixed the guided depth (integrator.h guide_depth) */
     float last_loss;
-    int stopped_early;         /* training ended because the loss or the gain stopped
-                                * improving                                                 */
     int refused;               /* optimizer steps the library refused                       */
     path_stats stats;
 } budget_report;

@@ -258,28 +258,28 @@ static void check_budget_job(uint32_t pass_choice, double seconds, uint64_t seed
     if (!render_with_budget(&t, guide, &bs, &img, &rep, &err))
         fail_msg("%s", err.msg);
     double elapsed = now_seconds() - bs.start;
-    printf("  budget job: %d training passes, %d render passes (%d plain), %.3f s, training "
+    printf("  budget job: %u training passes, %u render passes (%u plain), %.3f s, training "
            "weight %.3f\n",
-           rep.train_passes, rep.render_passes, rep.kind_passes[NF_PASS_PLAIN], elapsed,
-           rep.train_weight);
-    assert_true(rep.train_passes >= 1);
-    assert_true(rep.render_passes >= 2);
+           rep.sched.train_passes, rep.sched.render_passes, rep.sched.kind_passes[NF_PASS_PLAIN],
+           elapsed, rep.sched.train_weight);
+    assert_true(rep.sched.train_passes >= 1);
+    assert_true(rep.sched.render_passes >= 2);
     assert_int_equal(rep.refused, 0);
-    assert_int_equal(rep.steps, rep.train_passes * 4);
+    assert_int_equal(rep.steps, rep.sched.train_passes * 4);
     assert_int_equal(nf_model_step_count(nf_guide_training_model(guide)), (uint64_t)rep.steps);
     nf_guide_stats gs;
     assert_int_equal(nf_guide_get_stats(guide, &gs), NF_OK);
     assert_int_equal(gs.samples, rep.samples);
-    assert_true(rep.train_weight >= 0.0 && rep.train_weight <= 1.0);
-    assert_int_equal(rep.kind_passes[NF_PASS_GUIDED] + rep.kind_passes[NF_PASS_PLAIN],
-                     rep.render_passes);
+    assert_true(rep.sched.train_weight >= 0.0 && rep.sched.train_weight <= 1.0);
+    assert_int_equal(rep.sched.kind_passes[NF_PASS_GUIDED] + rep.sched.kind_passes[NF_PASS_PLAIN],
+                     rep.sched.render_passes);
     for (int k = 0; k < 2; ++k)
-        assert_true(rep.kind_variance[k] >= 0.0 && isfinite(rep.kind_variance[k]));
+        assert_true(rep.sched.kind_variance[k] >= 0.0 && isfinite(rep.sched.kind_variance[k]));
     if (pass_choice) /* the two plain passes before training come first */
-        assert_true(rep.kind_passes[NF_PASS_PLAIN] >= 2);
+        assert_true(rep.sched.kind_passes[NF_PASS_PLAIN] >= 2);
     else { /* every render pass guided, and no choice made */
-        assert_int_equal(rep.kind_passes[NF_PASS_PLAIN], 0);
-        assert_true(isnan(rep.ratio));
+        assert_int_equal(rep.sched.kind_passes[NF_PASS_PLAIN], 0);
+        assert_true(isnan(rep.sched.ratio));
     }
     assert_null(t.model); /* the job's published model does not outlive it */
     /* The job stops before a pass that would overrun; a pass of this 20 x 20 film takes
@@ -367,7 +367,7 @@ static void test_budget_job_black_scene(void **state)
     budget_report rep;
     if (!render_with_budget(&t, guide, &bs, &img, &rep, &err))
         fail_msg("%s", err.msg);
-    assert_true(rep.train_passes >= 1 && rep.render_passes >= 2);
+    assert_true(rep.sched.train_passes >= 1 && rep.sched.render_passes >= 2);
     assert_int_equal(rep.samples, 0);
     for (size_t i = 0; i < 3u * 8u * 8u; ++i)
         assert_true(img.data[i] == 0.0f); /* NaN compares unequal */
