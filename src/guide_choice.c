@@ -11,6 +11,8 @@
 
 /* Each kind's first passes before any comparison: one pass has no spread to measure. */
 #define NF_PASS_WARMUP 2u
+/* Plain passes keep explore_share / NF_PLAIN_SHARE_DIV of the render passes. */
+#define NF_PLAIN_SHARE_DIV 5.0
 
 nf_status nf_guide_pass_variance(size_t n, const double *sum, const double *sum_sq, uint32_t passes,
                                  const double *reference, double epsilon, double *out)
@@ -143,10 +145,15 @@ nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured
     nf_pass_kind other = best == NF_PASS_GUIDED ? NF_PASS_PLAIN : NF_PASS_GUIDED;
     double total = (double)gm->passes + (double)pm->passes;
     out->kind = best;
-    /* Only guided passes measure guided passes; plain path tracing is measured by every
-     * pass (nf_plain_moment), so it needs no share of its own. */
-    if (other == NF_PASS_GUIDED && (double)gm->passes < (double)g->cfg.explore_share * total) {
-        out->kind = NF_PASS_GUIDED;
+    /* The kind that measured worse keeps a share, so that its measure stays current: guided
+     * passes explore_share, as only they measure guided passes; plain ones a fifth of it, as
+     * every pass measures plain path tracing's variance (nf_plain_moment) and only its cost
+     * needs plain passes. */
+    double share = other == NF_PASS_GUIDED ? (double)g->cfg.explore_share
+                                           : (double)g->cfg.explore_share / NF_PLAIN_SHARE_DIV;
+    const nf_pass_measure *om = other == NF_PASS_GUIDED ? gm : pm;
+    if ((double)om->passes < share * total) {
+        out->kind = other;
         out->exploring = 1;
     }
     return NF_OK;

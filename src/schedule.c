@@ -18,6 +18,8 @@
  * again after 1 / NF_MEASURE_EVERY of the render passes so far: their variances move slowly
  * by then, and the passes and seconds stay current between measurements. */
 #define NF_MEASURE_FIRST_PASSES 3u
+/* Plain passes rendered after training before the choice: their cost is the steady one. */
+#define NF_STEADY_PLAIN 2u
 #define NF_MEASURE_EVERY 16u
 
 static void *nf_schedule_malloc(void *user, size_t size)
@@ -158,7 +160,6 @@ nf_status nf_schedule_create(nf_guide *guide, const nf_schedule_config *sc, nf_s
      * against them (nf_guide_report_training_ratio). */
     s->plain_first = s->training && s->choosing ? 2u : 0u;
     s->per_group = 1;
-    s->cold_kind = -1;
     s->rep.ratio = s->rep.depth_ratio = s->rep.train_ratio = NAN;
     s->rep.depth = sc->guide_depth;
     *out = s;
@@ -199,7 +200,10 @@ nf_status nf_schedule_next(nf_schedule *s, double elapsed, const nf_reduce *red,
     nf_depth_choice depth = {0u, fixed, NAN};
     nf_pass_choice choice = {NF_PASS_GUIDED, 0, NAN};
     const int choose = g && (!s->training || stop_training);
-    if (choose) {
+    if (choose && s->plain_first && s->kind[NF_PLAIN].steady_n < NF_STEADY_PLAIN) {
+        /* The plain passes before training were cold: measure steady ones first. */
+        p.kind_ = NF_PLAIN;
+    } else if (choose) {
         /* How deep a guided pass would guide, then guided against plain with that kind's
          * measure. */
         nf_pass_measure pair[2];
@@ -360,16 +364,11 @@ nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const f
     }
     nf_kind_sums *ks = &s->kind[plan->kind_];
     nf_kind_add(ks, s->pixels, rgb, moments);
-    /* The job's first pass pays for cold caches and first-touched pages: 8 to 12 % more CPU
-     * than the next (plain passes of the Cornell box with smoke). It is charged its kind's
-     * second pass's cost once there is one. */
-    if (plan->pass == 0) {
-        s->cold_kind = (int32_t)plan->kind_;
-        s->cold_cpu = cpu_seconds;
-    } else if ((int32_t)plan->kind_ == s->cold_kind && ks->n == 2) {
-        ks->cpu += cpu_seconds - s->cold_cpu;
-    }
     ks->cpu += cpu_seconds;
+    if (plan->pass > 0 && !s->training) {
+        ks->steady_n++;
+        ks->steady_cpu += cpu_seconds;
+    }
     ks->last_seconds = s->last_seconds = seconds;
     s->rep.render_passes++;
     s->rep.render_seconds += seconds;

@@ -29,7 +29,8 @@ typedef struct nf_kind_sums {
                               * tracing's, [c] depth candidate c's; a plain pass's are its square */
     uint32_t n;          /* passes                                                                */
     double cpu;          /* their CPU seconds, every thread and process                           */
-    double cold_cpu;     /* the CPU seconds of its passes that were cold (charged later)  */
+    uint32_t steady_n;   /* passes after training ended, not the job's first              */
+    double steady_cpu;   /* their CPU seconds: what the choice weighs once there are some */
     double last_seconds; /* the wall-clock seconds of its latest pass (0: none)           */
 } nf_kind_sums;
 
@@ -60,8 +61,6 @@ struct nf_schedule {
     nf_pass_plan plan;    /* the latest plan                                           */
     int stopped;
     double last_seconds; /* the latest pass's wall-clock seconds, any kind            */
-    int32_t cold_kind;   /* the kind of the job's first pass, if a render pass; or -1 */
-    double cold_cpu;
     uint32_t since_measure; /* render passes since the kinds were last measured        */
 
     nf_schedule_report rep; /* what the plans chose, kept as they are made            */

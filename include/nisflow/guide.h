@@ -184,7 +184,8 @@ typedef struct nf_guide_config {
                               * at every depth (a fixed policy)                            */
     float explore_share;     /* the least share of render passes that stay guided when
                               * plain ones measure better, so that guiding's estimate goes
-                              * on improving, [0, 0.5]; default 0.05                       */
+                              * on improving, [0, 0.5]; default 0.05. Plain passes keep a
+                              * fifth of it when guided ones measure better               */
     nf_guide_policy policy;  /* nf_guide_policy_init's                                     */
 } nf_guide_config;
 
@@ -326,8 +327,7 @@ typedef struct nf_pass_measure {
 /* nf_guide_choose_pass's answer. */
 typedef struct nf_pass_choice {
     nf_pass_kind kind; /* render this kind next                                          */
-    int exploring;     /* 1: a guided pass that keeps explore_share while plain measures
-                        * better                                                         */
+    int exploring;     /* 1: a pass of the kind that measured worse, kept by its share     */
     double ratio;      /* a guided pass's variance x cost over a plain pass's (below 1:
                         * guiding pays); NaN until each kind has 2 passes                 */
 } nf_pass_choice;
@@ -417,11 +417,12 @@ NF_API nf_status nf_guide_report_training_ratio(nf_guide *g, double ratio);
 
 /* Which kind of render pass to render next, from measured[NF_PASS_GUIDED] and
  * measured[NF_PASS_PLAIN]: first two passes of each kind, guided first, alternating; then the
- * kind with the lower variance x cost per pass (ties: guided), except that guided passes keep
- * explore_share of all render passes when plain ones measure better, so that a model that
- * measured worse early can still show better. Plain passes keep no such share: every pass
- * measures plain path tracing's variance (nf_plain_moment), which measured[NF_PASS_PLAIN]
- * must hold, and two passes measure its cost. With pass_choice 0, always guided.
+ * kind with the lower variance x cost per pass (ties: guided), except that the other kind
+ * keeps a share of all render passes, so that its measure stays current: guided passes
+ * explore_share when plain ones measure better (a model that measured worse early can still
+ * show better), plain passes a fifth of it when guided ones do (every pass measures plain path
+ * tracing's variance, nf_plain_moment, which measured[NF_PASS_PLAIN] must hold; only its cost
+ * needs plain passes). With pass_choice 0, always guided.
  * The answer depends only on the arguments and the configuration: processes that pass the same
  * measures choose alike. Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not
  * finite). Thread-safe. */
