@@ -60,7 +60,7 @@ struct nf_schedule {
     int pending;          /* a plan was handed out and not added                       */
     nf_pass_plan plan;    /* the latest plan                                           */
     int stopped;
-    double last_seconds; /* the latest pass's wall-clock seconds, any kind            */
+    double last_seconds;    /* the latest pass's wall-clock seconds, any kind            */
     uint32_t since_measure; /* render passes since the kinds were last measured        */
 
     nf_schedule_report rep; /* what the plans chose, kept as they are made            */

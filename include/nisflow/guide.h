@@ -18,13 +18,11 @@
  *     (MPI or any other) the same exact sum spans processes (docs/distributed.md);
  *   - three published copies of the model that render threads sample while the next step
  *     trains a private one (training and sampling at the same time is safe, never silently
- *     wrong; a thread that still holds an older generation does not hold publication up);
- *   - the path policy the study measured: the mixture probability and its boost cap, the
- *     Russian roulette rule, which vertices weigh light samples by the flow;
- *   - the choice, after training, between guided and plain passes, and of how deep guided
- *     passes guide, from what each kind costs and buys as the renderer measured it (plain
- *     path tracing and shallower guiding measured on guided paths too, nf_plain_moment and
- *     nf_depth_moment), and a training schedule that stops when it buys little.
+ *     wrong; a thread that still holds an older generation does not hold publication up).
+ *
+ * The path policy at each vertex (the mixture, the roulette, the moments a path measures) is
+ * nisflow/policy.h, included here; the choice of passes and the time-budgeted schedule around
+ * the guide are nisflow/schedule.h.
  *
  * The recipe (docs/integration.md has it with a renderer around it):
  *
@@ -60,70 +58,11 @@
 #include <stdint.h>
 
 #include "model.h"
+#include "policy.h"
 #include "status.h"
 #include "version.h"
 
 NF_EXTERN_C_BEGIN
-
-/* ---- The path policy --------------------------------------------------------------------- */
-
-/* How a renderer mixes the flow with its BSDF at a guided vertex (docs/integration.md, "The
- * recipe"). The defaults are what docs/equal-time.md found best; one place holds them.
- *
- * Volume vertices. At a scattering event in a participating medium (a context with a zero
- * normal, nisflow/model.h) the phase function plays the BSDF's role everywhere in this
- * header: "p_bsdf" is the phase function's density of the direction (per steradian), "BSDF
- * sampling" is phase-function sampling, and f_s |cos| becomes the phase function's value (no
- * cosine in a medium). The same guide, store and model take surface and volume vertices.
- * min_roughness is a surface notion (docs/integration.md, "Volume vertices"). */
-typedef struct nf_guide_policy {
-    float mixture_prob;       /* probability of sampling the flow at a guided vertex, [0, 1);
-                               * default 0.7                                                  */
-    float max_boost;          /* cap on the path's boost (nf_guide_mixture_prob), >= 1 or 0 for
-                               * none; default 10                                             */
-    float max_survival;       /* Russian roulette survives at most with this, (0, 1]; 0.95    */
-    uint32_t light_mis_depth; /* vertices up to this many segments deep weigh a light
-                               * sample against the mixture's density (which asks the flow);
-                               * deeper ones against the BSDF's; 0: every depth asks; default 2 */
-    float min_roughness;      /* a renderer's hint: lobes sharper than this roughness (alpha)
-                               * are better sampled by the BSDF alone; default 0.3            */
-} nf_guide_policy;
-
-/* The defaults above. NULL is ignored. Thread-safe. */
-NF_API void nf_guide_policy_init(nf_guide_policy *p);
-
-/* The probability of sampling the flow at the next guided vertex of a path whose boost is
- * `boost`. The boost is the product, over the path's guided vertices so far, of p_bsdf / p_mix
- * (nf_guide_boost): how much the mixture has raised the throughput over BSDF sampling's. A
- * BSDF sample where the flow has no mass weighs 1 / (1 - g) more than under BSDF sampling, and
- * along a path these factors multiply; the cap keeps their product within max_boost by
- * lowering g to 1 - boost / max_boost, and to 0 below 0.05 (a vertex guided that little pays
- * the flow for nothing). It depends only on the path so far: the estimator stays unbiased.
- * A NULL policy gives 0. Thread-safe, total. */
-NF_API float nf_guide_mixture_prob(const nf_guide_policy *p, float boost);
-
-/* The boost after a guided vertex: boost x p_bsdf / p_mix for a sampled direction whose BSDF
- * and mixture densities (per steradian) are given; a delta lobe (p_bsdf = p_mix = 0) that the
- * mixture chose with probability 1 - g passes g_used and multiplies 1 / (1 - g_used).
- * Non-finite or non-positive densities leave the boost unchanged. Thread-safe, total. */
-NF_API float nf_guide_boost(float boost, float p_bsdf, float p_mix, float g_used);
-
-/* The probability that Russian roulette lets a path go on: the larger of its throughput's
- * largest channel and that channel divided by the path's boost, at most max_survival. The
- * quotient is the throughput BSDF sampling would have given the same path, so a path the flow
- * sent where it expects light survives as often as plain path tracing would let it; the
- * larger of the two keeps the throughput after roulette at or below about 1 when the flow sent
- * it where it expects little. boost = 1 gives plain path tracing's rule. NaN gives 0. A NULL
- * policy, or one whose max_survival is outside (0, 1] (a zeroed one), caps at 0.95.
- * Thread-safe, total. */
-NF_API float nf_guide_roulette_survival(const nf_guide_policy *p, float throughput_max,
-                                        float boost);
-
-/* Whether a light sample at a vertex `depth` segments into the path is weighed against the
- * mixture's density (1: ask the flow its density) or the BSDF's (0). Both the light sample and
- * the scattered direction that hits the light must use the same answer, so that the MIS
- * weights still sum to one. Thread-safe, total. */
-NF_API int nf_guide_light_mis_uses_flow(const nf_guide_policy *p, uint32_t depth);
 
 /* ---- Hooks the renderer supplies --------------------------------------------------------- */
 
@@ -303,218 +242,6 @@ NF_API size_t nf_guide_help(nf_guide *g);
  * arguments. Thread-safe on a guide no training call changes meanwhile. */
 NF_API int nf_guide_keep_training(const nf_guide *g, double elapsed, double budget);
 
-/* ---- Guided or plain passes --------------------------------------------------------------- */
-
-/* After training, a pass guided by the flow costs more than a plain one (BSDF sampling and
- * next-event estimation alone: the renderer's path tracer with no flow), and it does not
- * always buy that much less variance: where next-event estimation already finds the light (a
- * box lit directly), plain passes give more per second. A renderer that renders in passes
- * (each pixel once, say) measures both kinds on the passes it renders anyway, asks
- * nf_guide_choose_pass which kind to render next, and combines the passes of both kinds by
- * inverse variance (docs/integration.md, "Guided or plain passes"). The choice stays unbiased:
- * every pass is an unbiased estimate, whichever kind it is. */
-
-typedef enum nf_pass_kind { NF_PASS_GUIDED = 0, NF_PASS_PLAIN = 1 } nf_pass_kind;
-
-/* What the renderer measured on the render passes of one kind so far (after training). */
-typedef struct nf_pass_measure {
-    uint32_t passes; /* passes of this kind                                              */
-    double seconds;  /* their cost, >= 0, in one unit for both kinds (CPU seconds, say)   */
-    double variance; /* the variance of one pass of this kind, >= 0: relative to the
-                      * image, as nf_guide_pass_variance estimates it                     */
-} nf_pass_measure;
-
-/* nf_guide_choose_pass's answer. */
-typedef struct nf_pass_choice {
-    nf_pass_kind kind; /* render this kind next                                          */
-    int exploring;     /* 1: a pass of the kind that measured worse, kept by its share     */
-    double ratio;      /* a guided pass's variance x cost over a plain pass's (below 1:
-                        * guiding pays); NaN until each kind has 2 passes                 */
-} nf_pass_choice;
-
-/* The variance of one pass of a kind, relative, from per-pixel sums. For each of n pixels (or
- * any unit of the image): S = sum[i] and Q = sum_sq[i], the sums of its value (a luminance,
- * say) and of its square over the kind's k = `passes` passes, and r = reference[i], the best
- * estimate of the pixel's value (every pass of both kinds and of training, averaged). *out is
- * the mean over i of
- *     (Q - 2 r S + k r^2) / k / (r^2 + epsilon),
- * the passes' mean squared distance to the reference, relative as relMSE is. The distance is
- * to the reference, not to the kind's own mean: a kind whose rare paths carry the light shows
- * zeros where the other kind has seen light, and its own mean would call those pixels
- * noiseless. *out is 0 for n = 0. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with n > 0,
- * NULL out, passes 0, epsilon not finite and > 0, a value not finite, sum_sq[i] < 0: the
- * message names the first), NF_ERROR_NUMERIC (finite values whose squares overflow); *out is
- * then unchanged. Thread-safe, allocates nothing. */
-NF_API nf_status nf_guide_pass_variance(size_t n, const double *sum, const double *sum_sq,
-                                        uint32_t passes, const double *reference, double epsilon,
-                                        double *out);
-
-/* The reference without lone peaks, against which the guided kinds of nf_guide_choose_depth
- * are measured. A rare bright path lands in one pixel and sits in that pixel's mean over the
- * passes too, so against that mean its pixel's relative variance stays near the pass count
- * however bright the path was: the depths would be ranked as if the path were not there
- * (docs/theory.md, "Rare bright paths in the depth choice"). Here each pixel brighter than
- * every one of its neighbours (8; fewer at the border) takes the brightest neighbour's value:
- *     out[i] = min(reference[i], the largest of pixel i's neighbours),
- * for a width x height image of one value per pixel (a luminance, say), row by row; an image
- * of one pixel is copied. Compare guided against plain passes with the reference itself:
- * plain passes draw the same rare paths. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with
- * width x height > 0, width x height overflowing size_t, reference and out overlapping, a value
- * not finite: the message names the first); out is then unchanged. Thread-safe, allocates
- * nothing, O(width x height). */
-NF_API nf_status nf_guide_lower_peaks(size_t width, size_t height, const double *reference,
-                                      double *out);
-
-/* Plain path tracing's second moment, measured on guided paths. A plain pass's variance
- * is ruled by rare bright paths that its first passes miss (a light reached through a gap),
- * so its own passes underestimate it; the guided paths find those paths often, and each one
- * says how much it would weigh in plain path tracing. With R the ratio of plain path tracing's
- * density of the path so far to the guided one's (BSDF over mixture densities, and plain
- * roulette's survival over the guided one's), a contribution c_k (a luminance) that a guided
- * path adds at its k-th contribution is worth c_k / R_k to plain path tracing, and
- *     sum over k of c_k^2 / R_k + 2 sum over j < k of c_j c_k / R_j
- * has plain path tracing's second moment as its expectation over guided paths (importance
- * weighting; docs/theory.md, "Guided or plain passes"). Start a path with
- * nf_plain_moment_start, follow its scatters and roulette, add its contributions; a plain
- * path (R = 1) gives the square of its luminance. Add each contribution with the MIS weight
- * plain path tracing would give it (light sampling against the BSDF's density), not the
- * guided path's. Thread-safe, total (the functions only write *m; moment stays >= 0, +inf at
- * worst); NULL m is a no-op. */
-typedef struct nf_plain_moment {
-    float ratio;  /* R: plain path tracing's density of the path so far over the guided one's */
-    float sum;    /* the contributions so far, each divided by its R                          */
-    float moment; /* the estimate of plain path tracing's second moment                        */
-} nf_plain_moment;
-
-/* A path at the camera: R = 1, nothing added. */
-NF_API void nf_plain_moment_start(nf_plain_moment *m);
-
-/* A scattered direction with BSDF and mixture densities p_bsdf and p_mix (per steradian),
- * or a delta lobe chosen with probability 1 - g_used (p_bsdf = p_mix = 0): R takes the step
- * as nf_guide_boost's boost does. */
-NF_API void nf_plain_moment_scatter(nf_plain_moment *m, float p_bsdf, float p_mix, float g_used);
-
-/* Russian roulette survived with probability q_used at a path whose throughput's largest
- * channel (before the roulette) is throughput_max: R takes plain roulette's survival, which is
- * nf_guide_roulette_survival(p, throughput_max / R, 1), over q_used. */
-NF_API void nf_plain_moment_roulette(nf_plain_moment *m, const nf_guide_policy *p,
-                                     float throughput_max, float q_used);
-
-/* A contribution c >= 0 (a luminance, as added to the pixel) of the path; negative or
- * non-finite c is ignored. */
-NF_API void nf_plain_moment_add(nf_plain_moment *m, float c);
-
-/* Tells the schedule what a training pass measured: `ratio` is its variance x cost over a
- * plain pass's (as nf_pass_choice.ratio, with the training pass's own variance about the
- * reference and its tracing time, steps not counted; plain passes measured as for
- * nf_guide_choose_pass, two rendered before training). Once the ratio has not fallen by 5 %
- * for 3 training passes while it stays above 0.8, nf_guide_keep_training says stop: a model
- * that buys little over plain path tracing and has stopped improving does not repay its
- * steps. Not calling it leaves the schedule as it was; pass_choice 0 ignores it.
- * Errors: NF_ERROR_INVALID_ARGUMENT (NULL g, ratio NaN or negative; +inf is allowed).
- * Not thread-safe with the training calls. */
-NF_API nf_status nf_guide_report_training_ratio(nf_guide *g, double ratio);
-
-/* Which kind of render pass to render next, from measured[NF_PASS_GUIDED] and
- * measured[NF_PASS_PLAIN]: first two passes of each kind, guided first, alternating; then the
- * kind with the lower variance x cost per pass (ties: guided), except that the other kind
- * keeps a share of all render passes, so that its measure stays current: guided passes
- * explore_share when plain ones measure better (a model that measured worse early can still
- * show better), plain passes a fifth of it when guided ones do (every pass measures plain path
- * tracing's variance, nf_plain_moment, which measured[NF_PASS_PLAIN] must hold; only its cost
- * needs plain passes). With pass_choice 0, always guided.
- * The answer depends only on the arguments and the configuration: processes that pass the same
- * measures choose alike. Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not
- * finite). Thread-safe. */
-NF_API nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured[2],
-                                      nf_pass_choice *out);
-
-/* ---- How deep guided passes guide --------------------------------------------------------- */
-
-/* Guiding a vertex costs the flow's questions, and deep vertices, which carry little of a
- * pixel, may not repay them: in a box lit directly, guiding each path's first vertex alone buys
- * more per second than guiding every vertex or none, while light that arrives through several
- * bounces (a room lit through a door's gap) needs guiding at every depth. Guided render passes
- * therefore come in NF_GUIDE_DEPTHS kinds, by the deepest vertex they guide
- * (nf_guide_depth_of): every depth measured on its own passes, a shallower kind on every pass
- * that guides deeper than it (nf_depth_moment, as plain path tracing is measured);
- * nf_guide_choose_depth picks the kind to render, and nf_guide_choose_pass then weighs it
- * against plain passes (docs/integration.md, "Guided or plain passes"). Training passes guide
- * every depth. A vertex deeper than a pass's depth is not guided: the mixture probability 0,
- * no question to the flow, light samples weighed against the BSDF's density. */
-#define NF_GUIDE_DEPTHS 3u
-
-/* The deepest vertex that guided passes of kind `candidate` guide, in segments from the
- * camera (the first vertex is 1), or 0 for every depth: candidates 0, 1, 2 are every depth,
- * 1 and 2. 0 for candidate >= NF_GUIDE_DEPTHS. Thread-safe, total. */
-NF_API uint32_t nf_guide_depth_of(uint32_t candidate);
-
-/* A kind that guides up to depth D, measured on paths guided deeper (as nf_plain_moment
- * measures plain path tracing): its passes alone would miss the rare bright paths that rule
- * its variance (light that only guiding finds, deeper than D), and the choice would pick it by
- * chance. A path guided up to depth A >= D (every depth, training passes included) traces the
- * same vertices as the depth-D policy up to D; beyond, R takes the step from the path's
- * mixture to BSDF sampling, and roulette the depth-D policy's survival (its boost frozen at
- * depth D). A path keeps one nf_depth_moment per policy it measures, in an array that each
- * call below updates at once: start each with its policy's depth D, then call scatter and
- * roulette at every vertex with the vertex's depth (the first vertex is 1) where the path
- * calls nf_guide_boost and nf_guide_roulette_survival, and add every contribution. A path
- * guided up to exactly D gives its squared luminance. D = 0 is nf_plain_moment's plain path
- * tracing, to the bit. Thread-safe, total (the functions only write m[0..n); moments stay
- * >= 0, +inf at worst); NULL m or n = 0 is a no-op. */
-typedef struct nf_depth_moment {
-    float ratio;    /* R: the depth-D policy's density of the path so far over the path's */
-    float sum;      /* the contributions so far, each divided by its R                    */
-    float moment;   /* the estimate of the depth-D policy's second moment                 */
-    float boost;    /* the depth-D policy's boost: the path's, frozen after depth D       */
-    uint32_t depth; /* D                                                                  */
-} nf_depth_moment;
-
-/* A path at the camera, measuring the policy that guides up to depth `depth`. */
-NF_API void nf_depth_moment_start(nf_depth_moment *m, uint32_t depth);
-
-/* A scattered direction at a vertex `vertex_depth` deep, with the arguments of
- * nf_plain_moment_scatter: for each of the n moments, up to its D the boost takes the step,
- * deeper R does. */
-NF_API void nf_depth_moment_scatter(nf_depth_moment *m, size_t n, uint32_t vertex_depth,
-                                    float p_bsdf, float p_mix, float g_used);
-
-/* Russian roulette survived with probability q_used at a vertex `vertex_depth` deep, whose
- * throughput's largest channel before the roulette is throughput_max: for each moment deeper
- * than its D, R takes nf_guide_roulette_survival(p, throughput_max / R, boost) over q_used. */
-NF_API void nf_depth_moment_roulette(nf_depth_moment *m, size_t n, const nf_guide_policy *p,
-                                     uint32_t vertex_depth, float throughput_max, float q_used);
-
-/* A contribution (a luminance, as added to the pixel) that the technique of the vertex
- * `vertex_depth` deep found (0: seen from the camera): c >= 0 with the MIS weight the path gave
- * it, c_plain >= 0 with plain path tracing's (light sampling against the BSDF's density). Each
- * moment takes c where its policy guides that vertex (vertex_depth <= D), c_plain deeper, as
- * nf_plain_moment_add takes its contribution; negative or non-finite values are ignored. */
-NF_API void nf_depth_moment_add(nf_depth_moment *m, size_t n, uint32_t vertex_depth, float c,
-                                float c_plain);
-
-/* nf_guide_choose_depth's answer. */
-typedef struct nf_depth_choice {
-    uint32_t candidate; /* render guided passes of this kind next, < NF_GUIDE_DEPTHS         */
-    uint32_t depth;     /* nf_guide_depth_of(candidate)                                    */
-    double ratio;       /* its variance x cost per pass over every depth's (below 1: the
-                         * shallower passes pay); NaN while a kind has fewer than 2 passes  */
-} nf_depth_choice;
-
-/* Which kind of guided pass to render next, from the measures of the guided render passes of
- * each kind (measured[c] for candidate c, as nf_pass_measure of NF_PASS_GUIDED, each variance
- * against the reference without lone peaks, nf_guide_lower_peaks): first two passes of each
- * kind, in candidate order; then the kind with the lowest variance x cost per pass (ties: the
- * lower candidate, so every depth first). The chosen kind, its variance measured against the
- * reference itself, is the NF_PASS_GUIDED measure to give nf_guide_choose_pass. With
- * pass_choice 0, always candidate 0 (every depth). Depends only on the arguments and the
- * configuration, as nf_guide_choose_pass.
- * Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not finite); *out is then
- * unchanged. Thread-safe. */
-NF_API nf_status nf_guide_choose_depth(const nf_guide *g,
-                                       const nf_pass_measure measured[NF_GUIDE_DEPTHS],
-                                       nf_depth_choice *out);
-
 /* Copies the training model (parameters and optimizer state, nf_model_copy) into the
  * published model that is not the newest and that no thread holds, and makes it the newest:
  * acquire hands it out from now on. There are three, so publication needs one of the two
@@ -557,5 +284,9 @@ NF_API nf_status nf_guide_get_stats(const nf_guide *g, nf_guide_stats *out);
 NF_API size_t nf_guide_pending(const nf_guide *g);
 
 NF_EXTERN_C_END
+
+/* The choice of passes moved to schedule.h in 0.8; including guide.h still declares it (until
+ * 0.9): include schedule.h for it. */
+#include "schedule.h"
 
 #endif /* NISFLOW_GUIDE_H */

@@ -8,7 +8,8 @@
  *   point.h    shading points: prepare a context once, sample and evaluate many directions
  *   train.h    loss, gradients, AdamW steps, parameter access
  *   path.h     training samples from a traced path (the backward radiance walk)
- *   guide.h    the guide: sample store, training schedule, sharded steps, path policy
+ *   policy.h   the path policy at a guided vertex, and the moments a path measures
+ *   guide.h    the guide: sample store, training, sharded steps, published models
  *   schedule.h the schedule: train, guided or plain passes in a time budget, the image
  *   io.h       save / load / serialize
  *   blocks.h   spline, encodings and direction <-> square maps
@@ -22,6 +23,7 @@
 #include "point.h"
 #include "train.h"
 #include "path.h"
+#include "policy.h"
 #include "guide.h"
 #include "schedule.h"
 #include "io.h"

@@ -32,6 +32,9 @@
  *     }
  *     nf_schedule_combine(s, NULL, image, &report);
  *
+ * The choice functions below (nf_guide_choose_pass, nf_guide_choose_depth and the measures
+ * they take) are what the schedule decides with, for a renderer that keeps its own loop.
+ *
  * What a pass measures. Every pass writes, per pixel, its RGB radiance and the estimates of
  * the second moments that its paths measured for the kinds it did not render
  * (nf_plain_moment, nf_depth_moment): moments[m x pixels + i] for m < NF_GUIDE_DEPTHS is
@@ -46,12 +49,13 @@
  * process gets the same plans (elapsed is the largest over them). A call refused on one
  * process (bad input) must be made to fail on the others, as for the guide.
  *
- * Memory: everything is allocated by nf_schedule_create, from the guide's allocator (malloc
- * without a guide): about width x height x 1.2 KB (32 groups of training passes and five
- * kinds of pass, in doubles); nothing later allocates. Thread-safety: one thread drives a
- * schedule (no two calls on it at once); schedules are independent. nf_schedule_next reads
- * the guide's training state: no training call of the guide may run meanwhile. Stack: a few
- * hundred bytes.
+ * Memory: everything the schedule object uses is allocated by nf_schedule_create, from the guide's
+ * allocator (malloc without a guide): about width x height x 1.2 KB (32 groups of training passes
+ * and five kinds of pass, in doubles); nothing later allocates. Thread-safety: one thread drives a
+ * schedule (no two calls on it at once); schedules are independent. nf_schedule_next and
+ * nf_schedule_add_pass read and change the guide's training state (nf_guide_keep_training,
+ * nf_guide_report_training_ratio): no training call of the guide may run during them; render
+ * threads may sample and add samples meanwhile. Stack: a few hundred bytes.
  */
 #ifndef NISFLOW_SCHEDULE_H
 #define NISFLOW_SCHEDULE_H
@@ -64,6 +68,117 @@
 #include "version.h"
 
 NF_EXTERN_C_BEGIN
+
+/* ---- Guided or plain passes --------------------------------------------------------------- */
+
+/* After training, a pass guided by the flow costs more than a plain one (BSDF sampling and
+ * next-event estimation alone: the renderer's path tracer with no flow), and it does not
+ * always buy that much less variance: where next-event estimation already finds the light (a
+ * box lit directly), plain passes give more per second. A renderer that renders in passes
+ * (each pixel once, say) measures both kinds on the passes it renders anyway, asks
+ * nf_guide_choose_pass which kind to render next, and combines the passes of both kinds by
+ * inverse variance (docs/integration.md, "Guided or plain passes"). The choice stays unbiased:
+ * every pass is an unbiased estimate, whichever kind it is. */
+
+typedef enum nf_pass_kind { NF_PASS_GUIDED = 0, NF_PASS_PLAIN = 1 } nf_pass_kind;
+
+/* What the renderer measured on the render passes of one kind so far (after training). */
+typedef struct nf_pass_measure {
+    uint32_t passes; /* passes of this kind                                              */
+    double seconds;  /* their cost, >= 0, in one unit for both kinds (CPU seconds, say)   */
+    double variance; /* the variance of one pass of this kind, >= 0: relative to the
+                      * image, as nf_guide_pass_variance estimates it                     */
+} nf_pass_measure;
+
+/* nf_guide_choose_pass's answer. */
+typedef struct nf_pass_choice {
+    nf_pass_kind kind; /* render this kind next                                          */
+    int exploring;     /* 1: a pass of the kind that measured worse, kept by its share     */
+    double ratio;      /* a guided pass's variance x cost over a plain pass's (below 1:
+                        * guiding pays); NaN until each kind has 2 passes                 */
+} nf_pass_choice;
+
+/* The variance of one pass of a kind, relative, from per-pixel sums. For each of n pixels (or
+ * any unit of the image): S = sum[i] and Q = sum_sq[i], the sums of its value (a luminance,
+ * say) and of its square over the kind's k = `passes` passes, and r = reference[i], the best
+ * estimate of the pixel's value (every pass of both kinds and of training, averaged). *out is
+ * the mean over i of
+ *     (Q - 2 r S + k r^2) / k / (r^2 + epsilon),
+ * the passes' mean squared distance to the reference, relative as relMSE is. The distance is
+ * to the reference, not to the kind's own mean: a kind whose rare paths carry the light shows
+ * zeros where the other kind has seen light, and its own mean would call those pixels
+ * noiseless. *out is 0 for n = 0. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with n > 0,
+ * NULL out, passes 0, epsilon not finite and > 0, a value not finite, sum_sq[i] < 0: the
+ * message names the first), NF_ERROR_NUMERIC (finite values whose squares overflow); *out is
+ * then unchanged. Thread-safe, allocates nothing. */
+NF_API nf_status nf_guide_pass_variance(size_t n, const double *sum, const double *sum_sq,
+                                        uint32_t passes, const double *reference, double epsilon,
+                                        double *out);
+
+/* The reference without lone peaks, against which the guided kinds of nf_guide_choose_depth
+ * are measured. A rare bright path lands in one pixel and sits in that pixel's mean over the
+ * passes too, so against that mean its pixel's relative variance stays near the pass count
+ * however bright the path was: the depths would be ranked as if the path were not there
+ * (docs/theory.md, "Rare bright paths in the depth choice"). Here each pixel brighter than
+ * every one of its neighbours (8; fewer at the border) takes the brightest neighbour's value:
+ *     out[i] = min(reference[i], the largest of pixel i's neighbours),
+ * for a width x height image of one value per pixel (a luminance, say), row by row; an image
+ * of one pixel is copied. Compare guided against plain passes with the reference itself:
+ * plain passes draw the same rare paths. Errors: NF_ERROR_INVALID_ARGUMENT (NULL arrays with
+ * width x height > 0, width x height overflowing size_t, reference and out overlapping, a value
+ * not finite: the message names the first); out is then unchanged. Thread-safe, allocates
+ * nothing, O(width x height). */
+NF_API nf_status nf_guide_lower_peaks(size_t width, size_t height, const double *reference,
+                                      double *out);
+
+/* Tells the schedule what a training pass measured: `ratio` is its variance x cost over a
+ * plain pass's (as nf_pass_choice.ratio, with the training pass's own variance about the
+ * reference and its tracing time, steps not counted; plain passes measured as for
+ * nf_guide_choose_pass, two rendered before training). Once the ratio has not fallen by 5 %
+ * for 3 training passes while it stays above 0.8, nf_guide_keep_training says stop: a model
+ * that buys little over plain path tracing and has stopped improving does not repay its
+ * steps. Not calling it leaves the schedule as it was; pass_choice 0 ignores it.
+ * Errors: NF_ERROR_INVALID_ARGUMENT (NULL g, ratio NaN or negative; +inf is allowed).
+ * Not thread-safe with the training calls. */
+NF_API nf_status nf_guide_report_training_ratio(nf_guide *g, double ratio);
+
+/* Which kind of render pass to render next, from measured[NF_PASS_GUIDED] and
+ * measured[NF_PASS_PLAIN]: first two passes of each kind, guided first, alternating; then the
+ * kind with the lower variance x cost per pass (ties: guided), except that the other kind
+ * keeps a share of all render passes, so that its measure stays current: guided passes
+ * explore_share when plain ones measure better (a model that measured worse early can still
+ * show better), plain passes a fifth of it when guided ones do (every pass measures plain path
+ * tracing's variance, nf_plain_moment, which measured[NF_PASS_PLAIN] must hold; only its cost
+ * needs plain passes). With pass_choice 0, always guided.
+ * The answer depends only on the arguments and the configuration: processes that pass the same
+ * measures choose alike. Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not
+ * finite). Thread-safe. */
+NF_API nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured[2],
+                                      nf_pass_choice *out);
+
+/* nf_guide_choose_depth's answer. */
+typedef struct nf_depth_choice {
+    uint32_t candidate; /* render guided passes of this kind next, < NF_GUIDE_DEPTHS         */
+    uint32_t depth;     /* nf_guide_depth_of(candidate)                                    */
+    double ratio;       /* its variance x cost per pass over every depth's (below 1: the
+                         * shallower passes pay); NaN while a kind has fewer than 2 passes  */
+} nf_depth_choice;
+
+/* Which kind of guided pass to render next, from the measures of the guided render passes of
+ * each kind (measured[c] for candidate c, as nf_pass_measure of NF_PASS_GUIDED, each variance
+ * against the reference without lone peaks, nf_guide_lower_peaks): first two passes of each
+ * kind, in candidate order; then the kind with the lowest variance x cost per pass (ties: the
+ * lower candidate, so every depth first). The chosen kind, its variance measured against the
+ * reference itself, is the NF_PASS_GUIDED measure to give nf_guide_choose_pass. With
+ * pass_choice 0, always candidate 0 (every depth). Depends only on the arguments and the
+ * configuration, as nf_guide_choose_pass.
+ * Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a measure negative or not finite); *out is then
+ * unchanged. Thread-safe. */
+NF_API nf_status nf_guide_choose_depth(const nf_guide *g,
+                                       const nf_pass_measure measured[NF_GUIDE_DEPTHS],
+                                       nf_depth_choice *out);
+
+/* ---- The schedule ------------------------------------------------------------------------ */
 
 typedef struct nf_schedule nf_schedule;
 
@@ -136,8 +251,10 @@ NF_API nf_status nf_schedule_next(nf_schedule *s, double elapsed, const nf_reduc
  * over the threads that rendered it (the choice weighs kinds by it; the first pass of the job,
  * and passes before training ended, pay for cold caches and do not decide it). Errors:
  * NF_ERROR_INVALID_ARGUMENT (NULL, a plan not the latest or added twice, a value not finite or
- * a moment negative: the message names the first pixel; times negative or not finite), a
- * reduce hook's status; the schedule is then unchanged. */
+ * a moment negative: the message names the first pixel; times negative or not finite): the
+ * schedule is then unchanged and the plan still waits; a reduce hook's status: the pass's
+ * times did not reach the other processes (the pass is not added), or its measures did not
+ * (the pass is added, the measures are the previous ones): make every process fail. */
 NF_API nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const float *rgb,
                                       const float *moments, double seconds, double cpu_seconds,
                                       const nf_reduce *red);
