@@ -306,11 +306,9 @@ struct Result {
 Result render(double seconds, uint64_t seed, bool plain)
 {
     Result r;
-    nf_config cfg;                           // nf
-    nf_config_init(&cfg, NF_PRESET_SMALL);   // nf: the cosine prior
-    for (int a = 0; a < 3; ++a)              // nf: the positions' box
-        cfg.bounds_min[a] = 0.0f, cfg.bounds_max[a] = 1.0f; // nf
-    cfg.sh_bands = 0;                        // nf: the position alone
+    const float box_min[3] = {0.0f, 0.0f, 0.0f}, box_max[3] = {1.0f, 1.0f, 1.0f};
+    nf_config cfg;                                       // nf: the best configuration,
+    nf_guide_model_config_init(&cfg, box_min, box_max); // nf: inside the scene's bounds
     nf_model *model = nullptr;               // nf
     nf_guide *guide = nullptr;               // nf
     nf_guide_config gc;                      // nf

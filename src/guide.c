@@ -28,6 +28,21 @@ void nf_guide_config_init(nf_guide_config *gc)
     nf_guide_policy_init(&gc->policy);
 }
 
+void nf_guide_model_config_init(nf_config *cfg, const float bounds_min[3],
+                                const float bounds_max[3])
+{
+    if (!cfg)
+        return;
+    nf_config_init(cfg, NF_PRESET_SMALL);
+    /* The position alone: four bands of the normal and wo cost more than they gained, the
+     * cosine prior already follows the normal (docs/equal-time.md). */
+    cfg->sh_bands = 0;
+    for (int a = 0; a < 3 && bounds_min && bounds_max; ++a) {
+        cfg->bounds_min[a] = bounds_min[a];
+        cfg->bounds_max[a] = bounds_max[a];
+    }
+}
+
 static nf_status nf_guide_config_check(const nf_guide_config *gc, const char *fn)
 {
     /* Each refusal names the field, its value and its range, as guide.h states them. */

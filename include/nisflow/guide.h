@@ -131,6 +131,14 @@ typedef struct nf_guide_config {
 /* Fills `gc` with the defaults above. NULL is ignored. Thread-safe. */
 NF_API void nf_guide_config_init(nf_guide_config *gc);
 
+/* Fills cfg with the model configuration the guide's defaults were measured with
+ * (docs/equal-time.md): nf_config_init's NF_PRESET_SMALL (the cosine prior), positions
+ * encoded inside [bounds_min, bounds_max] (world units: the scene's bounds), and the context
+ * encoded by its position alone (sh_bands 0). NULL bounds (either) keep the preset's; the
+ * bounds are checked by nf_model_create. NULL cfg is ignored. Thread-safe, total. */
+NF_API void nf_guide_model_config_init(nf_config *cfg, const float bounds_min[3],
+                                       const float bounds_max[3]);
+
 /* Creates a guide around copies of `model` (the caller keeps and frees `model`; it may be
  * destroyed at once); the guide's memory comes from the model's allocator. gc NULL: the
  * defaults. The copies' learning rate becomes gc->learning_rate. A model with a custom prior keeps

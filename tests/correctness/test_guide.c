@@ -170,6 +170,31 @@ static void test_config_checked(void **state)
 
 /* ---- The path policy ------------------------------------------------------------------- */
 
+/* The guide's model configuration: the small preset with its bounds and sh_bands 0, and a
+ * model made from it; NULL bounds keep the preset's. */
+static void test_model_config(void **state)
+{
+    (void)state;
+    const float lo[3] = {-2.0f, 0.5f, 3.0f}, hi[3] = {1.0f, 4.0f, 3.25f};
+    nf_config cfg, preset;
+    nf_guide_model_config_init(&cfg, lo, hi);
+    nf_config_init(&preset, NF_PRESET_SMALL);
+    assert_int_equal(cfg.sh_bands, 0);
+    assert_int_equal(cfg.prior, preset.prior);
+    assert_int_equal(cfg.hidden_width, preset.hidden_width);
+    assert_int_equal(cfg.coupling_layers, preset.coupling_layers);
+    assert_int_equal(cfg.spline_bins, preset.spline_bins);
+    assert_memory_equal(cfg.bounds_min, lo, sizeof lo);
+    assert_memory_equal(cfg.bounds_max, hi, sizeof hi);
+    nf_model *m = NULL;
+    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model_destroy(m);
+    nf_guide_model_config_init(&cfg, NULL, hi);
+    assert_memory_equal(cfg.bounds_min, preset.bounds_min, sizeof lo);
+    assert_memory_equal(cfg.bounds_max, preset.bounds_max, sizeof hi);
+    nf_guide_model_config_init(NULL, lo, hi); /* ignored */
+}
+
 static void test_policy_points(void **state)
 {
     (void)state;
@@ -739,6 +764,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_config_checked),   cmocka_unit_test(test_policy_points),
+        cmocka_unit_test(test_model_config),
         cmocka_unit_test(test_store_bounds),     cmocka_unit_test(test_same_bits_any_threads),
         cmocka_unit_test(test_exact_across_processes), cmocka_unit_test(test_patience),
         cmocka_unit_test(test_publish),          cmocka_unit_test(test_payload),
