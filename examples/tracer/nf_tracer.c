@@ -269,7 +269,7 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
                sr->depth_ratio);
     if (isfinite(sr->ratio))
         printf("choice     a guided pass's variance x time is %.3g of a plain pass's: %s pays "
-               "(%u guided passes kept while plain ones measured better)\n",
+               "(%u passes of the kind that measured worse kept to measure it)\n",
                sr->ratio, sr->ratio <= 1.0 ? "guiding" : "plain path tracing", sr->explored);
     return 1;
 }
