@@ -26,6 +26,29 @@
         }                                                                                      \
     } while (0)
 
+/* A program's bytes, read front to back; past the end every byte is 0 (fuzz_guide,
+ * fuzz_schedule). */
+typedef struct nf_fuzz_reader {
+    const uint8_t *p;
+    size_t n;
+} nf_fuzz_reader;
+
+static inline uint8_t nf_fuzz_byte(nf_fuzz_reader *r)
+{
+    if (r->n == 0)
+        return 0;
+    r->n--;
+    return *r->p++;
+}
+
+static inline uint32_t nf_fuzz_u32(nf_fuzz_reader *r)
+{
+    uint32_t v = 0;
+    for (int i = 0; i < 4; ++i)
+        v |= (uint32_t)nf_fuzz_byte(r) << (8 * i);
+    return v;
+}
+
 /* The format's header and trailer sizes (docs/format.md). */
 #define NF_FUZZ_HEADER_V1 112u /* format version 1's header; version 2 adds phi_map */
 #define NF_FUZZ_HEADER 116u

@@ -30,34 +30,13 @@
 #define MAX_SAMPLES 48
 #define MAX_PARAMS 8192
 
-typedef struct reader {
-    const uint8_t *p;
-    size_t n;
-} reader;
-
-static uint8_t next_byte(reader *r)
-{
-    if (r->n == 0)
-        return 0;
-    r->n--;
-    return *r->p++;
-}
-
-static uint32_t next_u32(reader *r)
-{
-    uint32_t v = 0;
-    for (int i = 0; i < 4; ++i)
-        v |= (uint32_t)next_byte(r) << (8 * i);
-    return v;
-}
-
 /* Mostly tame floats, sometimes any bit pattern (NaN, Inf, denormals, huge). */
-static float next_float(reader *r)
+static float next_float(nf_fuzz_reader *r)
 {
-    uint8_t kind = next_byte(r);
+    uint8_t kind = nf_fuzz_byte(r);
     if (kind < 200)
-        return (float)(next_byte(r)) / 255.0f * 2.0f - 0.5f;
-    uint32_t bits = next_u32(r);
+        return (float)(nf_fuzz_byte(r)) / 255.0f * 2.0f - 0.5f;
+    uint32_t bits = nf_fuzz_u32(r);
     float f;
     memcpy(&f, &bits, sizeof f);
     return f;
@@ -89,7 +68,7 @@ static void check_status(nf_status s, const char *what)
         NF_FUZZ_CHECK(nf_last_error_message()[0] != '\0', "%s: no message", what);
 }
 
-static void check_policy(reader *r, const nf_guide_policy *p)
+static void check_policy(nf_fuzz_reader *r, const nf_guide_policy *p)
 {
     float boost = next_float(r), c = next_float(r);
     float g = nf_guide_mixture_prob(p, boost);
@@ -102,12 +81,12 @@ static void check_policy(reader *r, const nf_guide_policy *p)
         NF_FUZZ_CHECK(!(b < 0.0f) && !isnan(b), "boost %g from %g", (double)b, (double)boost);
 }
 
-static double next_double(reader *r)
+static double next_double(nf_fuzz_reader *r)
 {
-    uint8_t kind = next_byte(r);
+    uint8_t kind = nf_fuzz_byte(r);
     if (kind < 200)
         return (double)next_float(r);
-    uint64_t bits = (uint64_t)next_u32(r) | (uint64_t)next_u32(r) << 32;
+    uint64_t bits = (uint64_t)nf_fuzz_u32(r) | (uint64_t)nf_fuzz_u32(r) << 32;
     double d;
     memcpy(&d, &bits, sizeof d);
     return d;
@@ -116,15 +95,15 @@ static double next_double(reader *r)
 /* The reference without lone peaks for any image of up to 4 x 4, in place or shifted when the
  * input asks: refused with out untouched, or every pixel kept or lowered to a neighbour's
  * value (never raised, never another value). */
-static void check_peaks(reader *r)
+static void check_peaks(nf_fuzz_reader *r)
 {
     double in[16], out[20];
-    size_t w = next_byte(r) % 5, h = next_byte(r) % 5;
+    size_t w = nf_fuzz_byte(r) % 5, h = nf_fuzz_byte(r) % 5;
     for (size_t i = 0; i < w * h; ++i)
         in[i] = next_double(r);
     for (size_t i = 0; i < 20; ++i)
         out[i] = -7.0;
-    uint8_t where = next_byte(r) % 8;
+    uint8_t where = nf_fuzz_byte(r) % 8;
     double *dst = where == 0 ? in : where == 1 ? in + 1 : out;
     nf_status st = nf_guide_lower_peaks(w, h, in, dst);
     check_status(st, "nf_guide_lower_peaks");
@@ -151,11 +130,11 @@ static void check_peaks(reader *r)
 /* The choice of passes and of their depth with any measures, the variance with any sums, the
  * training ratio and the plain and depth moments fed any floats: documented statuses, answers
  * in range, *out untouched when refused, the moments never NaN or negative. */
-static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
+static void check_choice(nf_fuzz_reader *r, nf_guide *g, const nf_guide_policy *pol)
 {
     nf_pass_measure m[2];
     for (int k = 0; k < 2; ++k) {
-        m[k].passes = next_byte(r) % 8;
+        m[k].passes = nf_fuzz_byte(r) % 8;
         m[k].seconds = next_double(r);
         m[k].variance = next_double(r);
     }
@@ -167,13 +146,13 @@ static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
                           (c.exploring == 0 || c.exploring == 1) && !(c.ratio < 0.0),
                       "choice %d %d %g", (int)c.kind, c.exploring, c.ratio);
     double sum[4], sq[4], ref[4], v = -1.0;
-    size_t n = next_byte(r) % 5;
+    size_t n = nf_fuzz_byte(r) % 5;
     for (size_t i = 0; i < n; ++i) {
         sum[i] = next_double(r);
         sq[i] = next_double(r);
         ref[i] = next_double(r);
     }
-    st = nf_guide_pass_variance(n, sum, sq, next_byte(r) % 4, ref, next_double(r), &v);
+    st = nf_guide_pass_variance(n, sum, sq, nf_fuzz_byte(r) % 4, ref, next_double(r), &v);
     check_status(st, "nf_guide_pass_variance");
     NF_FUZZ_CHECK(st == NF_OK ? v >= 0.0 && isfinite(v) : v == -1.0, "variance %g (status %d)", v,
                   (int)st);
@@ -182,8 +161,8 @@ static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
                  "nf_guide_report_training_ratio");
     nf_plain_moment pm;
     nf_plain_moment_start(&pm);
-    for (int k = next_byte(r) % 8; k > 0; --k) {
-        switch (next_byte(r) % 3) {
+    for (int k = nf_fuzz_byte(r) % 8; k > 0; --k) {
+        switch (nf_fuzz_byte(r) % 3) {
         case 0:
             nf_plain_moment_scatter(&pm, next_float(r), next_float(r), next_float(r));
             break;
@@ -197,11 +176,11 @@ static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
     }
     nf_depth_moment dmo[3];
     for (int k = 0; k < 3; ++k)
-        nf_depth_moment_start(&dmo[k], next_byte(r) % 4);
-    for (int k = next_byte(r) % 8; k > 0; --k) {
-        uint32_t depth = next_byte(r) % 6;
-        size_t n = next_byte(r) % 4;
-        switch (next_byte(r) % 3) {
+        nf_depth_moment_start(&dmo[k], nf_fuzz_byte(r) % 4);
+    for (int k = nf_fuzz_byte(r) % 8; k > 0; --k) {
+        uint32_t depth = nf_fuzz_byte(r) % 6;
+        size_t n = nf_fuzz_byte(r) % 4;
+        switch (nf_fuzz_byte(r) % 3) {
         case 0:
             nf_depth_moment_scatter(dmo, n, depth, next_float(r), next_float(r), next_float(r));
             break;
@@ -216,7 +195,7 @@ static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
     }
     nf_pass_measure dm[NF_GUIDE_DEPTHS];
     for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k) {
-        dm[k].passes = next_byte(r) % 8;
+        dm[k].passes = nf_fuzz_byte(r) % 8;
         dm[k].seconds = next_double(r);
         dm[k].variance = next_double(r);
     }
@@ -232,7 +211,7 @@ static void check_choice(reader *r, nf_guide *g, const nf_guide_policy *pol)
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    reader r = {data, size};
+    nf_fuzz_reader r = {data, size};
     const nf_model *model = shared_model();
     static float params[MAX_PARAMS], published[MAX_PARAMS], got[MAX_PARAMS];
     const size_t P = nf_param_count(model);
@@ -240,20 +219,20 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     nf_guide_config gc;
     nf_guide_config_init(&gc);
     /* Capacities in range stay small (the fuzzer's memory limit); 0 and 2^26 + 1 are out. */
-    uint8_t cap = next_byte(&r);
+    uint8_t cap = nf_fuzz_byte(&r);
     gc.store_capacity = cap == 0 ? 0u : cap == 1 ? ((size_t)1 << 26) + 1u : (size_t)cap;
-    gc.payload_bytes = next_byte(&r) % 16;
-    gc.step_samples = 1u + next_byte(&r) % 64;
-    gc.steps_per_pass = 1u + next_byte(&r) % 3;
-    gc.groups = next_byte(&r) % 10;
-    gc.patience = next_byte(&r) % 4;
-    if (next_byte(&r) % 4 == 0)
+    gc.payload_bytes = nf_fuzz_byte(&r) % 16;
+    gc.step_samples = 1u + nf_fuzz_byte(&r) % 64;
+    gc.steps_per_pass = 1u + nf_fuzz_byte(&r) % 3;
+    gc.groups = nf_fuzz_byte(&r) % 10;
+    gc.patience = nf_fuzz_byte(&r) % 4;
+    if (nf_fuzz_byte(&r) % 4 == 0)
         gc.clamp_quantile = next_float(&r);
-    if (next_byte(&r) % 4 == 0)
+    if (nf_fuzz_byte(&r) % 4 == 0)
         gc.learning_rate = next_float(&r);
-    if (next_byte(&r) % 4 == 0)
+    if (nf_fuzz_byte(&r) % 4 == 0)
         gc.policy.mixture_prob = next_float(&r);
-    if (next_byte(&r) % 4 == 0)
+    if (nf_fuzz_byte(&r) % 4 == 0)
         gc.policy.max_boost = next_float(&r);
     nf_guide *g = NULL;
     nf_status st = nf_guide_create(model, &gc, &g);
@@ -272,10 +251,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     const nf_model *held[4] = {NULL, NULL, NULL, NULL};
     uint64_t accepted = 0;
     for (int op = 0; op < 24 && r.n > 0; ++op) {
-        switch (next_byte(&r) % 8) {
+        switch (nf_fuzz_byte(&r) % 8) {
         case 0:
         case 1: { /* add samples */
-            size_t n = next_byte(&r) % (MAX_SAMPLES + 1);
+            size_t n = nf_fuzz_byte(&r) % (MAX_SAMPLES + 1);
             for (size_t i = 0; i < n; ++i) {
                 for (int a = 0; a < 3; ++a) {
                     ctx[i].position[a] = next_float(&r);
@@ -286,18 +265,18 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                 /* Sometimes a point in a medium (zero normal) with a g of any value (mostly
                  * within +-0.99, which the library accepts); on surfaces g is garbage. */
                 ctx[i].phase_g = next_float(&r);
-                if (next_byte(&r) % 4 == 0)
+                if (nf_fuzz_byte(&r) % 4 == 0)
                     ctx[i].normal[0] = ctx[i].normal[1] = ctx[i].normal[2] = 0.0f;
-                weight[i] = next_float(&r) * (next_byte(&r) % 2 ? 1.0f : 100.0f);
-                key[i] = next_u32(&r) % 7u;
+                weight[i] = next_float(&r) * (nf_fuzz_byte(&r) % 2 ? 1.0f : 100.0f);
+                key[i] = nf_fuzz_u32(&r) % 7u;
             }
             for (size_t i = 0; i < n * gc.payload_bytes; ++i)
-                payload[i] = next_byte(&r);
+                payload[i] = nf_fuzz_byte(&r);
             size_t positive = 0;
             for (size_t i = 0; i < n; ++i)
                 positive += weight[i] > 0.0f;
-            st = nf_guide_add_samples(g, n, next_byte(&r) % 4 ? key : NULL, ctx, dir, weight,
-                                      next_byte(&r) % 2 ? payload : NULL);
+            st = nf_guide_add_samples(g, n, nf_fuzz_byte(&r) % 4 ? key : NULL, ctx, dir, weight,
+                                      nf_fuzz_byte(&r) % 2 ? payload : NULL);
             check_status(st, "nf_guide_add_samples");
             NF_FUZZ_CHECK(st != NF_ERROR_BUSY, "an add was refused as busy");
             if (st == NF_OK)
@@ -311,7 +290,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             NF_FUZZ_CHECK(nf_guide_pending(g) <= gc.store_capacity, "pending above capacity");
             /* Sometimes through the guide's own parallel-for (no helper: the caller runs it). */
             const nf_parallel helpers = nf_guide_helpers(g);
-            st = nf_guide_train_pass(g, next_byte(&r) % 2 ? &helpers : NULL, NULL, &rep);
+            st = nf_guide_train_pass(g, nf_fuzz_byte(&r) % 2 ? &helpers : NULL, NULL, &rep);
             check_status(st, "nf_guide_train_pass");
             NF_FUZZ_CHECK(nf_guide_help(g) == 0, "help outside a training call ran tasks");
             if (st == NF_OK)
@@ -328,7 +307,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             break;
         }
         case 3: { /* a batch with the caller's groups, maybe malformed */
-            size_t n = next_byte(&r) % (MAX_SAMPLES + 1), ng = next_byte(&r) % 17;
+            size_t n = nf_fuzz_byte(&r) % (MAX_SAMPLES + 1), ng = nf_fuzz_byte(&r) % 17;
             for (size_t i = 0; i < n; ++i) {
                 ctx[i] = (nf_context){{0.1f * (float)(i % 7), 0.5f, 0.5f}, {0, 0, 1}, {0, 0, 1}, 0.0f};
                 for (int a = 0; a < 3; ++a)
@@ -336,10 +315,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                 weight[i] = next_float(&r);
             }
             for (size_t k = 0; k < ng; ++k)
-                group_end[k] = next_byte(&r) % (n + 2);
+                group_end[k] = nf_fuzz_byte(&r) % (n + 2);
             float loss;
-            st = nf_guide_train_batch(g, n, ctx, dir, weight, next_byte(&r) % 3 ? group_end : NULL,
-                                      ng, NULL, NULL, &loss);
+            const size_t *ends = nf_fuzz_byte(&r) % 3 ? group_end : NULL;
+            st = nf_guide_train_batch(g, n, ctx, dir, weight, ends, ng, NULL, NULL, &loss);
             check_status(st, "nf_guide_train_batch");
             break;
         }
@@ -351,7 +330,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                               "params");
             break;
         case 5: { /* acquire into a slot; the newest published parameters come back */
-            size_t k = next_byte(&r) % 4;
+            size_t k = nf_fuzz_byte(&r) % 4;
             if (held[k])
                 break;
             st = nf_guide_acquire(g, &held[k]);
@@ -366,7 +345,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             check_choice(&r, g, &gc.policy);
             break;
         case 6: { /* release: a held one, or a foreign one (refused) */
-            size_t k = next_byte(&r) % 4;
+            size_t k = nf_fuzz_byte(&r) % 4;
             st = nf_guide_release(g, held[k] ? held[k] : model);
             check_status(st, "nf_guide_release");
             NF_FUZZ_CHECK((st == NF_OK) == (held[k] != NULL), "release of slot %zu", k);

@@ -29,45 +29,24 @@
 #define MAX_PIXELS (MAX_SIDE * MAX_SIDE)
 #define MAX_CALLS 40
 
-typedef struct reader {
-    const uint8_t *p;
-    size_t n;
-} reader;
-
-static uint8_t next_byte(reader *r)
-{
-    if (r->n == 0)
-        return 0;
-    r->n--;
-    return *r->p++;
-}
-
-static uint32_t next_u32(reader *r)
-{
-    uint32_t v = 0;
-    for (int i = 0; i < 4; ++i)
-        v |= (uint32_t)next_byte(r) << (8 * i);
-    return v;
-}
-
 /* Mostly tame floats, sometimes any bit pattern (NaN, Inf, denormals, huge). */
-static float next_float(reader *r)
+static float next_float(nf_fuzz_reader *r)
 {
-    uint8_t kind = next_byte(r);
+    uint8_t kind = nf_fuzz_byte(r);
     if (kind < 220)
-        return (float)next_byte(r) / 64.0f;
-    uint32_t bits = next_u32(r);
+        return (float)nf_fuzz_byte(r) / 64.0f;
+    uint32_t bits = nf_fuzz_u32(r);
     float f;
     memcpy(&f, &bits, sizeof f);
     return f;
 }
 
-static double next_double(reader *r)
+static double next_double(nf_fuzz_reader *r)
 {
-    uint8_t kind = next_byte(r);
+    uint8_t kind = nf_fuzz_byte(r);
     if (kind < 230)
-        return (double)next_byte(r) / 16.0;
-    uint64_t bits = (uint64_t)next_u32(r) | (uint64_t)next_u32(r) << 32;
+        return (double)nf_fuzz_byte(r) / 16.0;
+    uint64_t bits = (uint64_t)nf_fuzz_u32(r) | (uint64_t)nf_fuzz_u32(r) << 32;
     double d;
     memcpy(&d, &bits, sizeof d);
     return d;
@@ -123,7 +102,7 @@ static void check_plan(const state *s, const nf_pass_plan *p, uint32_t fixed_dep
 
 /* A pass's pixels and moments from the input; *hostile says whether any value must be
  * refused. */
-static void next_pass(reader *r, const state *s, float *rgb, float *moments, int *hostile)
+static void next_pass(nf_fuzz_reader *r, const state *s, float *rgb, float *moments, int *hostile)
 {
     *hostile = 0;
     for (size_t i = 0; i < 3 * s->pixels; ++i) {
@@ -131,26 +110,26 @@ static void next_pass(reader *r, const state *s, float *rgb, float *moments, int
         *hostile |= !isfinite(rgb[i]);
     }
     for (size_t i = 0; i < NF_GUIDE_DEPTHS * s->pixels; ++i) {
-        moments[i] = next_float(r) - (next_byte(r) == 7 ? 10.0f : 0.0f);
+        moments[i] = next_float(r) - (nf_fuzz_byte(r) == 7 ? 10.0f : 0.0f);
         *hostile |= !(moments[i] >= 0.0f) || !isfinite(moments[i]);
     }
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    reader r = {data, size};
+    nf_fuzz_reader r = {data, size};
     nf_schedule_config sc;
     nf_schedule_config_init(&sc);
     const uint32_t magic = sc.magic_;
-    uint8_t flags = next_byte(&r);
+    uint8_t flags = nf_fuzz_byte(&r);
     if (flags & 1) /* any bytes */
         memcpy(&sc, data, size < sizeof sc ? size : sizeof sc);
     if (!(flags & 2)) /* a config from nf_schedule_config_init, or not */
         sc.magic_ = magic;
-    sc.width = next_byte(&r) % (MAX_SIDE + 1);
-    sc.height = next_byte(&r) % (MAX_SIDE + 1);
+    sc.width = nf_fuzz_byte(&r) % (MAX_SIDE + 1);
+    sc.height = nf_fuzz_byte(&r) % (MAX_SIDE + 1);
     sc.budget = next_double(&r);
-    sc.guide_depth = next_byte(&r) % 4 == 0 ? next_byte(&r) % 3 : 0;
+    sc.guide_depth = nf_fuzz_byte(&r) % 4 == 0 ? nf_fuzz_byte(&r) % 3 : 0;
     nf_guide *g = NULL;
     if (flags & 4) {
         nf_guide_config gc;
@@ -159,7 +138,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         gc.step_samples = 8;
         gc.steps_per_pass = 1;
         gc.pass_choice = (flags & 8) ? 1u : 0u;
-        gc.train_fraction = (float)(next_byte(&r) % 4) / 8.0f;
+        gc.train_fraction = (float)(nf_fuzz_byte(&r) % 4) / 8.0f;
         NF_FUZZ_CHECK(nf_guide_create(shared_model(), &gc, &g) == NF_OK, "guide");
     }
     nf_schedule *s = NULL;
@@ -183,7 +162,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     }
     float rgb[3 * MAX_PIXELS], moments[NF_GUIDE_DEPTHS * MAX_PIXELS], out[3 * MAX_PIXELS];
     for (int call = 0; call < MAX_CALLS && r.n > 0; ++call) {
-        uint8_t op = next_byte(&r) % 4;
+        uint8_t op = nf_fuzz_byte(&r) % 4;
         if (op == 0) { /* a plan */
             nf_pass_plan p;
             double elapsed = next_double(&r);
@@ -205,14 +184,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             int hostile;
             next_pass(&r, &k, rgb, moments, &hostile);
             nf_pass_plan p = k.plan;
-            uint8_t forge = next_byte(&r) % 8;
+            uint8_t forge = nf_fuzz_byte(&r) % 8;
             if (forge == 0)
-                p.pass += 1 + next_byte(&r);
+                p.pass += 1 + nf_fuzz_byte(&r);
             else if (forge == 1)
-                p.todo = (nf_pass_todo)(next_byte(&r) % 5);
-            int no_moments = next_byte(&r) % 4 == 0;
-            double seconds = next_byte(&r) % 8 == 0 ? next_double(&r) : 0.01;
-            double cpu = next_byte(&r) % 8 == 0 ? next_double(&r) : 0.02;
+                p.todo = (nf_pass_todo)(nf_fuzz_byte(&r) % 5);
+            int no_moments = nf_fuzz_byte(&r) % 4 == 0;
+            double seconds = nf_fuzz_byte(&r) % 8 == 0 ? next_double(&r) : 0.01;
+            double cpu = nf_fuzz_byte(&r) % 8 == 0 ? next_double(&r) : 0.02;
             int bad_time = !(seconds >= 0.0) || !isfinite(seconds) || !(cpu >= 0.0) ||
                            !isfinite(cpu);
             int forged = forge <= 1 && memcmp(&p, &k.plan, sizeof p) != 0;
