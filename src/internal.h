@@ -143,6 +143,9 @@ nf_status nf_config_validate(const nf_config *cfg, const char *fn);
  * prefixes the message of a refusal (an unsupported cfg->isa, no memory). */
 nf_status nf_model_allocate(const nf_config *cfg, const char *fn, nf_model **out);
 
+/* malloc and free as an nf_allocator: what a zeroed allocator resolves to (model.c). */
+nf_allocator nf_default_allocator(void);
+
 /* Rebuilds the packed weights from params; every change of params must call it. */
 void nf_model_pack(nf_model *m);
 

@@ -22,6 +22,12 @@ static void nf_default_free(void *user, void *ptr)
     free(ptr);
 }
 
+nf_allocator nf_default_allocator(void)
+{
+    nf_allocator a = {nf_default_alloc, nf_default_free, NULL};
+    return a;
+}
+
 /* The struct and every array live in one block, so a model is one allocation. */
 static size_t nf_header_bytes(void) { return (sizeof(nf_model) + 63u) & ~(size_t)63u; }
 

@@ -4,7 +4,6 @@
  * schedule_measure.c, the image schedule_combine.c.
  */
 #include <math.h>
-#include <stdlib.h>
 #include <string.h>
 
 #include "guide_internal.h"
@@ -21,18 +20,6 @@
 /* Plain passes rendered after training before the choice: their cost is the steady one. */
 #define NF_STEADY_PLAIN 2u
 #define NF_MEASURE_EVERY 16u
-
-static void *nf_schedule_malloc(void *user, size_t size)
-{
-    (void)user;
-    return malloc(size);
-}
-
-static void nf_schedule_free(void *user, void *ptr)
-{
-    (void)user;
-    free(ptr);
-}
 
 void nf_schedule_config_init(nf_schedule_config *sc)
 {
@@ -125,9 +112,7 @@ nf_status nf_schedule_create(nf_guide *guide, const nf_schedule_config *sc, nf_s
     *out = NULL;
     if ((st = nf_schedule_check_config(sc, fn)) != NF_OK)
         return st;
-    nf_allocator alloc = {nf_schedule_malloc, nf_schedule_free, NULL};
-    if (guide)
-        alloc = guide->alloc;
+    nf_allocator alloc = guide ? guide->alloc : nf_default_allocator();
     nf_schedule *s = (nf_schedule *)alloc.alloc(alloc.user, sizeof *s);
     if (!s)
         return nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate the schedule", fn);

@@ -68,11 +68,13 @@ static void render(pass_buffers *b, nft_rng *r, int noisy, double plain_moment)
 }
 
 /* Runs a schedule to its stop, each pass taking one second on the clock; guided passes cost
- * guided_cpu CPU seconds, plain ones plain_cpu (the first pass of each kind `cold` more).
- * counts[todo] receives how many of each plan came. Returns the passes rendered. */
+ * guided_cpu CPU seconds, plain ones plain_cpu (the first pass of each kind `cold` more), and
+ * every guided pass reports plain path tracing's second moment as plain_moment (plain passes
+ * give none: their squares count). counts[todo] receives how many of each plan came. Returns
+ * the passes rendered. */
 typedef struct run_spec {
     int guided_noisy, plain_noisy;
-    double guided_cpu, plain_cpu, cold;
+    double guided_cpu, plain_cpu, cold, plain_moment;
 } run_spec;
 
 static int run(nf_schedule *s, const run_spec *spec, int counts[4], nf_pass_plan *plans,
@@ -95,7 +97,7 @@ static int run(nf_schedule *s, const run_spec *spec, int counts[4], nf_pass_plan
         assert_int_equal((int)plan.pass, n);
         int plain = plan.todo == NF_TODO_PLAIN;
         int noisy = plain ? spec->plain_noisy : spec->guided_noisy;
-        render(b, &r, noisy, 4.0);
+        render(b, &r, noisy, spec->plain_moment);
         double cpu = plain ? spec->plain_cpu : spec->guided_cpu;
         if (!seen[plan.todo]++)
             cpu += spec->cold;
@@ -165,7 +167,7 @@ static void test_order_and_choice(void **state)
     nf_schedule *s = make_schedule(g, 100.0);
     static nf_pass_plan plans[128];
     int counts[4];
-    const run_spec spec = {0, 1, 1.0, 0.5, 0.0}; /* guided clean, plain noisy */
+    const run_spec spec = {0, 1, 1.0, 0.5, 0.0, 4.0}; /* guided clean, plain noisy */
     int n = run(s, &spec, counts, plans, 128);
     assert_int_equal(n, 100);
     assert_int_equal(plans[0].todo, NF_TODO_PLAIN);
@@ -208,23 +210,12 @@ static void test_plain_wins(void **state)
     (void)state;
     nf_guide *g = make_guide();
     nf_schedule *s = make_schedule(g, 200.0);
-    /* Guided noisy, plain clean: every pass reports plain path tracing's second moment as
-     * 1, the clean kind's. */
-    const run_spec spec = {1, 0, 1.0, 1.0, 0.0};
-    int n = 0;
-    pass_buffers *b = malloc(sizeof *b);
-    nft_rng r;
-    nft_rng_seed(&r, 3, 1);
-    for (;; ++n) {
-        nf_pass_plan plan;
-        assert_int_equal(nf_schedule_next(s, (double)n, NULL, &plan), NF_OK);
-        if (plan.todo == NF_TODO_STOP)
-            break;
-        int plain = plan.todo == NF_TODO_PLAIN;
-        render(b, &r, plain ? spec.plain_noisy : spec.guided_noisy, 1.0);
-        assert_int_equal(nf_schedule_add_pass(s, &plan, b->rgb, b->moments, 1.0, 1.0, NULL),
-                         NF_OK);
-    }
+    /* Guided noisy, plain clean: the guided paths report plain path tracing's second moment
+     * as 1, the clean kind's. */
+    const run_spec spec = {1, 0, 1.0, 1.0, 0.0, 1.0};
+    static nf_pass_plan plans[256];
+    int counts[4];
+    run(s, &spec, counts, plans, 256);
     nf_schedule_report rep;
     float *out = malloc(3 * PIXELS * sizeof *out);
     assert_int_equal(nf_schedule_combine(s, NULL, out, &rep), NF_OK);
@@ -234,7 +225,6 @@ static void test_plain_wins(void **state)
     assert_true(rep.kind_passes[NF_PASS_GUIDED] >= 6);
     assert_true(rep.explored > 0);
     free(out);
-    free(b);
     nf_schedule_destroy(s);
     nf_guide_destroy(g);
 }
