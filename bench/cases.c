@@ -555,7 +555,7 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
         nf_guide_config_init(&gc);
         gc.store_capacity = 1; /* the steps take the bench's batches, not the store */
         nf_config cfg;
-        nf_model_config(e->model, &cfg);
+        nf_model_get_config(e->model, &cfg);
         gc.learning_rate = cfg.learning_rate;
         if (report_status(nf_guide_create(e->model, &gc, &guide), "nf_guide_create") != 0)
             return -1;

@@ -1,7 +1,7 @@
 /*
  * setup.c - what a preset's cases run on (see setup.h), prepared outside any timing.
  *
- * The model has randomized parameters (nf_get_params + uniform noise + nf_set_params) so
+ * The model has randomized parameters (nf_model_get_params + uniform noise + nf_model_set_params) so
  * every spline is a real, non-identity spline; the cosine prior is the default. The inputs
  * are a fixed pseudo-random pool, the same in every run, so that runs compare.
  *
@@ -206,7 +206,7 @@ int make_model(int preset, const options *o, counting_allocator *ca, preset_info
     nf_model *m = NULL;
     if (report_status(nf_model_create(&cfg, &m), "nf_model_create") != 0)
         return -1;
-    size_t p = nf_param_count(m);
+    size_t p = nf_model_param_count(m);
     float *params = (float *)malloc(p * sizeof(float));
     if (!params) {
         fprintf(stderr, "nf_bench: out of memory\n");
@@ -214,11 +214,11 @@ int make_model(int preset, const options *o, counting_allocator *ca, preset_info
         return -1;
     }
     uint64_t rng = 0xC0FFEEu + (uint64_t)preset;
-    int bad = report_status(nf_get_params(m, params), "nf_get_params");
+    int bad = report_status(nf_model_get_params(m, params), "nf_model_get_params");
     if (!bad) {
         for (size_t i = 0; i < p; ++i)
             params[i] += NFB_PARAM_NOISE * (2.0f * rng_float(&rng) - 1.0f);
-        bad = report_status(nf_set_params(m, params), "nf_set_params");
+        bad = report_status(nf_model_set_params(m, params), "nf_model_set_params");
     }
     free(params);
     if (bad) {

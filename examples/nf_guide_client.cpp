@@ -137,7 +137,7 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
     float beta = 1.0f, boost = 1.0f, p_scatter = 0.0f, p_bsdf_prev = 0.0f;
     nf_depth_moment dm[NF_GUIDE_DEPTHS]; // guide
     for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k)
-        nf_depth_moment_start(&dm[k], nf_guide_depth_of(k)); // nf
+        nf_depth_moment_start(&dm[k], k); // nf: kind k guides up to depth k (0: every one)
     std::memset(out.v, 0, sizeof out.v);
     out.vertices = 0;
     out.radiance = 0.0f;

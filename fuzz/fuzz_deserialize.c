@@ -11,7 +11,7 @@
  *     loads again from them;
  *   - nf_model_create agrees with the loader about the configuration in the header: it
  *     accepts a loaded model's, and refuses (NF_ERROR_INVALID_ARGUMENT) one the loader
- *     refused as an invalid configuration; nf_set_learning_rate accepts a rate taken from the
+ *     refused as an invalid configuration; nf_model_set_learning_rate accepts a rate taken from the
  *     input exactly when nf_model_create accepts the configuration with it, and leaves the
  *     model unchanged when it refuses.
  */
@@ -70,7 +70,7 @@ static int header_config(const unsigned char *p, size_t size, nf_config *cfg)
     return 1;
 }
 
-/* nf_model_create and nf_set_learning_rate against the loader's verdict `st` on `data`
+/* nf_model_create and nf_model_set_learning_rate against the loader's verdict `st` on `data`
  * (whose checksum is valid); `m` is the loaded model when st is NF_OK. */
 static void check_create_agrees(const unsigned char *data, size_t size, nf_status st, nf_model *m)
 {
@@ -89,13 +89,13 @@ static void check_create_agrees(const unsigned char *data, size_t size, nf_statu
         nf_model_destroy(made);
         size_t before_size = 0, after_size = 0;
         unsigned char *before = nf_fuzz_serialize(m, &before_size);
-        nf_status set = nf_set_learning_rate(m, lr);
+        nf_status set = nf_model_set_learning_rate(m, lr);
         unsigned char *after = nf_fuzz_serialize(m, &after_size);
         NF_FUZZ_CHECK(before && after && before_size == after_size, "serialize");
         NF_FUZZ_CHECK(created == set, "learning rate %g: create %d, set %d", (double)lr,
                       (int)created, (int)set);
         NF_FUZZ_CHECK(set == NF_OK || memcmp(before, after, before_size) == 0,
-                      "a refused nf_set_learning_rate changed the model");
+                      "a refused nf_model_set_learning_rate changed the model");
         free(before);
         free(after);
     } else if (st == NF_ERROR_FORMAT && strstr(nf_last_error_message(), "invalid configuration")) {
@@ -143,7 +143,7 @@ static void try_buffer(const unsigned char *data, size_t size, int crc_valid)
     }
     free(out);
     nf_config cfg;
-    NF_FUZZ_CHECK(nf_model_config(m, &cfg) == NF_OK, "config");
+    NF_FUZZ_CHECK(nf_model_get_config(m, &cfg) == NF_OK, "config");
     /* Without callbacks: the same, except that a custom-prior model is refused. */
     nf_model *again = (nf_model *)&none;
     st = nf_model_deserialize(data, size, &none, &again);

@@ -50,7 +50,7 @@ static const nf_model *shared_model(void)
         nf_config_init(&cfg, NF_PRESET_SMALL);
         cfg.sh_bands = 0;
         NF_FUZZ_CHECK(nf_model_create(&cfg, &m) == NF_OK, "model");
-        NF_FUZZ_CHECK(nf_param_count(m) <= MAX_PARAMS, "param count");
+        NF_FUZZ_CHECK(nf_model_param_count(m) <= MAX_PARAMS, "param count");
     }
     return m;
 }
@@ -203,7 +203,7 @@ static void check_choice(nf_fuzz_reader *r, nf_guide *g, const nf_guide_policy *
     st = nf_guide_choose_depth(g, dm, &dc);
     check_status(st, "nf_guide_choose_depth");
     NF_FUZZ_CHECK(st == NF_OK ? dc.candidate < NF_GUIDE_DEPTHS &&
-                                    dc.depth == nf_guide_depth_of(dc.candidate) &&
+                                    dc.depth == dc.candidate &&
                                     !(dc.ratio < 0.0)
                               : dc.candidate == NF_GUIDE_DEPTHS && dc.depth == 99u,
                   "depth choice %u %u %g (status %d)", dc.candidate, dc.depth, dc.ratio, (int)st);
@@ -214,7 +214,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     nf_fuzz_reader r = {data, size};
     const nf_model *model = shared_model();
     static float params[MAX_PARAMS], published[MAX_PARAMS], got[MAX_PARAMS];
-    const size_t P = nf_param_count(model);
+    const size_t P = nf_model_param_count(model);
 
     nf_guide_config gc;
     nf_guide_config_init(&gc);
@@ -241,7 +241,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         NF_FUZZ_CHECK(g == NULL, "a refused create wrote *out");
         return 0;
     }
-    NF_FUZZ_CHECK(nf_get_params(nf_guide_training_model(g), published) == NF_OK, "params");
+    NF_FUZZ_CHECK(nf_model_get_params(nf_guide_training_model(g), published) == NF_OK, "params");
 
     nf_context ctx[MAX_SAMPLES];
     float dir[3 * MAX_SAMPLES], weight[MAX_SAMPLES];
@@ -301,7 +301,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                               "kept %llu + dropped %llu, accepted %llu",
                               (unsigned long long)after.samples,
                               (unsigned long long)after.dropped, (unsigned long long)accepted);
-            NF_FUZZ_CHECK(nf_get_params(nf_guide_training_model(g), params) == NF_OK, "params");
+            NF_FUZZ_CHECK(nf_model_get_params(nf_guide_training_model(g), params) == NF_OK, "params");
             for (size_t i = 0; i < P; ++i)
                 NF_FUZZ_CHECK(isfinite(params[i]), "parameter %zu = %g", i, (double)params[i]);
             break;
@@ -326,7 +326,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             st = nf_guide_publish(g);
             check_status(st, "nf_guide_publish");
             if (st == NF_OK)
-                NF_FUZZ_CHECK(nf_get_params(nf_guide_training_model(g), published) == NF_OK,
+                NF_FUZZ_CHECK(nf_model_get_params(nf_guide_training_model(g), published) == NF_OK,
                               "params");
             break;
         case 5: { /* acquire into a slot; the newest published parameters come back */
@@ -336,7 +336,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             st = nf_guide_acquire(g, &held[k]);
             check_status(st, "nf_guide_acquire");
             NF_FUZZ_CHECK(st == NF_OK && held[k], "acquire failed");
-            NF_FUZZ_CHECK(nf_get_params(held[k], got) == NF_OK, "params");
+            NF_FUZZ_CHECK(nf_model_get_params(held[k], got) == NF_OK, "params");
             NF_FUZZ_CHECK(memcmp(got, published, P * sizeof *got) == 0,
                           "acquire handed out a model other than the last published");
             break;

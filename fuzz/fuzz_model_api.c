@@ -5,7 +5,7 @@
  * at the poles, on the seam, along the axes, far outside the scene bounds and of odd
  * lengths, with u at the ends of [0, 1). Invariants, checked by abort():
  *   - nf_sample succeeds with unit directions and finite, positive densities;
- *   - nf_pdf and nf_prior_pdf give finite, positive densities;
+ *   - nf_pdf and nf_model_prior_pdf give finite, positive densities;
  *   - nf_loss_gradient gives a finite loss and gradient, or NF_ERROR_NUMERIC, and
  *     nf_loss_gradient_with_work the same status and bits;
  *   - nf_train_step succeeds with finite parameters, or is refused with NF_ERROR_NUMERIC and
@@ -83,11 +83,11 @@ static void check_points(const nf_model *m, const nf_shading_point *pts, const f
     NF_FUZZ_CHECK(memcmp(d, dir_ref, sizeof d) == 0 && memcmp(p, pdf_ref, sizeof p) == 0,
                   "nf_point_sample differs from nf_sample");
     NF_FUZZ_CHECK(memcmp(e, eval_ref, sizeof e) == 0, "nf_point_pdf differs from nf_pdf");
-    NF_FUZZ_CHECK(nf_points_sample(m, N, pts, u, d, p) == NF_OK, "nf_points_sample");
-    NF_FUZZ_CHECK(nf_points_pdf(m, N, pts, dir, e) == NF_OK, "nf_points_pdf");
+    NF_FUZZ_CHECK(nf_point_sample_batch(m, N, pts, u, d, p) == NF_OK, "nf_point_sample_batch");
+    NF_FUZZ_CHECK(nf_point_pdf_batch(m, N, pts, dir, e) == NF_OK, "nf_point_pdf_batch");
     NF_FUZZ_CHECK(memcmp(d, dir_ref, sizeof d) == 0 && memcmp(p, pdf_ref, sizeof p) == 0,
-                  "nf_points_sample differs from nf_sample");
-    NF_FUZZ_CHECK(memcmp(e, eval_ref, sizeof e) == 0, "nf_points_pdf differs from nf_pdf");
+                  "nf_point_sample_batch differs from nf_sample");
+    NF_FUZZ_CHECK(memcmp(e, eval_ref, sizeof e) == 0, "nf_point_pdf_batch differs from nf_pdf");
 }
 
 /* Every function refuses the points on `m` with `expected` and writes nothing. */
@@ -101,8 +101,8 @@ static void check_points_refused(const nf_model *m, const nf_shading_point *pts,
     for (int i = 0; i < N; ++i)
         p[i] = sentinel;
     nf_status st[4] = {nf_point_sample(m, &pts[N - 1], N, u, d, p),
-                       nf_point_pdf(m, &pts[0], N, dir, p), nf_points_sample(m, N, pts, u, d, p),
-                       nf_points_pdf(m, N, pts, dir, p)};
+                       nf_point_pdf(m, &pts[0], N, dir, p), nf_point_sample_batch(m, N, pts, u, d, p),
+                       nf_point_pdf_batch(m, N, pts, dir, p)};
     for (int k = 0; k < 4; ++k)
         NF_FUZZ_CHECK(st[k] == expected, "point call %d: status %d, expected %d", k, (int)st[k],
                       (int)expected);
@@ -136,14 +136,17 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
     NF_FUZZ_CHECK(nf_pdf(m, N, ctx, dir, pdf) == NF_OK, "nf_pdf");
     for (int i = 0; i < N; ++i) {
         check_finite_positive(pdf[i], "pdf", i);
-        check_finite_positive(nf_prior_pdf(m, &ctx[i], dir + 3 * i), "prior pdf", i);
+        float q = -1.0f;
+        NF_FUZZ_CHECK(nf_model_prior_pdf(m, &ctx[i], dir + 3 * i, &q) == NF_OK,
+                      "nf_model_prior_pdf");
+        check_finite_positive(q, "prior pdf", i);
     }
     memcpy(ref_eval, pdf, sizeof ref_eval);
 
     /* Shading points at every context; on a custom-prior model every other one with
      * per-point callbacks (the same functions with a user pointer of their own). */
     nf_config cfg;
-    NF_FUZZ_CHECK(nf_model_config(m, &cfg) == NF_OK, "nf_model_config");
+    NF_FUZZ_CHECK(nf_model_get_config(m, &cfg) == NF_OK, "nf_model_get_config");
     nf_prior_callbacks own = nf_fuzz_callbacks();
     own.user = pts;
     for (int i = 0; i < N; ++i) {
@@ -153,7 +156,7 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
     }
     check_points(m, pts, u, dir, ref_dir, ref_pdf, ref_eval);
 
-    const size_t count = nf_param_count(m);
+    const size_t count = nf_model_param_count(m);
     float *grad = (float *)malloc(count * sizeof *grad);
     NF_FUZZ_CHECK(grad != NULL, "malloc");
     float loss = NAN;
@@ -189,7 +192,7 @@ static void exercise(nf_model *m, const uint8_t *data, size_t size)
     NF_FUZZ_CHECK(after != NULL && after_size == before_size, "serialize after the step");
     if (st == NF_OK) {
         NF_FUZZ_CHECK(isfinite(loss), "train loss %g", (double)loss);
-        NF_FUZZ_CHECK(nf_get_params(m, grad) == NF_OK, "get params");
+        NF_FUZZ_CHECK(nf_model_get_params(m, grad) == NF_OK, "get params");
         for (size_t i = 0; i < count; ++i)
             NF_FUZZ_CHECK(isfinite(grad[i]), "param[%zu] = %g after a step", i, (double)grad[i]);
         /* A step with positive weights changed the parameters: the points are stale. */

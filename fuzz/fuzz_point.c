@@ -5,7 +5,7 @@
  * its random parameters, up to FLT_MAX; the rest is a stream of operations on four point
  * slots: prepare from raw float contexts (NaN, Inf, subnormal, huge, zero vectors; with or
  * without per-point prior callbacks), sample raw u, evaluate raw directions, batches of
- * points, flip bits of a point, change the parameters (training steps, nf_set_params,
+ * points, flip bits of a point, change the parameters (training steps, nf_model_set_params,
  * nf_apply_gradient, refused changes), copy points, and use them with a clone.
  *
  * Invariants, checked by abort():
@@ -188,11 +188,11 @@ typedef struct machine {
     nf_model *m;
     model_flags *flags; /* m's shape's (models_for) */
     nf_model **other;   /* a second model of m's configuration, for op_clone; built there */
-    float *buf;      /* nf_param_count floats of scratch */
+    float *buf;      /* nf_model_param_count floats of scratch */
     nf_prior_kind prior;
     uint64_t epoch; /* counts accepted changes of the parameters */
     int trainings;  /* training steps tried, against MAX_TRAININGS */
-    int writes;     /* nf_set_params / nf_apply_gradient tried, against MAX_WRITES */
+    int writes;     /* nf_model_set_params / nf_apply_gradient tried, against MAX_WRITES */
     slot slots[SLOTS];
     reader in;
 } machine;
@@ -273,7 +273,7 @@ static void op_prepare(machine *mc)
 static int vector_path(const nf_model *m)
 {
     nf_config c;
-    NF_FUZZ_CHECK(nf_model_config(m, &c) == NF_OK, "nf_model_config");
+    NF_FUZZ_CHECK(nf_model_get_config(m, &c) == NF_OK, "nf_model_get_config");
     int preset = c.hidden_width == 16 && c.oneblob_bins == 32 &&
                  ((c.coupling_layers == 2 && c.spline_bins == 8 && c.hidden_layers == 1) ||
                   (c.coupling_layers == 4 && c.spline_bins == 16 && c.hidden_layers == 2));
@@ -416,8 +416,8 @@ static void op_sample(machine *mc, int batch)
     }
     fill(dir, 3 * n);
     fill(pdf, n);
-    const char *fn = batch ? "nf_points_sample" : "nf_point_sample";
-    nf_status st = batch ? nf_points_sample(mc->m, n, arr, u, dir, with_pdf ? pdf : NULL)
+    const char *fn = batch ? "nf_point_sample_batch" : "nf_point_sample";
+    nf_status st = batch ? nf_point_sample_batch(mc->m, n, arr, u, dir, with_pdf ? pdf : NULL)
                          : nf_point_sample(mc->m, &one->sp, n, u, dir, with_pdf ? pdf : NULL);
     NF_FUZZ_CHECK(status_allowed(st, &e), "%s: status %d (refused %d, stale %d, inputs %d)", fn,
                   (int)st, e.refused, e.stale, e.inputs_ok);
@@ -449,9 +449,9 @@ static void op_pdf(machine *mc, int batch)
         e.inputs_ok &= vector_ok(dir + 3 * i);
     }
     fill(pdf, n);
-    const char *fn = batch ? "nf_points_pdf" : "nf_point_pdf";
+    const char *fn = batch ? "nf_point_pdf_batch" : "nf_point_pdf";
     nf_status st =
-        batch ? nf_points_pdf(mc->m, n, arr, dir, pdf) : nf_point_pdf(mc->m, &one->sp, n, dir, pdf);
+        batch ? nf_point_pdf_batch(mc->m, n, arr, dir, pdf) : nf_point_pdf(mc->m, &one->sp, n, dir, pdf);
     NF_FUZZ_CHECK(status_allowed(st, &e), "%s: status %d (refused %d, stale %d, inputs %d)", fn,
                   (int)st, e.refused, e.stale, e.inputs_ok);
     if (st != NF_OK) {
@@ -500,7 +500,7 @@ static void work_changes(machine *mc)
 }
 
 /* Changes the parameters (or tries to: refused changes leave points valid). An input makes
- * at most MAX_TRAININGS training steps (kind 0) and MAX_WRITES nf_set_params /
+ * at most MAX_TRAININGS training steps (kind 0) and MAX_WRITES nf_model_set_params /
  * nf_apply_gradient calls (kinds 1 and 2); past that an operation still reads its bytes, so
  * that the rest of the program means the same, but calls nothing. Each of these calls goes
  * over every parameter (a step is a forward and backward pass and Adam: about 200 us with the
@@ -512,7 +512,7 @@ static void op_change(machine *mc)
 {
     reader *r = &mc->in;
     unsigned kind = rd_u8(r) % 4u;
-    size_t count = nf_param_count(mc->m);
+    size_t count = nf_model_param_count(mc->m);
     float *buf = mc->buf;
     nf_status st;
     int changes;
@@ -538,11 +538,11 @@ static void op_change(machine *mc)
         if (mc->writes++ >= MAX_WRITES)
             return;
         work_changes(mc);
-        NF_FUZZ_CHECK(nf_get_params(mc->m, buf) == NF_OK, "nf_get_params");
+        NF_FUZZ_CHECK(nf_model_get_params(mc->m, buf) == NF_OK, "nf_model_get_params");
         buf[at] = v;
-        st = nf_set_params(mc->m, buf);
+        st = nf_model_set_params(mc->m, buf);
         changes = isfinite(v) != 0;
-        NF_FUZZ_CHECK(st == (changes ? NF_OK : NF_ERROR_INVALID_ARGUMENT), "nf_set_params %d",
+        NF_FUZZ_CHECK(st == (changes ? NF_OK : NF_ERROR_INVALID_ARGUMENT), "nf_model_set_params %d",
                       (int)st);
     } else if (kind == 2) {
         float v = rd_float(r);
@@ -562,7 +562,7 @@ static void op_change(machine *mc)
     } else {
         /* Calls that change no parameter (the learning rate is state nf_model_copy resets). */
         work_changes(mc);
-        NF_FUZZ_CHECK(nf_set_learning_rate(mc->m, 1e-4f) == NF_OK, "nf_set_learning_rate");
+        NF_FUZZ_CHECK(nf_model_set_learning_rate(mc->m, 1e-4f) == NF_OK, "nf_model_set_learning_rate");
         nf_context c = training_context(1);
         float zero_w = 0.0f, d[3] = {0.0f, 0.0f, 1.0f};
         NF_FUZZ_CHECK(nf_train_step(mc->m, 1, &c, d, &zero_w, NULL) == NF_OK, "zero weights");
@@ -622,7 +622,7 @@ typedef struct params_key {
 
 /* The models of one shape (the program's first byte, all 256 of them), built once per process
  * on first use and kept: `seeded`, the fresh model with the parameters (random ones and raw
- * edits) of the last key a program asked for (nf_set_params keeps its optimizer state, which
+ * edits) of the last key a program asked for (nf_model_set_params keeps its optimizer state, which
  * stays the fresh one), the fresh model's parameters, the model a program works on (reset
  * from `seeded` at the start of every input with nf_model_copy, so that an input replays
  * alone), a second one for op_clone (built on the shape's first op_clone: a quarter of the
@@ -689,11 +689,11 @@ static shape_models *models_for(unsigned a)
         NF_FUZZ_CHECK(nf_model_create(&cfg, &c->seeded) == NF_OK, "nf_model_create");
     }
     NF_FUZZ_CHECK(nf_model_clone(c->seeded, &c->work) == NF_OK, "nf_model_clone");
-    size_t count = nf_param_count(c->seeded);
+    size_t count = nf_model_param_count(c->seeded);
     c->fresh_params = (float *)malloc(count * sizeof *c->fresh_params);
     c->buf = (float *)malloc(count * sizeof *c->buf);
     NF_FUZZ_CHECK(c->fresh_params != NULL && c->buf != NULL, "malloc");
-    NF_FUZZ_CHECK(nf_get_params(c->seeded, c->fresh_params) == NF_OK, "nf_get_params");
+    NF_FUZZ_CHECK(nf_model_get_params(c->seeded, c->fresh_params) == NF_OK, "nf_model_get_params");
     c->prior = cfg.prior;
     c->seeded_valid = 0;
     c->flags.work_is_seeded = 0;
@@ -710,7 +710,7 @@ static void seed_params(shape_models *c, const params_key *key)
     static const float scales[8] = {0.0f, 0.1f, 0.3f, 1.0f, 10.0f, 1e6f, 1e30f, FLT_MAX};
     float scale = scales[key->scale];
     c->flags.work_is_seeded = 0;
-    size_t count = nf_param_count(c->seeded);
+    size_t count = nf_model_param_count(c->seeded);
     float *p = c->buf;
     if (scale > 0.0f) {
         uint64_t seed = key->seed | 1u;
@@ -728,7 +728,7 @@ static void seed_params(shape_models *c, const params_key *key)
         if (isfinite(v))
             p[key->at[k] % count] = v;
     }
-    NF_FUZZ_CHECK(nf_set_params(c->seeded, p) == NF_OK, "nf_set_params");
+    NF_FUZZ_CHECK(nf_model_set_params(c->seeded, p) == NF_OK, "nf_model_set_params");
     c->key = *key;
     c->seeded_valid = 1;
 }

@@ -73,14 +73,14 @@ static nf_model *make(const seed_spec *s)
         fprintf(stderr, "make_seeds: %s: %s\n", s->name, nf_last_error_message());
         exit(1);
     }
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *p = malloc(count * sizeof *p);
     if (!p)
         exit(1);
     if (s->scale != 0.0f) {
         for (size_t i = 0; i < count; ++i)
             p[i] = s->scale * next_unit();
-        nf_set_params(m, p);
+        nf_model_set_params(m, p);
     }
     enum { N = 16 };
     nf_context ctx[N];
@@ -241,7 +241,7 @@ static void program_seeds(const char *directory)
     batch(&p, 8, 1);
     write_seed("custom-per-point-huge.bin", p.b, p.n);
 
-    /* Uncached (8 x 64), corrupted bytes, a copy, nf_set_params. */
+    /* Uncached (8 x 64), corrupted bytes, a copy, nf_model_set_params. */
     header(&p, 0, 1, NF_PRIOR_UNIFORM_DIRECTION, NF_ISA_GENERIC, 4);
     prepare(&p, 0, 0, plain);
     put(&p, 9), put(&p, 1), put(&p, 0); /* copy slot 0 to slot 1 */

@@ -80,7 +80,7 @@ static nf_status nf_guide_config_check(const nf_guide_config *gc, const char *fn
     NF_RANGE(gc->policy.min_roughness >= 0.0f && gc->policy.min_roughness <= 1.0f,
              "policy.min_roughness", gc->policy.min_roughness, "in [0, 1]");
 #undef NF_RANGE
-    /* The learning rate is checked by nf_set_learning_rate, against the model's decay. */
+    /* The learning rate is checked by nf_model_set_learning_rate, against the model's decay. */
     return NF_OK;
 }
 
@@ -180,19 +180,19 @@ nf_status nf_guide_create(const nf_model *model, const nf_guide_config *gc, nf_g
     for (int i = 0; i < 1 + NF_GUIDE_PUBLISHED; ++i) {
         nf_model **slot = i == 0 ? &g->train : &g->pub[i - 1];
         if ((st = nf_model_clone(model, slot)) != NF_OK ||
-            (st = nf_set_learning_rate(*slot, gc->learning_rate)) != NF_OK) {
+            (st = nf_model_set_learning_rate(*slot, gc->learning_rate)) != NF_OK) {
             nf_guide_destroy(g);
             return st == NF_ERROR_INVALID_ARGUMENT
                        ? nf_fail(st,
                                  "%s: gc->learning_rate = %g is out of range for this "
-                                 "model (train.h, nf_set_learning_rate)",
+                                 "model (train.h, nf_model_set_learning_rate)",
                                  fn, (double)gc->learning_rate)
                        : st;
         }
     }
     size_t cap = gc->store_capacity, pb = gc->payload_bytes, step = gc->step_samples;
     size_t groups = gc->groups;
-    g->params = nf_param_count(model);
+    g->params = nf_model_param_count(model);
     int ok = 1;
     for (int i = 0; i < 2; ++i) {
         g->stage[i] = nf_guide_alloc(g, cap, sizeof *g->stage[i], &ok);

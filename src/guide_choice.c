@@ -161,9 +161,7 @@ nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured
 
 uint32_t nf_guide_depth_of(uint32_t candidate)
 {
-    /* Every depth first: it is the kind a fixed policy renders, and the one training ran. */
-    static const uint32_t depth[NF_GUIDE_DEPTHS] = {0u, 1u, 2u};
-    return candidate < NF_GUIDE_DEPTHS ? depth[candidate] : 0u;
+    return candidate < NF_GUIDE_DEPTHS ? candidate : 0u;
 }
 
 nf_status nf_guide_choose_depth(const nf_guide *g, const nf_pass_measure measured[NF_GUIDE_DEPTHS],
@@ -197,7 +195,7 @@ nf_status nf_guide_choose_depth(const nf_guide *g, const nf_pass_measure measure
             r.ratio = cost[r.candidate] == cost[0] ? 1.0 : cost[r.candidate] / cost[0];
         }
     }
-    r.depth = nf_guide_depth_of(r.candidate);
+    r.depth = r.candidate;
     *out = r;
     return NF_OK;
 }

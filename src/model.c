@@ -239,10 +239,10 @@ nf_status nf_model_copy(nf_model *dst, const nf_model *src)
     return NF_OK;
 }
 
-nf_status nf_model_config(const nf_model *model, nf_config *out)
+nf_status nf_model_get_config(const nf_model *model, nf_config *out)
 {
     if (!model || !out)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_config: model or out is NULL");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_get_config: model or out is NULL");
     *out = model->cfg;
     return NF_OK;
 }

@@ -33,7 +33,7 @@ static nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_sha
         why = "was prepared on another model";
     } else if (nf_generation_moved(m, p->generation_)) {
         why = "was prepared before or while the model's parameters last changed (a training "
-              "step, nf_set_params or nf_apply_gradient): prepare it again";
+              "step, nf_model_set_params or nf_apply_gradient): prepare it again";
         st = NF_ERROR_STALE;
     } else {
         return NF_OK;
@@ -146,10 +146,10 @@ static nf_status nf_points_usable(const char *fn, const nf_model *m, size_t n,
     return NF_OK;
 }
 
-nf_status nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *points,
-                           const float *u, float *dir, float *pdf)
+nf_status nf_point_sample_batch(const nf_model *m, size_t n, const nf_shading_point *points,
+                                const float *u, float *dir, float *pdf)
 {
-    static const char fn[] = "nf_points_sample";
+    static const char fn[] = "nf_point_sample_batch";
     nf_status st;
     if ((st = nf_check_pointers(fn, "m", m, NULL, NULL, NULL, NULL, NULL, NULL)) != NF_OK || n == 0)
         return st;
@@ -163,10 +163,10 @@ nf_status nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *
                             m->kernels->point_sample(m, points, n, 1, u, dir, pdf));
 }
 
-nf_status nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *points,
-                        const float *dir, float *pdf)
+nf_status nf_point_pdf_batch(const nf_model *m, size_t n, const nf_shading_point *points,
+                             const float *dir, float *pdf)
 {
-    static const char fn[] = "nf_points_pdf";
+    static const char fn[] = "nf_point_pdf_batch";
     nf_status st;
     if ((st = nf_check_pointers(fn, "m", m, NULL, NULL, NULL, NULL, NULL, NULL)) != NF_OK || n == 0)
         return st;

@@ -11,7 +11,7 @@
 #include "internal.h"
 
 /* The render passes come in NF_KINDS kinds: guided passes by how deep they guide (the
- * guide's candidates, nf_guide_depth_of: kind c for candidate c) and plain passes. */
+ * guide's candidates: kind c guides up to depth c) and plain passes. */
 #define NF_KINDS (NF_GUIDE_DEPTHS + 1u)
 #define NF_PLAIN NF_GUIDE_DEPTHS
 /* Training passes are kept in at most this many groups of equal size. */

@@ -95,8 +95,9 @@ nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity, size
     if (!buf)
         return NF_OK;
     if (capacity < need)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                       "nf_model_serialize: capacity %zu < %zu bytes needed", capacity, need);
+        return nf_fail(NF_ERROR_CAPACITY,
+                       "nf_model_serialize: capacity %zu < %zu bytes needed (nothing written)",
+                       capacity, need);
     const nf_config *c = &m->cfg;
     unsigned char *start = (unsigned char *)buf, *p = start;
     memcpy(p, nf_magic, 8);

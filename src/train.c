@@ -153,22 +153,24 @@ nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, const floa
     return NF_OK;
 }
 
-size_t nf_param_count(const nf_model *m) { return m ? m->param_count : 0; }
+size_t nf_model_param_count(const nf_model *m) { return m ? m->param_count : 0; }
 
-nf_status nf_get_params(const nf_model *m, float *params)
+nf_status nf_model_get_params(const nf_model *m, float *params)
 {
     if (!m || !params)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_get_params: %s is NULL", !m ? "m" : "params");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_get_params: %s is NULL",
+                       !m ? "m" : "params");
     memcpy(params, m->params, m->param_count * sizeof(float));
     return NF_OK;
 }
 
-nf_status nf_set_params(nf_model *m, const float *params)
+nf_status nf_model_set_params(nf_model *m, const float *params)
 {
     if (!m || !params)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: %s is NULL", !m ? "m" : "params");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_set_params: %s is NULL",
+                       !m ? "m" : "params");
     if (!nf_all_finite(params, m->param_count))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_params: params contain NaN or Inf");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_set_params: params contain NaN or Inf");
     memcpy(m->params, params, m->param_count * sizeof(float));
     nf_model_pack(m);
     return NF_OK;
@@ -176,14 +178,14 @@ nf_status nf_set_params(nf_model *m, const float *params)
 
 uint64_t nf_model_step_count(const nf_model *m) { return m ? m->step : 0; }
 
-nf_status nf_set_learning_rate(nf_model *m, float learning_rate)
+nf_status nf_model_set_learning_rate(nf_model *m, float learning_rate)
 {
     if (!m)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_set_learning_rate: model is NULL");
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "nf_model_set_learning_rate: model is NULL");
     /* The same check as nf_model_create's, on the configuration it would leave. */
     nf_config next = m->cfg;
     next.learning_rate = learning_rate;
-    nf_status st = nf_config_validate(&next, "nf_set_learning_rate");
+    nf_status st = nf_config_validate(&next, "nf_model_set_learning_rate");
     if (st != NF_OK)
         return st;
     m->cfg.learning_rate = learning_rate;

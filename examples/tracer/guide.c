@@ -247,7 +247,7 @@ int guide_bounds_match(const scene *s, const nf_model *m, char *msg, size_t size
     float lo[3], hi[3];
     nf_config cfg;
     model_bounds(s, lo, hi);
-    if (nf_model_config(m, &cfg) != NF_OK)
+    if (nf_model_get_config(m, &cfg) != NF_OK)
         return 1; /* not a model: nothing to compare (the caller's calls will say why) */
     float extent = 0.0f;
     for (int a = 0; a < 3; ++a)
@@ -307,10 +307,10 @@ int guide_load(const char *path, nf_model **out, tr_error *err)
 
 int guide_models_agree(const nf_model *m, int iteration, tr_error *err)
 {
-    size_t n = nf_param_count(m);
+    size_t n = nf_model_param_count(m);
     uint64_t steps = nf_model_step_count(m), hash = RANKS_HASH_START;
     float *params = malloc(n * sizeof *params);
-    int ok = params && nf_get_params(m, params) == NF_OK;
+    int ok = params && nf_model_get_params(m, params) == NF_OK;
     if (ok)
         hash = ranks_hash(ranks_hash(hash, params, n * sizeof *params), &steps, sizeof steps);
     else

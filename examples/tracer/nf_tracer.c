@@ -253,8 +253,8 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
         if (!sr->depth_passes[c])
             continue;
         char name[32];
-        if (nf_guide_depth_of(c))
-            snprintf(name, sizeof name, "up to depth %u", nf_guide_depth_of(c));
+        if (c) /* kind c guides up to depth c; 0 every depth */
+            snprintf(name, sizeof name, "up to depth %u", c);
         else
             snprintf(name, sizeof name, "every depth");
         printf("depth      %-14s %u guided passes, %.3f CPU s each, relative variance %.4g per "
@@ -411,7 +411,7 @@ static int run(int argc, char **argv)
         int ok = o.load_model ? guide_load(o.load_model, &model, &err)
                               : guide_create(&s, &gs, &model, &err);
         if (ok && o.load_model && o.learning_rate_given &&
-            nf_set_learning_rate(model, o.learning_rate) != NF_OK)
+            nf_model_set_learning_rate(model, o.learning_rate) != NF_OK)
             ok = tr_fail(&err, "--lr: %s", nf_last_error_message());
         if (ok && o.isa != NF_ISA_AUTO && nf_model_set_isa(model, o.isa) != NF_OK)
             ok = tr_fail(&err, "--isa: %s", nf_last_error_message());
@@ -421,7 +421,7 @@ static int run(int argc, char **argv)
             goto done;
         }
         nf_config cfg;
-        nf_model_config(model, &cfg);
+        nf_model_get_config(model, &cfg);
         t.bsdf_prior = cfg.prior == NF_PRIOR_CUSTOM;
         char mismatch[512];
         if (o.load_model && ranks_rank() == 0 &&
@@ -439,7 +439,7 @@ static int run(int argc, char **argv)
         printf("guiding    prior %s, %s model (%zu parameters), %s kernels, lr %g, guide "
                "probability %g%s%s\n",
                t.bsdf_prior ? "bsdf" : guide_prior_name((guide_prior)cfg.prior),
-               cfg.coupling_layers > 2 ? "large" : "small", nf_param_count(model),
+               cfg.coupling_layers > 2 ? "large" : "small", nf_model_param_count(model),
                nf_model_isa_name(model), (double)cfg.learning_rate, (double)t.policy.mixture_prob,
                o.variants ? ", variant " : "", o.variants ? o.variants : "");
         t.model = model;

@@ -44,7 +44,7 @@
  *
  * Memory: everything is allocated by nf_guide_create, from the model's allocator: about
  * store_capacity x (3 x (64 + payload_bytes) + 12) bytes for the store and its two intake
- * stages, step_samples x 64 bytes for a step, groups x (4 x nf_param_count + 200) bytes for
+ * stages, step_samples x 64 bytes for a step, groups x (4 x nf_model_param_count + 200) bytes for
  * the gradients, and four copies of the model; nothing later allocates. Stack: the training
  * calls need NF_TRAINING_STACK_BYTES (train.h) on every thread that runs their tasks, the
  * calling thread included when it runs them itself; the other calls hold no buffers on the
@@ -260,7 +260,7 @@ NF_API int nf_guide_keep_training(const nf_guide *g, double elapsed, double budg
  * sample acquired models. */
 NF_API nf_status nf_guide_publish(nf_guide *g);
 
-/* The model that training changes, for saving (nf_model_save), inspection or nf_set_params.
+/* The model that training changes, for saving (nf_model_save), inspection or nf_model_set_params.
  * Never sample it while a training call may run. NULL for NULL. */
 NF_API nf_model *nf_guide_training_model(nf_guide *g);
 

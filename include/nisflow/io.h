@@ -35,8 +35,9 @@ NF_API nf_status nf_model_save(const nf_model *m, const char *path);
 NF_API nf_status nf_model_load(const char *path, const nf_prior_callbacks *custom, nf_model **out);
 
 /* Serializes into a caller-owned buffer. With buf NULL only *size is set (the bytes needed).
- * With a buffer smaller than needed, returns NF_ERROR_INVALID_ARGUMENT and sets *size to the
- * bytes needed. Thread-safe on a const model; never allocates. */
+ * With a buffer smaller than needed, returns NF_ERROR_CAPACITY, writes nothing into it and
+ * sets *size to the bytes needed. NULL m or size: NF_ERROR_INVALID_ARGUMENT. Thread-safe on a
+ * const model; never allocates. */
 NF_API nf_status nf_model_serialize(const nf_model *m, void *buf, size_t capacity, size_t *size);
 
 /* Creates a model from exactly `size` bytes written by nf_model_serialize. `custom` as for

@@ -30,9 +30,9 @@ NF_EXTERN_C_BEGIN
 #define NF_MAX_SH_BANDS 6u
 
 /* Ranges of the configuration's floats, checked by nf_model_create, nf_model_load /
- * nf_model_deserialize (as NF_ERROR_FORMAT) and nf_set_learning_rate, with a message naming the
- * field and its range. Every float field also refuses NaN, infinities and denormals. Each
- * bound keeps the arithmetic the value feeds away from underflow and overflow (the reasons:
+ * nf_model_deserialize (as NF_ERROR_FORMAT) and nf_model_set_learning_rate, with a message naming
+ * the field and its range. Every float field also refuses NaN, infinities and denormals. Each bound
+ * keeps the arithmetic the value feeds away from underflow and overflow (the reasons:
  * docs/robustness.md, "Configuration ranges"). */
 #define NF_PRIOR_EPSILON_MIN 1e-6f /* eps / (4 pi) >= 8e-8 per sr: a floor, not an underflow  */
 #define NF_LEARNING_RATE_MIN 1e-9f /* below, a step is under half an ulp of any weight > 0.03 */
@@ -235,21 +235,19 @@ NF_API nf_status nf_model_copy(nf_model *dst, const nf_model *src);
 
 /* Copies the model's configuration (including its allocator and custom prior callbacks) to
  * *out. Thread-safe. */
-NF_API nf_status nf_model_config(const nf_model *model, nf_config *out);
+NF_API nf_status nf_model_get_config(const nf_model *model, nf_config *out);
 
 /* Draws n directions. For sample i, u[2i], u[2i+1] are two numbers in [0,1) (values outside
  * are clamped), ctx[i] its shading context; dir[3i..3i+2] receives a unit vector and, if pdf
  * is not NULL, pdf[i] the solid-angle density of that direction, equal to what nf_pdf returns
  * for it: away from the poles (sin theta > 1e-2) the relative difference is below 1e-4 for
  * well-conditioned flows. pdf[i] belongs to the exact latent point, nf_pdf's value to the
- * inverse of the float direction; on sharp flows the float round trip drifts. Randomized
- * flows with peaks of 100-2000 per sr: up to 4% of samples differ by more than 1e-4, none by
- * 1e-2 (tests/correctness/test_sampling.c). Trained flows with peaks of 450-5400 per sr: at
- * most 1 sample in 10,000 differs by more than 2e-3 and 1 in 25,000 by more than 1e-2, and
- * isolated samples by up to 40% (one sample in 5.6 million over 28 trained models with
- * NF_PHI_CIRCULAR, at the flat end of a spline, where the float round trip through the turn
- * lands far off in latent space; 12% with NF_PHI_INTERVAL; measured by
- * tests/correctness/test_sample_pdf_trained.c). One-sample MIS tolerates both. Densities are
+ * inverse of the float direction; on sharp flows the float round trip drifts: on randomized
+ * flows (tests/correctness/test_sampling.c) no sample differs by 1e-2; on trained sharp flows
+ * (tests/correctness/test_sample_pdf_trained.c) rare samples differ by more than 1e-2 and
+ * isolated ones by tens of percent, at the flat end of a spline where the float round trip
+ * through the turn lands far off in latent space (docs/robustness.md has the measured
+ * counts). One-sample MIS tolerates both. Densities are
  * clamped to [FLT_MIN, FLT_MAX], so that pdf and 1 / pdf are finite whatever the parameters
  * (docs/robustness.md). The map from u to dir is deterministic, and bit-identical however a
  * batch is split into calls (batches run in groups of 16 samples, calls of 1 or 2 samples per
@@ -278,12 +276,15 @@ NF_API nf_status nf_sample(const nf_model *m, size_t n, const nf_context *ctx, c
 NF_API nf_status nf_pdf(const nf_model *m, size_t n, const nf_context *ctx, const float *dir,
                         float *pdf);
 
-/* The solid-angle density of the model's prior (with its epsilon mixture) at `dir`: the
- * density a fresh model has, clamped to [FLT_MIN, FLT_MAX] as nf_pdf's (with prior_epsilon >=
- * NF_PRIOR_EPSILON_MIN it is at least 1e-6 / (4 pi) for the cosine and custom priors wherever
- * the custom density is 0). Returns -1 when an argument is invalid (the message says why).
+/* The solid-angle density of the model's prior (with its epsilon mixture) at `dir` into
+ * *pdf: the density a fresh model has, clamped to [FLT_MIN, FLT_MAX] as nf_pdf's (with
+ * prior_epsilon >= NF_PRIOR_EPSILON_MIN it is at least 1e-6 / (4 pi) for the cosine and custom
+ * priors wherever the custom density is 0). ctx and dir follow nf_pdf's rules. Errors:
+ * NF_ERROR_INVALID_ARGUMENT (NULL, a bad context or direction), NF_ERROR_NUMERIC (a custom
+ * prior's pdf callback returned an invalid value); *pdf is then not written.
  * Thread-safe; never allocates. */
-NF_API float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]);
+NF_API nf_status nf_model_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3],
+                                    float *pdf);
 
 /* The name of the kernels the model runs ("generic", "avx2", "avx512"). Static string;
  * "" for NULL. Thread-safe. */
@@ -296,7 +297,7 @@ NF_API const char *nf_model_isa_name(const nf_model *m);
  * nf_model_set_isa(m, NF_ISA_GENERIC) on every machine (or NF_ISA_AVX2 where all have it;
  * AVX2 and AVX-512 give the same bits). Parameters, optimizer state and step count are kept;
  * later samples, densities, gradients and steps are bit-identical to those of a model created
- * with that isa from the same state. nf_model_config reports the new isa; a clone keeps it.
+ * with that isa from the same state. nf_model_get_config reports the new isa; a clone keeps it.
  * Shading points prepared before a change of kernels become stale (NF_ERROR_STALE), since
  * their cached sums came from the old kernels; setting the isa the model already runs
  * changes nothing. Errors, which leave the model unchanged: NF_ERROR_INVALID_ARGUMENT for
@@ -308,6 +309,15 @@ NF_API nf_status nf_model_set_isa(nf_model *m, nf_isa isa);
 /* The smallest value of sin(theta) the library divides by when it converts a density on the
  * (theta, phi) square to a solid-angle density. */
 #define NF_SIN_THETA_MIN 1e-6f
+
+/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
+
+/* nf_model_prior_pdf's density, or -1 on any error. */
+NF_API NF_DEPRECATED("nf_model_prior_pdf") float nf_prior_pdf(const nf_model *m,
+                                                              const nf_context *ctx,
+                                                              const float dir[3]);
+NF_API NF_DEPRECATED("nf_model_get_config") nf_status
+    nf_model_config(const nf_model *model, nf_config *out);
 
 NF_EXTERN_C_END
 

@@ -38,7 +38,7 @@
  * is best for speed (its cache starts at offset 128) but not required.
  *
  * Validity: a prepared point belongs to the model it was prepared on and to that model's
- * current parameters. Any change of the parameters (a training step, nf_set_params,
+ * current parameters. Any change of the parameters (a training step, nf_model_set_params,
  * nf_apply_gradient) makes every point prepared before or during it stale: using it then
  * returns NF_ERROR_STALE and writes nothing; prepare it again. A sample or pdf call that
  * overlaps such a change on another thread (misuse: see below) returns NF_ERROR_STALE with its
@@ -57,10 +57,10 @@
  * is written by nf_point_prepare only; any number of threads may sample one prepared point at
  * once. Nothing here allocates.
  *
- * Stack: measured by tests/correctness/test_point.c (GCC 12 and clang 14, any shape up to the
- * configuration limits), each call uses at most 4.6 KiB of the caller's stack, and
- * nf_point_prepare 2.7 KiB. Renderers that shade on fiber stacks should allow 5 KiB per call;
- * the test measures every call against that bound.
+ * Stack: every call uses at most 5 KiB of the caller's stack, for any shape up to the
+ * configuration limits; renderers that shade on fiber stacks should allow that much per call.
+ * tests/correctness/test_point.c measures every call against that bound (with GCC and clang)
+ * and prints what each used.
  */
 #ifndef NISFLOW_POINT_H
 #define NISFLOW_POINT_H
@@ -151,10 +151,19 @@ NF_API nf_status nf_point_sample_and_pdf(const nf_model *m, const nf_shading_poi
  * with its own context); u, dir and pdf as in nf_sample. Every point and input is checked
  * before anything is written; NF_ERROR_NUMERIC from a custom prior may come mid-batch, after
  * earlier entries were written. Thread-safe on a const model; never allocates. */
-NF_API nf_status nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *points,
-                                  const float *u, float *dir, float *pdf);
-NF_API nf_status nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *points,
-                               const float *dir, float *pdf);
+NF_API nf_status nf_point_sample_batch(const nf_model *m, size_t n, const nf_shading_point *points,
+                                       const float *u, float *dir, float *pdf);
+NF_API nf_status nf_point_pdf_batch(const nf_model *m, size_t n, const nf_shading_point *points,
+                                    const float *dir, float *pdf);
+
+/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
+
+NF_API NF_DEPRECATED("nf_point_sample_batch") nf_status
+    nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *points, const float *u,
+                     float *dir, float *pdf);
+NF_API NF_DEPRECATED("nf_point_pdf_batch") nf_status
+    nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *points, const float *dir,
+                  float *pdf);
 
 NF_EXTERN_C_END
 

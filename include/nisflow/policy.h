@@ -127,8 +127,9 @@ NF_API void nf_plain_moment_add(nf_plain_moment *m, float c);
  * pixel, may not repay them: in a box lit directly, guiding each path's first vertex alone buys
  * more per second than guiding every vertex or none, while light that arrives through several
  * bounces (a room lit through a door's gap) needs guiding at every depth. Guided render passes
- * therefore come in NF_GUIDE_DEPTHS kinds, by the deepest vertex they guide
- * (nf_guide_depth_of): every depth measured on its own passes, a shallower kind on every pass
+ * therefore come in NF_GUIDE_DEPTHS kinds, by the deepest vertex they guide: kind 0 guides
+ * every depth, kinds 1 and 2 up to that many segments from the camera (the first vertex is 1);
+ * every depth measured on its own passes, a shallower kind on every pass
  * that guides deeper than it (nf_depth_moment, as plain path tracing is measured);
  * nf_guide_choose_depth picks the kind to render, and nf_guide_choose_pass then weighs it
  * against plain passes (docs/integration.md, "Guided or plain passes"). Training passes guide
@@ -136,10 +137,11 @@ NF_API void nf_plain_moment_add(nf_plain_moment *m, float c);
  * no question to the flow, light samples weighed against the BSDF's density. */
 #define NF_GUIDE_DEPTHS 3u
 
-/* The deepest vertex that guided passes of kind `candidate` guide, in segments from the
- * camera (the first vertex is 1), or 0 for every depth: candidates 0, 1, 2 are every depth,
- * 1 and 2. 0 for candidate >= NF_GUIDE_DEPTHS. Thread-safe, total. */
-NF_API uint32_t nf_guide_depth_of(uint32_t candidate);
+/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
+
+/* The depth of kind `candidate`: the candidate itself, 0 for candidate >= NF_GUIDE_DEPTHS. */
+NF_API NF_DEPRECATED("the candidate itself (kind c guides up to depth c)") uint32_t
+    nf_guide_depth_of(uint32_t candidate);
 
 /* A kind that guides up to depth D, measured on paths guided deeper (as nf_plain_moment
  * measures plain path tracing): its passes alone would miss the rare bright paths that rule

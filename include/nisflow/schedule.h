@@ -39,7 +39,7 @@
  * the second moments that its paths measured for the kinds it did not render
  * (nf_plain_moment, nf_depth_moment): moments[m x pixels + i] for m < NF_GUIDE_DEPTHS is
  * pixel i's sum over its paths of the moment of candidate m's policy, where candidate 0 is
- * plain path tracing (nf_plain_moment) and candidates 1, 2 guide up to nf_guide_depth_of(m).
+ * plain path tracing (nf_plain_moment) and candidates 1, 2 guide up to depth m.
  * Plain passes may give NULL (each pixel's squared luminance is used). Luminance here is the
  * mean of R, G and B.
  *
@@ -159,7 +159,7 @@ NF_API nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure m
 /* nf_guide_choose_depth's answer. */
 typedef struct nf_depth_choice {
     uint32_t candidate; /* render guided passes of this kind next, < NF_GUIDE_DEPTHS         */
-    uint32_t depth;     /* nf_guide_depth_of(candidate)                                    */
+    uint32_t depth;     /* the candidate: how deep its passes guide (0: every depth)       */
     double ratio;       /* its variance x cost per pass over every depth's (below 1: the
                          * shallower passes pay); NaN while a kind has fewer than 2 passes  */
 } nf_depth_choice;
@@ -270,7 +270,7 @@ typedef struct nf_schedule_report {
     double kind_cpu_seconds[2];
     double kind_variance[2]; /* relative variance of one pass (guide.h); a guided
                               * pass's is its depths' weighted by their passes   */
-    /* The guided render passes by depth candidate (nf_guide_depth_of); with a fixed
+    /* The guided render passes by depth candidate; with a fixed
      * guide_depth, all of them in [0]: */
     uint32_t depth_passes[NF_GUIDE_DEPTHS];
     double depth_cpu_seconds[NF_GUIDE_DEPTHS];

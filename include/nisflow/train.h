@@ -34,10 +34,10 @@ NF_EXTERN_C_BEGIN
 /* The stack, in bytes, to allow for one nf_loss_gradient or nf_train_step call: 192 KiB,
  * whatever the configuration within its limits and the instruction set. The calls keep the
  * work area of a tile of 16 samples on the stack, sized for the largest networks the limits
- * allow, so the presets use as much as the largest networks. Measured by stack painting
- * (tests/robustness/test_training_stack.c, which fails above this figure), libm included:
- * at most 180,008 bytes (175.8 KiB) with GCC 12 -O3 and 175,744 bytes (171.6 KiB) with
- * clang 14; the allowance adds 16 KiB (9%) for other compilers and versions. A custom prior's
+ * allow, so the presets use as much as the largest networks. Checked by stack painting
+ * (tests/robustness/test_training_stack.c fails above this figure and prints the use, libm
+ * included; docs/performance.md has it for GCC and clang), with room left for other
+ * compilers and versions. A custom prior's
  * callbacks run on top of it. Threads that train need this much beyond their own use: the
  * default stacks of glibc (8 MiB), macOS (512 KiB) and Windows (1 MiB) suffice, musl's 128 KiB
  * and small fiber stacks do not (pthread_attr_setstacksize). */
@@ -55,23 +55,23 @@ NF_API nf_status nf_train_step(nf_model *m, size_t n, const nf_context *ctx, con
                                const float *weight, float *loss);
 
 /* The number of trainable parameters (floats). 0 for NULL. Thread-safe. */
-NF_API size_t nf_param_count(const nf_model *m);
+NF_API size_t nf_model_param_count(const nf_model *m);
 
-/* Copies the parameters into `params` (nf_param_count floats). The layout: for each coupling
+/* Copies the parameters into `params` (nf_model_param_count floats). The layout: for each coupling
  * layer, for each linear layer of its conditioner from input to output, the weight matrix
  * stored input-major (W[in][out]) followed by the bias (out floats). Thread-safe. */
-NF_API nf_status nf_get_params(const nf_model *m, float *params);
+NF_API nf_status nf_model_get_params(const nf_model *m, float *params);
 
-/* Replaces the parameters (nf_param_count floats, layout as above). Refuses non-finite values
+/* Replaces the parameters (nf_model_param_count floats, layout as above). Refuses non-finite values
  * with NF_ERROR_INVALID_ARGUMENT and leaves the model unchanged. Every finite value is
  * accepted: the conditioners clamp the spline parameters they compute, so that sampling and
  * densities stay finite even for weights near FLT_MAX (docs/robustness.md); training such a
  * model may be refused with NF_ERROR_NUMERIC. The optimizer state is kept.
  * Not thread-safe. */
-NF_API nf_status nf_set_params(nf_model *m, const float *params);
+NF_API nf_status nf_model_set_params(nf_model *m, const float *params);
 
 /* Computes the batch loss (if loss is not NULL) and its gradient with respect to the
- * parameters into grad (nf_param_count floats, overwritten), by hand-written reverse mode.
+ * parameters into grad (nf_model_param_count floats, overwritten), by hand-written reverse mode.
  * Validation as for nf_train_step; with all weights zero the loss and gradient are 0. When the
  * loss or the gradient would not be finite (extreme parameters) it returns NF_ERROR_NUMERIC;
  * grad's content is then unspecified and *loss is not written.
@@ -79,7 +79,7 @@ NF_API nf_status nf_set_params(nf_model *m, const float *params);
  * two sum in different orders, so splitting a batch differently changes the gradient by
  * rounding (~1e-7 relative), not more.
  * Thread-safe on a const model (each thread passes its own grad); never allocates; uses up to
- * NF_TRAINING_STACK_BYTES (192 KiB; 176 KiB measured) of the caller's stack, for every
+ * NF_TRAINING_STACK_BYTES (192 KiB) of the caller's stack, for every
  * configuration: the activations of 16 samples for the largest networks the configuration
  * limits allow. */
 NF_API nf_status nf_loss_gradient(const nf_model *m, size_t n, const nf_context *ctx,
@@ -103,16 +103,15 @@ NF_API nf_status nf_loss_gradient_with_work(const nf_model *m, size_t n, const n
                                             const float *dir, const float *weight, float *loss,
                                             float *grad, void *work, size_t work_bytes);
 
-/* The stack, in bytes, to allow for one nf_loss_gradient_with_work call: 32 KiB. Measured like
- * NF_TRAINING_STACK_BYTES (tests/robustness/test_training_stack.c fails above it): at most
- * 18,736 bytes with GCC 12 -O3 and 23,840 bytes with clang 14 (the first hidden layer of a
- * tile keeps up to 8 KiB of activations on the stack); the allowance adds 8.7 KiB (37%) for
+/* The stack, in bytes, to allow for one nf_loss_gradient_with_work call: 32 KiB. Checked like
+ * NF_TRAINING_STACK_BYTES (tests/robustness/test_training_stack.c fails above it; the first
+ * hidden layer of a tile keeps up to 8 KiB of activations on the stack), with room left for
  * other compilers and versions. A custom prior's callbacks run on top of it. */
 #define NF_TRAINING_WORK_STACK_BYTES 32768u
 
 /* One AdamW step (decoupled weight decay, bias-corrected moments) with the given gradient
- * (nf_param_count floats). Refuses a non-finite gradient with NF_ERROR_INVALID_ARGUMENT, and a
- * step whose parameters or moments would be non-finite with NF_ERROR_NUMERIC; both leave the
+ * (nf_model_param_count floats). Refuses a non-finite gradient with NF_ERROR_INVALID_ARGUMENT, and
+ * a step whose parameters or moments would be non-finite with NF_ERROR_NUMERIC; both leave the
  * model unchanged. An all-zero gradient is still a step (weight decay and moment decay apply
  * and the step count grows): sharded training should skip batches whose weights are all
  * zero, as nf_train_step does. Not thread-safe. Does not allocate. */
@@ -126,7 +125,17 @@ NF_API uint64_t nf_model_step_count(const nf_model *m);
  * [NF_LEARNING_RATE_MIN, NF_LEARNING_RATE_MAX] = [1e-9, 1] and below 1 / weight_decay, checked
  * as nf_model_create checks nf_config.learning_rate (NF_ERROR_INVALID_ARGUMENT otherwise, the
  * model unchanged). Not thread-safe. */
-NF_API nf_status nf_set_learning_rate(nf_model *m, float learning_rate);
+NF_API nf_status nf_model_set_learning_rate(nf_model *m, float learning_rate);
+
+/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
+
+NF_API NF_DEPRECATED("nf_model_param_count") size_t nf_param_count(const nf_model *m);
+NF_API NF_DEPRECATED("nf_model_get_params") nf_status
+    nf_get_params(const nf_model *m, float *params);
+NF_API NF_DEPRECATED("nf_model_set_params") nf_status
+    nf_set_params(nf_model *m, const float *params);
+NF_API NF_DEPRECATED("nf_model_set_learning_rate") nf_status
+    nf_set_learning_rate(nf_model *m, float learning_rate);
 
 NF_EXTERN_C_END
 

@@ -7,8 +7,9 @@
  * before 1.0 each minor version is an ABI of its own (SONAME libnisflow.so.0.MINOR, and the
  * CMake package accepts only the same minor version: docs/integration.md).
  *
- * It also defines NF_API (the symbols the shared library exports) and NF_EXTERN_C_BEGIN/END
- * (C linkage under C++), which every other public header uses through this one.
+ * It also defines NF_API (the symbols the shared library exports), NF_DEPRECATED (names kept
+ * for one minor version after a rename) and NF_EXTERN_C_BEGIN/END (C linkage under C++), which
+ * every other public header uses through this one.
  */
 #ifndef NISFLOW_VERSION_H
 #define NISFLOW_VERSION_H
@@ -25,6 +26,18 @@
 #define NF_API
 #endif
 
+/* Marks a name kept for one minor version after it was renamed (CHANGELOG.md lists them). The
+ * library's own sources, which define the old names, see no warning. */
+#if defined(NISFLOW_BUILDING)
+#define NF_DEPRECATED(replacement)
+#elif defined(__GNUC__) || defined(__clang__)
+#define NF_DEPRECATED(replacement) __attribute__((deprecated("use " replacement)))
+#elif defined(_MSC_VER)
+#define NF_DEPRECATED(replacement) __declspec(deprecated("use " replacement))
+#else
+#define NF_DEPRECATED(replacement)
+#endif
+
 #ifdef __cplusplus
 #define NF_EXTERN_C_BEGIN extern "C" {
 #define NF_EXTERN_C_END }
@@ -35,7 +48,7 @@
 
 #define NF_VERSION_MAJOR 0
 #define NF_VERSION_MINOR 8
-#define NF_VERSION_PATCH 0
+#define NF_VERSION_PATCH 1
 
 NF_EXTERN_C_BEGIN
 

@@ -254,7 +254,7 @@ static inline void nf_conditioner_forward(const nf_model *m, uint32_t layer, con
     }
     nf_dense_one(raw, packed + lin[depth].weight, lin[depth].stride, packed + lin[depth].bias,
                  act + (size_t)(depth - 1) * hp, width);
-    /* Extreme but finite weights (nf_set_params, a loaded file) can overflow the MLP to Inf
+    /* Extreme but finite weights (nf_model_set_params, a loaded file) can overflow the MLP to Inf
      * or NaN; the clamp (internal.h, NF_RAW_LIMIT) keeps the splines finite whatever the
      * weights. nf_clampf maps NaN to the lower bound. A no-op for ordinary models. */
     for (uint32_t r = 0; r < m->raw_dim; ++r)

@@ -288,7 +288,7 @@ static void nf_kernel_point_prepare(const nf_model *m, const nf_context *ctx,
     nf_point_api_preparer(m)(m, ctx, prior, point);
 }
 
-/* nf_point_sample (stride 0: one point, n directions) and nf_points_sample (stride 1). */
+/* nf_point_sample (stride 0: one point, n directions) and nf_point_sample_batch (stride 1). */
 static nf_status nf_kernel_point_sample(const nf_model *m, const nf_shading_point *points, size_t n,
                                         size_t stride, const float *u, float *dir, float *pdf)
 {

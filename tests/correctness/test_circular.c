@@ -34,24 +34,24 @@ static nf_model *make(nf_preset preset, nf_prior_kind prior, nf_phi_map map)
 /* Sets the bias of the last phi layer's last conditioner output (layer (L - 1) & ~1: phi
  * layers are the even ones), which NF_PHI_CIRCULAR reads as the turn's raw value
  * (NF_PHI_INTERVAL as the slope at phi = 2 pi). The bias is the last float of the layer's
- * block (train.h, nf_get_params). */
+ * block (train.h, nf_model_get_params). */
 static void set_turn_raw(nf_model *m, float raw)
 {
     nf_config cfg;
-    assert_int_equal(nf_model_config(m, &cfg), NF_OK);
-    size_t count = nf_param_count(m), per_layer = count / cfg.coupling_layers;
+    assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
+    size_t count = nf_model_param_count(m), per_layer = count / cfg.coupling_layers;
     float *p = malloc(count * sizeof *p);
     assert_non_null(p);
-    assert_int_equal(nf_get_params(m, p), NF_OK);
+    assert_int_equal(nf_model_get_params(m, p), NF_OK);
     size_t layer = (cfg.coupling_layers - 1u) & ~1u;
     p[(layer + 1u) * per_layer - 1u] = raw;
-    assert_int_equal(nf_set_params(m, p), NF_OK);
+    assert_int_equal(nf_model_set_params(m, p), NF_OK);
     free(p);
 }
 
 /* A fresh model whose turn is half the circle (raw K / 2) is the prior turned
  * by pi about z: every other layer is the identity, so p(w) = q(R(-pi) w), R(-pi) (x, y, z) =
- * (-x, -y, z). Checked against nf_prior_pdf for both presets and the cosine prior, whose
+ * (-x, -y, z). Checked against nf_model_prior_pdf for both presets and the cosine prior, whose
  * density depends on phi, at 2,000 directions in 8 contexts, with the tolerance of
  * test_identity.c's "equal up to float rounding" (2e-5 relative; 2e-6 / sin(theta) near the
  * poles; the cosine lobe's slope times the ~1e-6 rad by which the float round trip moves a
@@ -62,7 +62,7 @@ static void test_half_turn_is_the_prior_turned(void **state)
     for (int preset = 0; preset < 2; ++preset) {
         nf_model *m = make((nf_preset)preset, NF_PRIOR_COSINE, NF_PHI_CIRCULAR);
         nf_config cfg;
-        assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+        assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
         set_turn_raw(m, 0.5f * (float)cfg.spline_bins);
         nft_rng r;
         nft_rng_seed(&r, 41u, (uint64_t)preset);
@@ -76,7 +76,7 @@ static void test_half_turn_is_the_prior_turned(void **state)
             turned[0] = -w[0];
             turned[1] = -w[1];
             turned[2] = w[2];
-            float p, q = nf_prior_pdf(m, &ctx, turned), q_unturned = nf_prior_pdf(m, &ctx, w);
+            float p, q = nft_prior_pdf(m, &ctx, turned), q_unturned = nft_prior_pdf(m, &ctx, w);
             assert_int_equal(nf_pdf(m, 1, &ctx, w, &p), NF_OK);
             double tol = 2e-5 + 2e-6 / fmax(nft_sin_theta(w), 1e-3) +
                          1e-6 * 2.0 / NFT_PI / fmax(q, 1e-30);

@@ -46,15 +46,15 @@ static nf_model *random_model(nf_preset preset, nf_prior_kind prior, double sigm
 {
     nf_model *m = nft_make_model(preset, prior);
     assert_non_null(m);
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *p = malloc(count * sizeof *p);
     assert_non_null(p);
-    assert_int_equal(nf_get_params(m, p), NF_OK);
+    assert_int_equal(nf_model_get_params(m, p), NF_OK);
     nft_rng r;
     nft_rng_seed(&r, seed, 77u);
     for (size_t i = 0; i < count; ++i)
         p[i] += (float)(sigma * gaussian(&r));
-    assert_int_equal(nf_set_params(m, p), NF_OK);
+    assert_int_equal(nf_model_set_params(m, p), NF_OK);
     free(p);
     return m;
 }
@@ -464,11 +464,11 @@ static void test_fresh_parameters_identity(void **state)
         nf_model *fresh = nft_make_model((nf_preset)preset, NF_PRIOR_UNIFORM_ANGLE);
         assert_non_null(fresh);
         nf_model *m = random_model((nf_preset)preset, NF_PRIOR_UNIFORM_ANGLE, 0.3, 700u);
-        size_t count = nf_param_count(m);
+        size_t count = nf_model_param_count(m);
         float *p = malloc(count * sizeof *p);
         assert_non_null(p);
-        assert_int_equal(nf_get_params(fresh, p), NF_OK);
-        assert_int_equal(nf_set_params(m, p), NF_OK);
+        assert_int_equal(nf_model_get_params(fresh, p), NF_OK);
+        assert_int_equal(nf_model_set_params(m, p), NF_OK);
         free(p);
         nft_rng r;
         nft_rng_seed(&r, 3005u, (uint64_t)preset);

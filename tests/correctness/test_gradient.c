@@ -40,15 +40,15 @@ static nf_model *random_model(nf_preset preset, nf_prior_kind prior, uint64_t se
 {
     nf_model *m = nft_make_model(preset, prior);
     assert_non_null(m);
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *p = malloc(count * sizeof *p);
     assert_non_null(p);
-    assert_int_equal(nf_get_params(m, p), NF_OK);
+    assert_int_equal(nf_model_get_params(m, p), NF_OK);
     nft_rng r;
     nft_rng_seed(&r, seed, 91u);
     for (size_t i = 0; i < count; ++i)
         p[i] += 0.3f * (2.0f * nft_rng_float(&r) - 1.0f);
-    assert_int_equal(nf_set_params(m, p), NF_OK);
+    assert_int_equal(nf_model_set_params(m, p), NF_OK);
     free(p);
     return m;
 }
@@ -135,13 +135,13 @@ static void check_fd_with(nf_preset preset, nf_prior_kind prior, size_t n_check,
     nf_model *m = random_model(preset, prior, seed);
     batch b;
     make_batch_with(m, seed + 1u, with_media, &b);
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *params = malloc(count * sizeof *params), *grad = malloc(count * sizeof *grad);
     float *scratch = malloc(count * sizeof *scratch);
     size_t *index = malloc(count * sizeof *index);
     double *g = malloc(count * sizeof *g), *fd = malloc(count * sizeof *fd);
     assert_true(params && grad && scratch && index && g && fd);
-    assert_int_equal(nf_get_params(m, params), NF_OK);
+    assert_int_equal(nf_model_get_params(m, params), NF_OK);
     float loss0;
     assert_int_equal(nf_loss_gradient(m, BATCH, b.ctx, b.dir, b.weight, &loss0, grad), NF_OK);
     /* The parameters to check: a random subset (partial Fisher-Yates), or all. */
@@ -164,10 +164,10 @@ static void check_fd_with(nf_preset preset, nf_prior_kind prior, size_t n_check,
         size_t i = index[k];
         float p = params[i], hi = (float)(p + H), lo = (float)(p - H);
         params[i] = hi;
-        assert_int_equal(nf_set_params(m, params), NF_OK);
+        assert_int_equal(nf_model_set_params(m, params), NF_OK);
         double l_hi = loss_at(m, &b, scratch);
         params[i] = lo;
-        assert_int_equal(nf_set_params(m, params), NF_OK);
+        assert_int_equal(nf_model_set_params(m, params), NF_OK);
         double l_lo = loss_at(m, &b, scratch);
         params[i] = p;
         g[k] = grad[i];
@@ -178,7 +178,7 @@ static void check_fd_with(nf_preset preset, nf_prior_kind prior, size_t n_check,
             worst_i = i;
         }
     }
-    assert_int_equal(nf_set_params(m, params), NF_OK);
+    assert_int_equal(nf_model_set_params(m, params), NF_OK);
     for (size_t k = 0; k < n_check; ++k)
         fd[k] -= g[k];
     double gnorm = norm(g, n_check), err = norm(fd, n_check) / gnorm;
@@ -253,12 +253,12 @@ static void check_directional(nf_preset preset, nf_prior_kind prior, uint64_t se
     nf_model *m = random_model(preset, prior, seed);
     batch b;
     make_batch(m, seed + 1u, &b);
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *params = malloc(count * sizeof *params), *grad = malloc(count * sizeof *grad);
     float *moved = malloc(count * sizeof *moved), *scratch = malloc(count * sizeof *scratch);
     double *v = malloc(count * sizeof *v);
     assert_true(params && grad && moved && scratch && v);
-    assert_int_equal(nf_get_params(m, params), NF_OK);
+    assert_int_equal(nf_model_get_params(m, params), NF_OK);
     float loss0;
     assert_int_equal(nf_loss_gradient(m, BATCH, b.ctx, b.dir, b.weight, &loss0, grad), NF_OK);
     nft_rng r;
@@ -282,13 +282,13 @@ static void check_directional(nf_preset preset, nf_prior_kind prior, uint64_t se
             double sign = side ? -1.0 : 1.0;
             for (size_t i = 0; i < count; ++i)
                 moved[i] = (float)(params[i] + sign * t * v[i]);
-            assert_int_equal(nf_set_params(m, moved), NF_OK);
+            assert_int_equal(nf_model_set_params(m, moved), NF_OK);
             l[side] = loss_at(m, &b, scratch);
             /* g . (p+ - p-) accumulated from the float displacements actually applied. */
             for (size_t i = 0; i < count; ++i)
                 predicted += sign * (double)grad[i] * ((double)moved[i] - params[i]);
         }
-        assert_int_equal(nf_set_params(m, params), NF_OK);
+        assert_int_equal(nf_model_set_params(m, params), NF_OK);
         double fd = l[0] - l[1];
         double tol = 2e-2 * fabs(predicted) + 4e-6;
         print_message("%s preset %d direction %d: L(p+) - L(p-) = %.6g, g . (p+ - p-) = %.6g\n",
@@ -327,7 +327,7 @@ static void test_zero_weights(void **state)
     make_batch(m, 401u, &b);
     for (int i = 0; i < BATCH; ++i)
         b.weight[i] = 0.0f;
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *grad = malloc(count * sizeof *grad);
     assert_non_null(grad);
     for (size_t i = 0; i < count; ++i)
@@ -393,7 +393,7 @@ static void test_tiles_match_single_samples(void **state)
             nf_model *m = NULL;
             assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
             assert_int_equal(nft_randomize_params(m, 0.3f, 701u + (uint64_t)p), NF_OK);
-            size_t count = nf_param_count(m);
+            size_t count = nf_model_param_count(m);
             float *batch_grad = malloc(count * sizeof(float));
             float *one = malloc(count * sizeof(float));
             double *sum = calloc(count, sizeof(double));
@@ -445,7 +445,7 @@ static void test_weight_normalization(void **state)
     scaled = b;
     for (int i = 0; i < BATCH; ++i)
         scaled.weight[i] = 7.0f * b.weight[i]; /* exact in float: 7 w has 3 more bits */
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *g1 = malloc(count * sizeof *g1), *g7 = malloc(count * sizeof *g7);
     assert_true(g1 && g7);
     float l1, l7;
@@ -496,7 +496,7 @@ static void test_sharding(void **state)
     nf_model *m = random_model(NF_PRESET_SMALL, NF_PRIOR_COSINE, 600u);
     batch b;
     make_batch(m, 601u, &b);
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *ga = malloc(count * sizeof *ga), *gb = malloc(count * sizeof *gb);
     float *gall = malloc(count * sizeof *gall);
     assert_true(ga && gb && gall);
@@ -567,7 +567,7 @@ static void test_gradient_with_work(void **state)
                     nf_model_destroy(m);
                     continue;
                 }
-                size_t count = nf_param_count(m);
+                size_t count = nf_model_param_count(m);
                 float *g1 = malloc(count * sizeof *g1), *g2 = malloc(count * sizeof *g2);
                 assert_true(g1 && g2);
                 for (int b = 0; b < 5; ++b) {
@@ -612,14 +612,14 @@ static void test_train_step_adamw(void **state)
     for (int preset = 0; preset < 2; ++preset) {
         nf_model *m = random_model((nf_preset)preset, NF_PRIOR_COSINE, 700u + preset);
         nf_config cfg;
-        assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+        assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
         batch b;
         make_batch(m, 701u, &b);
-        size_t count = nf_param_count(m);
+        size_t count = nf_model_param_count(m);
         float *p0 = malloc(count * sizeof *p0), *p1 = malloc(count * sizeof *p1);
         float *g = malloc(count * sizeof *g);
         assert_true(p0 && p1 && g);
-        assert_int_equal(nf_get_params(m, p0), NF_OK);
+        assert_int_equal(nf_model_get_params(m, p0), NF_OK);
         float loss_grad, loss_step;
         assert_int_equal(nf_loss_gradient(m, BATCH, b.ctx, b.dir, b.weight, &loss_grad, g),
                          NF_OK);
@@ -628,7 +628,7 @@ static void test_train_step_adamw(void **state)
         /* The same computation: equal up to a rounding of the float result (1e-6). */
         assert_true(fabs((double)loss_step - loss_grad) <= 1e-6 * fabs((double)loss_grad));
         assert_true(nf_model_step_count(m) == 1);
-        assert_int_equal(nf_get_params(m, p1), NF_OK);
+        assert_int_equal(nf_model_get_params(m, p1), NF_OK);
         const double lr = cfg.learning_rate, wd = cfg.weight_decay, eps = cfg.adam_epsilon;
         size_t moved = 0, big = 0, changed = 0;
         for (size_t i = 0; i < count; ++i) {
@@ -687,12 +687,12 @@ static void test_apply_gradient_adamw(void **state)
     cfg.weight_decay = 0.1f;
     nf_model *m = NULL;
     assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *p = malloc(count * sizeof *p), *g = malloc(count * sizeof *g);
     double *P = malloc(count * sizeof *P), *M = calloc(count, sizeof *M);
     double *V = calloc(count, sizeof *V);
     assert_true(p && g && P && M && V);
-    assert_int_equal(nf_get_params(m, p), NF_OK);
+    assert_int_equal(nf_model_get_params(m, p), NF_OK);
     for (size_t i = 0; i < count; ++i)
         P[i] = p[i];
     nft_rng r;
@@ -710,7 +710,7 @@ static void test_apply_gradient_adamw(void **state)
         }
         assert_int_equal(nf_apply_gradient(m, g), NF_OK);
         assert_true(nf_model_step_count(m) == (uint64_t)t);
-        assert_int_equal(nf_get_params(m, p), NF_OK);
+        assert_int_equal(nf_model_get_params(m, p), NF_OK);
         double c1 = 1.0 - pow(b1, t), c2 = 1.0 - pow(b2, t);
         for (size_t i = 0; i < count; ++i) {
             M[i] = b1 * M[i] + (1.0 - b1) * g[i];

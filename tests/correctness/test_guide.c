@@ -69,7 +69,7 @@ static nf_guide *make_guide(const nf_model *m, nf_guide_config *gc)
 
 static void params_of(nf_guide *g, float *out)
 {
-    assert_int_equal(nf_get_params(nf_guide_training_model(g), out), NF_OK);
+    assert_int_equal(nf_model_get_params(nf_guide_training_model(g), out), NF_OK);
 }
 
 /* A parallel-for on `threads` pthreads, tasks handed out through an atomic counter. */
@@ -322,13 +322,13 @@ static void test_same_bits_any_threads(void **state)
     gc.step_samples = 512;
     gc.steps_per_pass = 4;
     samples a = make_samples(1500, 11), b = make_samples(1200, 12);
-    size_t P = nf_param_count(m);
+    size_t P = nf_model_param_count(m);
     float *ref = malloc(P * sizeof *ref), *got = malloc(P * sizeof *got);
     float *start = malloc(P * sizeof *start);
     assert_non_null(ref);
     assert_non_null(got);
     assert_non_null(start);
-    assert_int_equal(nf_get_params(m, start), NF_OK);
+    assert_int_equal(nf_model_get_params(m, start), NF_OK);
 
     nf_guide *g = make_guide(m, &gc);
     train_two_passes(g, &a, &b, 0, NULL);
@@ -422,7 +422,7 @@ static void test_exact_across_processes(void **state)
     nf_guide_config_init(&gc);
     gc.store_capacity = 16;
     samples s = make_samples(1024, 21);
-    size_t P = nf_param_count(m);
+    size_t P = nf_model_param_count(m);
     float *one = malloc(P * sizeof *one), *two = malloc(P * sizeof *two);
     assert_non_null(one);
     assert_non_null(two);
@@ -539,7 +539,7 @@ static void test_publish(void **state)
     gc.step_samples = 256;
     gc.steps_per_pass = 2;
     nf_guide *g = make_guide(m, &gc);
-    size_t P = nf_param_count(m);
+    size_t P = nf_model_param_count(m);
     float *a = malloc(P * sizeof *a), *b = malloc(P * sizeof *b);
     assert_non_null(a);
     assert_non_null(b);
@@ -547,19 +547,19 @@ static void test_publish(void **state)
 
     const nf_model *held = NULL, *other = NULL;
     assert_int_equal(nf_guide_acquire(g, &held), NF_OK);
-    assert_int_equal(nf_get_params(held, a), NF_OK);
+    assert_int_equal(nf_model_get_params(held, a), NF_OK);
     assert_int_equal(nf_guide_add_samples(g, s.n, s.key, s.ctx, s.dir, s.weight, NULL), NF_OK);
     assert_int_equal(nf_guide_train_pass(g, NULL, NULL, NULL), NF_OK);
     /* The held model does not change with training... */
-    assert_int_equal(nf_get_params(held, b), NF_OK);
+    assert_int_equal(nf_model_get_params(held, b), NF_OK);
     assert_memory_equal(a, b, P * sizeof *a);
     /* ...nor with publication, which writes the other one. */
     assert_int_equal(nf_guide_publish(g), NF_OK);
-    assert_int_equal(nf_get_params(held, b), NF_OK);
+    assert_int_equal(nf_model_get_params(held, b), NF_OK);
     assert_memory_equal(a, b, P * sizeof *a);
     assert_int_equal(nf_guide_acquire(g, &other), NF_OK);
     assert_ptr_not_equal(other, held);
-    assert_int_equal(nf_get_params(other, b), NF_OK);
+    assert_int_equal(nf_model_get_params(other, b), NF_OK);
     params_of(g, a);
     assert_memory_equal(a, b, P * sizeof *a); /* the newest is the trained one */
 
@@ -567,10 +567,10 @@ static void test_publish(void **state)
      * third copy, and neither held model changes. */
     float *c = malloc(P * sizeof *c);
     assert_non_null(c);
-    assert_int_equal(nf_get_params(other, c), NF_OK);
+    assert_int_equal(nf_model_get_params(other, c), NF_OK);
     assert_int_equal(nf_guide_publish(g), NF_OK);
-    assert_int_equal(nf_get_params(held, b), NF_OK);
-    assert_int_equal(nf_get_params(other, a), NF_OK);
+    assert_int_equal(nf_model_get_params(held, b), NF_OK);
+    assert_int_equal(nf_model_get_params(other, a), NF_OK);
     assert_memory_equal(a, c, P * sizeof *a);
     const nf_model *third = NULL;
     assert_int_equal(nf_guide_acquire(g, &third), NF_OK);
@@ -580,7 +580,7 @@ static void test_publish(void **state)
     assert_int_equal(nf_guide_publish(g), NF_ERROR_BUSY);
     assert_non_null(strstr(nf_last_error_message(), "3 generations"));
     assert_non_null(strstr(nf_last_error_message(), "release"));
-    assert_int_equal(nf_get_params(other, a), NF_OK);
+    assert_int_equal(nf_model_get_params(other, a), NF_OK);
     assert_memory_equal(a, c, P * sizeof *a);
     free(c);
     /* Releasing what was not handed out, or twice, is refused. */
@@ -685,7 +685,7 @@ static void test_failing_reduce_changes_nothing(void **state)
     gc.store_capacity = 64;
     nf_guide *g = make_guide(m, &gc);
     samples s = make_samples(64, 71);
-    size_t P = nf_param_count(m);
+    size_t P = nf_model_param_count(m);
     float *before = malloc(P * sizeof *before), *after = malloc(P * sizeof *after);
     assert_non_null(before);
     assert_non_null(after);
@@ -729,12 +729,12 @@ static void test_model_copy(void **state)
     nf_shading_point sp;
     assert_int_equal(nf_point_prepare(b, &s.ctx[0], NULL, &sp), NF_OK);
     assert_int_equal(nf_model_copy(b, a), NF_OK);
-    size_t P = nf_param_count(a);
+    size_t P = nf_model_param_count(a);
     float *pa = malloc(P * sizeof *pa), *pb = malloc(P * sizeof *pb);
     assert_non_null(pa);
     assert_non_null(pb);
-    assert_int_equal(nf_get_params(a, pa), NF_OK);
-    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    assert_int_equal(nf_model_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_model_get_params(b, pb), NF_OK);
     assert_memory_equal(pa, pb, P * sizeof *pa);
     assert_int_equal(nf_model_step_count(b), 2);
     float pdf_a, pdf_b;
@@ -746,8 +746,8 @@ static void test_model_copy(void **state)
     /* The same next step from the same state: the optimizer state came along. */
     assert_int_equal(nf_train_step(a, s.n, s.ctx, s.dir, s.weight, NULL), NF_OK);
     assert_int_equal(nf_train_step(b, s.n, s.ctx, s.dir, s.weight, NULL), NF_OK);
-    assert_int_equal(nf_get_params(a, pa), NF_OK);
-    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    assert_int_equal(nf_model_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_model_get_params(b, pb), NF_OK);
     assert_memory_equal(pa, pb, P * sizeof *pa);
     assert_int_equal(nf_model_copy(large, a), NF_ERROR_INVALID_ARGUMENT);
     assert_non_null(strstr(nf_last_error_message(), "configuration"));

@@ -1,6 +1,6 @@
 /*
  * test_identity.c - a fresh model is the identity flow (docs/theory.md section 4): its density is
- * its prior's, nf_prior_pdf agrees with the analytic densities of docs/theory.md section 2, and
+ * its prior's, nf_model_prior_pdf agrees with the analytic densities of docs/theory.md section 2, and
  * with the uniform-angle prior nf_sample maps u to (theta, phi) = (pi u0, 2 pi u1). Also the
  * version and status strings.
  */
@@ -100,7 +100,7 @@ static void check_fresh_model(nf_preset preset, nf_prior_kind prior)
     nf_model *m = nft_make_model(preset, prior);
     assert_non_null(m);
     nf_config cfg;
-    assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+    assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
     nft_rng_seed(&r, 31337u, (uint64_t)prior);
     for (int c = 0; c < CONTEXTS; ++c) {
@@ -129,11 +129,11 @@ static void check_fresh_model(nf_preset preset, nf_prior_kind prior)
     assert_int_equal(nf_pdf(m, N, ctx, &dir[0][0], pdf), NF_OK);
     for (int i = 0; i < N; ++i) {
         double analytic = nft_prior_density(prior, cfg.prior_epsilon, &ctx[i], dir[i]);
-        float prior_pdf = nf_prior_pdf(m, &ctx[i], dir[i]);
+        float prior_pdf = nft_prior_pdf(m, &ctx[i], dir[i]);
         double tol = density_tolerance(prior, cfg.prior_epsilon, &ctx[i], dir[i], analytic);
         if (!(fabs(prior_pdf - analytic) <= tol) || !(fabs(pdf[i] - analytic) <= tol))
             fail_msg("prior %s, preset %d, sample %d: dir (%.9g, %.9g, %.9g), normal (%.9g, "
-                     "%.9g, %.9g), wo (%.9g, %.9g, %.9g): nf_pdf %.9g, nf_prior_pdf %.9g, "
+                     "%.9g, %.9g), wo (%.9g, %.9g, %.9g): nf_pdf %.9g, nf_model_prior_pdf %.9g, "
                      "analytic %.9g (tolerance %.2g)",
                      nft_prior_name(prior), (int)preset, i, dir[i][0], dir[i][1], dir[i][2],
                      ctx[i].normal[0], ctx[i].normal[1], ctx[i].normal[2], ctx[i].wo[0],
@@ -151,7 +151,7 @@ static void test_fresh_density_is_prior(void **state)
     }
 }
 
-/* Other epsilons of the defensive mixture reach nf_pdf and nf_prior_pdf. */
+/* Other epsilons of the defensive mixture reach nf_pdf and nf_model_prior_pdf. */
 static void test_fresh_density_epsilon(void **state)
 {
     (void)state;
@@ -172,11 +172,11 @@ static void test_fresh_density_epsilon(void **state)
                 double analytic = nft_prior_density(all_priors[k], eps[e], &ctx, w);
                 double tol = density_tolerance(all_priors[k], eps[e], &ctx, w, analytic);
                 if (!(fabs(p - analytic) <= tol) ||
-                    !(fabs(nf_prior_pdf(m, &ctx, w) - analytic) <= tol))
+                    !(fabs(nft_prior_pdf(m, &ctx, w) - analytic) <= tol))
                     fail_msg("prior %s, eps %g, dir (%.9g, %.9g, %.9g): nf_pdf %.9g, "
-                             "nf_prior_pdf %.9g, analytic %.9g",
+                             "nf_model_prior_pdf %.9g, analytic %.9g",
                              nft_prior_name(all_priors[k]), (double)eps[e], w[0], w[1], w[2],
-                             p, nf_prior_pdf(m, &ctx, w), analytic);
+                             p, nft_prior_pdf(m, &ctx, w), analytic);
             }
             nf_model_destroy(m);
         }
@@ -193,7 +193,7 @@ static void test_fresh_density_at_exact_poles(void **state)
         nf_model *m = nft_make_model(NF_PRESET_SMALL, all_priors[k]);
         assert_non_null(m);
         nf_config cfg;
-        assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+        assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
         for (int p = 0; p < 2; ++p) {
             float got;
             assert_int_equal(nf_pdf(m, 1, &ctx, poles[p], &got), NF_OK);
@@ -204,9 +204,9 @@ static void test_fresh_density_at_exact_poles(void **state)
             if (!isfinite(got) || !(fabs(got - analytic) <= 1e-3 * analytic))
                 fail_msg("prior %s at pole z = %g: nf_pdf %.9g, expected %.9g",
                          nft_prior_name(all_priors[k]), (double)poles[p][2], got, analytic);
-            float prior_pdf = nf_prior_pdf(m, &ctx, poles[p]);
+            float prior_pdf = nft_prior_pdf(m, &ctx, poles[p]);
             if (!(fabs(prior_pdf - analytic) <= 1e-3 * analytic))
-                fail_msg("prior %s at pole z = %g: nf_prior_pdf %.9g, expected %.9g",
+                fail_msg("prior %s at pole z = %g: nf_model_prior_pdf %.9g, expected %.9g",
                          nft_prior_name(all_priors[k]), (double)poles[p][2], prior_pdf,
                          analytic);
         }

@@ -89,7 +89,7 @@ static void compare_with_generic(nf_isa isa)
             for (int i = 0; i < N; ++i)
                 assert_true(rel_diff(pdf_g[i], pdf_v[i]) < 1e-4);
 
-            size_t count = nf_param_count(g);
+            size_t count = nf_model_param_count(g);
             float *grad_g = malloc(count * sizeof(float)), *grad_v = malloc(count * sizeof(float));
             float loss_g, loss_v;
             assert_int_equal(nf_loss_gradient(g, N, ctx, dir_g, w, &loss_g, grad_g), NF_OK);
@@ -117,8 +117,8 @@ static void compare_with_generic(nf_isa isa)
                 assert_int_equal(nf_apply_gradient(g, grad_g), NF_OK);
                 assert_int_equal(nf_apply_gradient(v, grad_g), NF_OK);
             }
-            assert_int_equal(nf_get_params(g, params_g), NF_OK);
-            assert_int_equal(nf_get_params(v, params_v), NF_OK);
+            assert_int_equal(nf_model_get_params(g, params_g), NF_OK);
+            assert_int_equal(nf_model_get_params(v, params_v), NF_OK);
             assert_memory_equal(params_g, params_v, count * sizeof(float));
             free(params_g);
             free(params_v);
@@ -186,7 +186,7 @@ static void test_fused_variants_agree_to_the_bit(void **state)
                 assert_int_equal(nf_pdf(b, (size_t)n, ctx, dir_a, pdf_b), NF_OK);
                 assert_memory_equal(pdf_a, pdf_b, (size_t)n * sizeof(float));
             }
-            size_t count = nf_param_count(a);
+            size_t count = nf_model_param_count(a);
             float *grad_a = malloc(count * sizeof(float)), *grad_b = malloc(count * sizeof(float));
             float loss_a, loss_b;
             assert_non_null(grad_a);

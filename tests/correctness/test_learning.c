@@ -74,7 +74,7 @@ static double held_out_loss(const nf_model *m, size_t n, const nf_context *ctx,
                             const float *dir)
 {
     float *weight = malloc(n * sizeof *weight);
-    float *grad = malloc(nf_param_count(m) * sizeof *grad);
+    float *grad = malloc(nf_model_param_count(m) * sizeof *grad);
     assert_true(weight && grad);
     for (size_t i = 0; i < n; ++i)
         weight[i] = 1.0f;
@@ -240,7 +240,7 @@ static void test_cosine_prior_premise(void **state)
     nf_model *ang_m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_UNIFORM_ANGLE);
     assert_true(cos_m && dir_m && ang_m);
     nf_config cfg;
-    assert_int_equal(nf_model_config(cos_m, &cfg), NF_OK);
+    assert_int_equal(nf_model_get_config(cos_m, &cfg), NF_OK);
 
     double expect_cos = cosine_prior_nll(cfg.prior_epsilon);
     double expect_dir = log(4.0 * NFT_PI);

@@ -4,7 +4,7 @@
  * "Media").
  *   - a fresh model's density at a medium point is the analytic eps-mixed phase function to
  *     1e-3 relative, for g from -0.9 to 0.9, through every entry point (batches small and
- *     tiled, with surface contexts in the same tile, shading points, nf_prior_pdf);
+ *     tiled, with surface contexts in the same tile, shading points, nf_model_prior_pdf);
  *   - what nf_sample returns agrees with nf_pdf and the analytic density, and its samples
  *     have the phase function's mean cosine;
  *   - the density integrates to one (deterministic quadrature) for fresh and randomized
@@ -64,7 +64,7 @@ static void test_fresh_model_is_the_phase_function(void **state)
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     assert_non_null(m);
     nf_config cfg;
-    assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+    assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
     nft_rng_seed(&r, 7u, 1u);
     static nf_context ctx[N];
@@ -96,10 +96,10 @@ static void test_fresh_model_is_the_phase_function(void **state)
                 assert_int_equal(nf_point_pdf(m, &sp, 1, dir + 3 * i, point + i), NF_OK);
                 double want = nft_prior_density(NF_PRIOR_COSINE, cfg.prior_epsilon, &ctx[i],
                                                  dir + 3 * i);
-                float prior = nf_prior_pdf(m, &ctx[i], dir + 3 * i);
+                float prior = nft_prior_pdf(m, &ctx[i], dir + 3 * i);
                 const double got[4] = {batch[i], single[i], point[i], prior};
                 static const char *names[4] = {"nf_pdf (tiled)", "nf_pdf (n = 1)",
-                                               "nf_point_pdf", "nf_prior_pdf"};
+                                               "nf_point_pdf", "nf_model_prior_pdf"};
                 for (int j = 0; j < 4; ++j) {
                     worst = fmax(worst, rel(got[j], want));
                     if (!(rel(got[j], want) <= FRESH_TOLERANCE))
@@ -126,7 +126,7 @@ static void test_sample_matches_pdf_and_phase_function(void **state)
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     assert_non_null(m);
     nf_config cfg;
-    assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+    assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
     nft_rng_seed(&r, 8u, 2u);
     static nf_context ctx[N];
@@ -338,7 +338,7 @@ static double held_out_loss(const nf_model *m, int group, size_t n, const nf_con
             memcpy(d + 3 * count, dir + 3 * i, 3 * sizeof(float));
             w[count++] = 1.0f;
         }
-    float *grad = malloc(nf_param_count(m) * sizeof *grad), loss = 0.0f;
+    float *grad = malloc(nf_model_param_count(m) * sizeof *grad), loss = 0.0f;
     assert_non_null(grad);
     assert_int_equal(nf_loss_gradient(m, count, c, d, w, &loss, grad), NF_OK);
     free(grad);
@@ -433,7 +433,7 @@ static void test_medium_contexts_are_validated(void **state)
         assert_int_equal(nf_pdf(m, 1, &c, dir, &pdf), NF_ERROR_INVALID_ARGUMENT);
         assert_non_null(strstr(nf_last_error_message(), "phase_g"));
         assert_int_equal(nf_point_prepare(m, &c, NULL, &sp), NF_ERROR_INVALID_ARGUMENT);
-        assert_true(nf_prior_pdf(m, &c, dir) < 0.0f);
+        assert_true(nft_prior_pdf(m, &c, dir) < 0.0f);
     }
     /* on a surface phase_g is never read: any value is accepted */
     for (size_t k = 0; k < sizeof bad / sizeof bad[0]; ++k) {

@@ -148,13 +148,13 @@ static nf_model *trained_model(nf_preset preset, nf_prior_kind prior, int steps,
  * step), and nf_sample / nf_pdf on a batch. */
 static void assert_models_identical(const nf_model *a, const nf_model *b)
 {
-    size_t count = nf_param_count(a);
-    assert_true(nf_param_count(b) == count);
+    size_t count = nf_model_param_count(a);
+    assert_true(nf_model_param_count(b) == count);
     assert_true(nf_model_step_count(a) == nf_model_step_count(b));
     float *pa = malloc(count * sizeof *pa), *pb = malloc(count * sizeof *pb);
     assert_true(pa && pb);
-    assert_int_equal(nf_get_params(a, pa), NF_OK);
-    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    assert_int_equal(nf_model_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_model_get_params(b, pb), NF_OK);
     assert_memory_equal(pa, pb, count * sizeof *pa);
     free(pa);
     free(pb);
@@ -191,11 +191,11 @@ static void check_round_trip(nf_preset preset, nf_prior_kind prior)
     size_t size;
     unsigned char *buf = serialize(m, &size);
     /* The documented size: header, three float arrays, checksum. */
-    assert_true(size == HEADER + 12u * nf_param_count(m) + TRAILER);
+    assert_true(size == HEADER + 12u * nf_model_param_count(m) + TRAILER);
     assert_memory_equal(buf, "NISFLOW\0", 8);
     assert_true(get_u32(buf + OFF_VERSION) == 2u);
     assert_true(get_u32(buf + OFF_PHI_MAP) == (uint32_t)nft_phi_map());
-    assert_true(get_u64(buf + OFF_PARAM_COUNT) == nf_param_count(m));
+    assert_true(get_u64(buf + OFF_PARAM_COUNT) == nf_model_param_count(m));
     assert_true(get_u64(buf + OFF_STEP) == 3u);
     /* Our own CRC agrees with the stored one (little-endian, all preceding bytes). */
     assert_true(get_u32(buf + size - TRAILER) == crc32_ieee(buf, size - TRAILER));
@@ -209,8 +209,8 @@ static void check_round_trip(nf_preset preset, nf_prior_kind prior)
     free(buf);
     assert_models_identical(m, back);
     nf_config ca, cb2;
-    assert_int_equal(nf_model_config(m, &ca), NF_OK);
-    assert_int_equal(nf_model_config(back, &cb2), NF_OK);
+    assert_int_equal(nf_model_get_config(m, &ca), NF_OK);
+    assert_int_equal(nf_model_get_config(back, &cb2), NF_OK);
     assert_true(ca.coupling_layers == cb2.coupling_layers && ca.spline_bins == cb2.spline_bins &&
                 ca.hidden_layers == cb2.hidden_layers && ca.hidden_width == cb2.hidden_width &&
                 ca.oneblob_bins == cb2.oneblob_bins && ca.sh_bands == cb2.sh_bands &&
@@ -259,13 +259,13 @@ static void test_round_trip_config(void **state)
     cfg.phi_map = NF_PHI_INTERVAL; /* not the default */
     nf_model *m = NULL;
     assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
-    assert_int_equal(nf_set_learning_rate(m, 0.02f), NF_OK);
+    assert_int_equal(nf_model_set_learning_rate(m, 0.02f), NF_OK);
     size_t size;
     unsigned char *buf = serialize(m, &size);
     nf_model *back = NULL;
     assert_int_equal(nf_model_deserialize(buf, size, NULL, &back), NF_OK);
     nf_config c;
-    assert_int_equal(nf_model_config(back, &c), NF_OK);
+    assert_int_equal(nf_model_get_config(back, &c), NF_OK);
     assert_true(c.coupling_layers == 3 && c.spline_bins == 5 && c.hidden_layers == 2 &&
                 c.hidden_width == 7 && c.oneblob_bins == 9 && c.sh_bands == 2);
     assert_true(c.prior_epsilon == 0.25f && c.bounds_min[0] == -10.0f &&
@@ -330,8 +330,8 @@ static void test_load_missing_file(void **state)
     nf_model_destroy(m);
 }
 
-/* nf_model_serialize with a too-small buffer: NF_ERROR_INVALID_ARGUMENT, *size set, the
- * buffer untouched. */
+/* nf_model_serialize with a too-small buffer: NF_ERROR_CAPACITY, *size set, the buffer
+ * untouched. */
 static void test_serialize_capacity(void **state)
 {
     (void)state;
@@ -339,15 +339,15 @@ static void test_serialize_capacity(void **state)
     assert_non_null(m);
     size_t need = 0;
     assert_int_equal(nf_model_serialize(m, NULL, 0, &need), NF_OK);
-    assert_true(need == HEADER + 12u * nf_param_count(m) + TRAILER);
+    assert_true(need == HEADER + 12u * nf_model_param_count(m) + TRAILER);
     unsigned char *buf = malloc(need);
     assert_non_null(buf);
     memset(buf, 0xA5, need);
     size_t size = 0;
-    assert_int_equal(nf_model_serialize(m, buf, need - 1, &size), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_model_serialize(m, buf, need - 1, &size), NF_ERROR_CAPACITY);
     assert_true(size == need);
     size = 0;
-    assert_int_equal(nf_model_serialize(m, buf, 0, &size), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_model_serialize(m, buf, 0, &size), NF_ERROR_CAPACITY);
     assert_true(size == need);
     for (size_t i = 0; i < need; ++i)
         assert_true(buf[i] == 0xA5);
@@ -570,7 +570,7 @@ static void test_version_1_files(void **state)
     nf_model *old = NULL;
     assert_int_equal(nf_model_load(NF_TEST_SOURCE_DIR "/data/model-v1.nfm", NULL, &old), NF_OK);
     nf_config c;
-    assert_int_equal(nf_model_config(old, &c), NF_OK);
+    assert_int_equal(nf_model_get_config(old, &c), NF_OK);
     assert_int_equal(c.phi_map, NF_PHI_INTERVAL);
     assert_int_equal(nf_model_set_isa(old, NF_ISA_GENERIC), NF_OK);
     FILE *f = fopen(NF_TEST_SOURCE_DIR "/data/model-v1.txt", "r");
@@ -596,7 +596,7 @@ static void test_version_1_files(void **state)
     size_t size, size_v1;
     unsigned char *buf = serialize(old, &size);
     assert_int_equal(get_u32(buf + OFF_VERSION), 2u);
-    assert_int_equal(size, HEADER + 12u * nf_param_count(old) + TRAILER);
+    assert_int_equal(size, HEADER + 12u * nf_model_param_count(old) + TRAILER);
     unsigned char *v1 = as_version_1(buf, size, &size_v1);
     nf_model *again = NULL;
     assert_int_equal(nf_model_deserialize(v1, size_v1, NULL, &again), NF_OK);
@@ -633,7 +633,7 @@ static void test_invalid_content(void **state)
     size_t size;
     unsigned char *orig = serialize(m, &size), *buf = malloc(size);
     assert_non_null(buf);
-    size_t P = nf_param_count(m);
+    size_t P = nf_model_param_count(m);
     struct {
         const char *what;
         size_t offset;
@@ -691,7 +691,7 @@ static void test_invalid_content(void **state)
     assert_int_equal(nf_model_deserialize(buf, size, NULL, &back), NF_OK);
     float *p = malloc(P * sizeof *p);
     assert_non_null(p);
-    assert_int_equal(nf_get_params(back, p), NF_OK);
+    assert_int_equal(nf_model_get_params(back, p), NF_OK);
     assert_true(p[3] == 0.125f);
     free(p);
     nf_model_destroy(back);
@@ -727,7 +727,7 @@ static void test_custom_prior_callbacks(void **state)
     back = NULL;
     assert_int_equal(nf_model_deserialize(buf, size, &cb, &back), NF_OK);
     nf_config c;
-    assert_int_equal(nf_model_config(back, &c), NF_OK);
+    assert_int_equal(nf_model_get_config(back, &c), NF_OK);
     assert_true(c.prior == NF_PRIOR_COSINE);
     nf_model_destroy(back);
     put_u32(buf + OFF_PRIOR, (uint32_t)NF_PRIOR_CUSTOM);
@@ -735,7 +735,7 @@ static void test_custom_prior_callbacks(void **state)
     expect_refused(buf, size, NULL, NF_ERROR_INVALID_ARGUMENT, "edited to custom");
     back = NULL;
     assert_int_equal(nf_model_deserialize(buf, size, &cb, &back), NF_OK);
-    assert_int_equal(nf_model_config(back, &c), NF_OK);
+    assert_int_equal(nf_model_get_config(back, &c), NF_OK);
     assert_true(c.prior == NF_PRIOR_CUSTOM);
     nf_model_destroy(back);
     free(buf);

@@ -5,7 +5,7 @@
  *     and with n = 64 (the tiled path), split into calls of any size, for both presets, every
  *     prior, every instruction set this CPU runs, on randomized and trained parameters, on
  *     contexts and inputs at the poles, on the seam, of odd lengths and out of range; the
- *     batch forms nf_points_sample / nf_points_pdf equal the batch calls; models too large
+ *     batch forms nf_point_sample_batch / nf_point_pdf_batch equal the batch calls; models too large
  *     for the point's cache (the uncached path) and at its edge give the same bits too;
  *     except the presets on the AVX2 and AVX-512 kernels (their vector path), which agree
  *     within stated bounds (VECTOR_PDF_REL, VECTOR_DIR_ABS, VECTOR_FAR_FRACTION) and give the
@@ -82,7 +82,7 @@ static int vector_rule;
 static int uses_vector_path(const nf_model *m)
 {
     nf_config cfg;
-    assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+    assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     const int small = cfg.coupling_layers == 2 && cfg.spline_bins == 8 && cfg.hidden_layers == 1 &&
                       cfg.hidden_width == 16 && cfg.oneblob_bins == 32;
     const int large = cfg.coupling_layers == 4 && cfg.spline_bins == 16 &&
@@ -418,7 +418,7 @@ static void note_distance_from_prior(const nf_model *m, const nf_context *ctx, c
                                      const float *pdf, int count)
 {
     for (int i = 0; i < count; ++i) {
-        float q = nf_prior_pdf(m, ctx, dir + 3 * i);
+        float q = nft_prior_pdf(m, ctx, dir + 3 * i);
         assert_true(q > 0.0f);
         worst_log_ratio = fmax(worst_log_ratio, fabs(log((double)pdf[i] / (double)q)));
     }
@@ -526,7 +526,7 @@ static void check_context(const nf_model *m, const nf_context *ctx, const float 
     note_distance_from_prior(m, ctx, dir_in, b_eval, K);
 }
 
-/* nf_points_sample / nf_points_pdf over K points of K contexts against nf_sample / nf_pdf on
+/* nf_point_sample_batch / nf_point_pdf_batch over K points of K contexts against nf_sample / nf_pdf on
  * those contexts; also with every point repeated 4 times (copies, adjacent) and in pieces. */
 static void check_points(const nf_model *m, uint64_t seed, const char *what)
 {
@@ -543,27 +543,27 @@ static void check_points(const nf_model *m, uint64_t seed, const char *what)
 
     assert_int_equal(nf_sample(m, K, ctx, u, b_dir, b_pdf), NF_OK);
     assert_int_equal(nf_pdf(m, K, ctx, dir_in, b_eval), NF_OK);
-    assert_int_equal(nf_points_sample(m, K, pts, u, p_dir, p_pdf), NF_OK);
-    assert_int_equal(nf_points_pdf(m, K, pts, dir_in, p_eval), NF_OK);
-    agree(p_dir, b_dir, 3 * K, 0, what, "nf_points_sample dir");
-    agree(p_pdf, b_pdf, K, 1, what, "nf_points_sample pdf");
-    agree(p_eval, b_eval, K, 1, what, "nf_points_pdf");
+    assert_int_equal(nf_point_sample_batch(m, K, pts, u, p_dir, p_pdf), NF_OK);
+    assert_int_equal(nf_point_pdf_batch(m, K, pts, dir_in, p_eval), NF_OK);
+    agree(p_dir, b_dir, 3 * K, 0, what, "nf_point_sample_batch dir");
+    agree(p_pdf, b_pdf, K, 1, what, "nf_point_sample_batch pdf");
+    agree(p_eval, b_eval, K, 1, what, "nf_point_pdf_batch");
     nft_fill_sentinel(p_dir, 3 * K);
-    assert_int_equal(nf_points_sample(m, K, pts, u, p_dir, NULL), NF_OK);
-    agree(p_dir, b_dir, 3 * K, 0, what, "nf_points_sample without pdf: dir");
+    assert_int_equal(nf_point_sample_batch(m, K, pts, u, p_dir, NULL), NF_OK);
+    agree(p_dir, b_dir, 3 * K, 0, what, "nf_point_sample_batch without pdf: dir");
     /* In pieces of 1, 2, 3, ... points. */
     for (int i = 0, c = 1; i < K; i += c, ++c) {
         if (c > K - i)
             c = K - i;
-        assert_int_equal(nf_points_sample(m, (size_t)c, pts + i, u + 2 * i, p_dir + 3 * i,
+        assert_int_equal(nf_point_sample_batch(m, (size_t)c, pts + i, u + 2 * i, p_dir + 3 * i,
                                           p_pdf + i),
                          NF_OK);
-        assert_int_equal(nf_points_pdf(m, (size_t)c, pts + i, dir_in + 3 * i, p_eval + i),
+        assert_int_equal(nf_point_pdf_batch(m, (size_t)c, pts + i, dir_in + 3 * i, p_eval + i),
                          NF_OK);
     }
-    agree(p_dir, b_dir, 3 * K, 0, what, "nf_points_sample in pieces: dir");
-    agree(p_pdf, b_pdf, K, 1, what, "nf_points_sample in pieces: pdf");
-    agree(p_eval, b_eval, K, 1, what, "nf_points_pdf in pieces");
+    agree(p_dir, b_dir, 3 * K, 0, what, "nf_point_sample_batch in pieces: dir");
+    agree(p_pdf, b_pdf, K, 1, what, "nf_point_sample_batch in pieces: pdf");
+    agree(p_eval, b_eval, K, 1, what, "nf_point_pdf_batch in pieces");
 
     /* Runs of equal points (copies), as a wavefront with several directions per vertex. */
     for (int i = 0; i < K; ++i) {
@@ -572,11 +572,11 @@ static void check_points(const nf_model *m, uint64_t seed, const char *what)
     }
     assert_int_equal(nf_sample(m, K, ctx4, u, b_dir, b_pdf), NF_OK);
     assert_int_equal(nf_pdf(m, K, ctx4, dir_in, b_eval), NF_OK);
-    assert_int_equal(nf_points_sample(m, K, pts4, u, p_dir, p_pdf), NF_OK);
-    assert_int_equal(nf_points_pdf(m, K, pts4, dir_in, p_eval), NF_OK);
-    agree(p_dir, b_dir, 3 * K, 0, what, "nf_points_sample (runs of copies) dir");
-    agree(p_pdf, b_pdf, K, 1, what, "nf_points_sample (runs of copies) pdf");
-    agree(p_eval, b_eval, K, 1, what, "nf_points_pdf (runs of copies)");
+    assert_int_equal(nf_point_sample_batch(m, K, pts4, u, p_dir, p_pdf), NF_OK);
+    assert_int_equal(nf_point_pdf_batch(m, K, pts4, dir_in, p_eval), NF_OK);
+    agree(p_dir, b_dir, 3 * K, 0, what, "nf_point_sample_batch (runs of copies) dir");
+    agree(p_pdf, b_pdf, K, 1, what, "nf_point_sample_batch (runs of copies) pdf");
+    agree(p_eval, b_eval, K, 1, what, "nf_point_pdf_batch (runs of copies)");
 }
 
 /* Every check above, on `contexts` contexts of one model. */
@@ -944,8 +944,8 @@ static void assert_point_refused(const nf_model *m, const nf_shading_point *sp,
     EXPECT_STATUS(expected, "nf_point_pdf", nf_point_pdf(m, sp, N, dir_in, pdf));
     EXPECT_STATUS(expected, "nf_point_sample_and_pdf",
                   nf_point_sample_and_pdf(m, sp, u, dir, pdf, dir_in, pdf + 1));
-    EXPECT_STATUS(expected, "nf_points_sample", nf_points_sample(m, N, three, u, dir, pdf));
-    EXPECT_STATUS(expected, "nf_points_pdf", nf_points_pdf(m, N, three, dir_in, pdf));
+    EXPECT_STATUS(expected, "nf_point_sample_batch", nf_point_sample_batch(m, N, three, u, dir, pdf));
+    EXPECT_STATUS(expected, "nf_point_pdf_batch", nf_point_pdf_batch(m, N, three, dir_in, pdf));
     assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
 }
 
@@ -960,7 +960,7 @@ static void test_stale_after_parameter_changes(void **state)
         make_contexts(71u, ctx, 6);
         const nf_context *c = &ctx[5];
         nf_shading_point sp;
-        const size_t pc = nf_param_count(m);
+        const size_t pc = nf_model_param_count(m);
         float *params = malloc(pc * sizeof *params), *grad = malloc(pc * sizeof *grad);
         assert_true(params && grad);
         enum { B = 8 };
@@ -985,10 +985,10 @@ static void test_stale_after_parameter_changes(void **state)
         assert_int_equal(nf_point_prepare(m, c, NULL, &sp), NF_OK);
         assert_point_works(m, &sp, c);
 
-        /* 2. nf_set_params with other values. */
-        assert_int_equal(nf_get_params(m, params), NF_OK);
+        /* 2. nf_model_set_params with other values. */
+        assert_int_equal(nf_model_get_params(m, params), NF_OK);
         params[pc / 2] += 0.125f;
-        assert_int_equal(nf_set_params(m, params), NF_OK);
+        assert_int_equal(nf_model_set_params(m, params), NF_OK);
         assert_point_refused(m, &sp, NF_ERROR_STALE);
         assert_int_equal(nf_point_prepare(m, c, NULL, &sp), NF_OK);
         assert_point_works(m, &sp, c);
@@ -1008,7 +1008,7 @@ static void test_stale_after_parameter_changes(void **state)
          * a refused call leaves the model unchanged), a batch whose weights are all zero
          * (train.h: no step), const calls and a new learning rate. */
         params[0] = NAN;
-        assert_int_equal(nf_set_params(m, params), NF_ERROR_INVALID_ARGUMENT);
+        assert_int_equal(nf_model_set_params(m, params), NF_ERROR_INVALID_ARGUMENT);
         grad[1] = INFINITY;
         assert_int_equal(nf_apply_gradient(m, grad), NF_ERROR_INVALID_ARGUMENT);
         bdir[0] = NAN;
@@ -1016,10 +1016,10 @@ static void test_stale_after_parameter_changes(void **state)
         bdir[0] = 0.0f;
         assert_int_equal(nf_train_step(m, B, bc, bdir, zero_w, NULL), NF_OK);
         assert_int_equal(nf_train_step(m, 0, NULL, NULL, NULL, NULL), NF_OK);
-        assert_int_equal(nf_set_learning_rate(m, 2e-3f), NF_OK);
+        assert_int_equal(nf_model_set_learning_rate(m, 2e-3f), NF_OK);
         size_t bytes = 0;
         assert_int_equal(nf_model_serialize(m, NULL, 0, &bytes), NF_OK);
-        assert_int_equal(nf_get_params(m, params), NF_OK);
+        assert_int_equal(nf_model_get_params(m, params), NF_OK);
         assert_point_works(m, &sp, c);
 
         free(params);
@@ -1109,13 +1109,13 @@ static void test_other_models_refused(void **state)
         const float din[3 * N] = {0, 0, 1, 0, 1, 0, 1, 0, 0, 0, 0, -1};
         for (int i = 0; i < 2 * N; ++i)
             u[i] = 0.25f;
-        assert_int_equal(nf_points_pdf(m, N, pts, din, pdf), NF_OK);
+        assert_int_equal(nf_point_pdf_batch(m, N, pts, din, pdf), NF_OK);
         nft_fill_sentinel(dir, 3 * N);
         nft_fill_sentinel(pdf, N);
         nf_shading_point good = pts[2];
         pts[2] = sc;
-        EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, u, dir, pdf));
-        EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, pts, din, pdf));
+        EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(m, N, pts, u, dir, pdf));
+        EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(m, N, pts, din, pdf));
         assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
         /* A stale one (the last) among valid ones: NF_ERROR_STALE, nothing written. */
         pts[2] = good;
@@ -1124,9 +1124,9 @@ static void test_other_models_refused(void **state)
         for (int i = 0; i < N; ++i)
             assert_int_equal(nf_point_prepare(m, &ctx[i], NULL, &pts[i]), NF_OK);
         pts[3] = old;
-        EXPECT_STATUS(NF_ERROR_STALE, "nf_points_pdf", nf_points_pdf(m, N, pts, din, pdf));
-        EXPECT_STATUS(NF_ERROR_STALE, "nf_points_sample",
-                      nf_points_sample(m, N, pts, u, dir, pdf));
+        EXPECT_STATUS(NF_ERROR_STALE, "nf_point_pdf_batch", nf_point_pdf_batch(m, N, pts, din, pdf));
+        EXPECT_STATUS(NF_ERROR_STALE, "nf_point_sample_batch",
+                      nf_point_sample_batch(m, N, pts, u, dir, pdf));
         assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
 
@@ -1276,20 +1276,20 @@ static void test_sample_pdf_bad_input(void **state)
                    nf_point_sample_and_pdf(m, &sp, u, dir, pdf, NULL, pdf + 1));
     EXPECT_INVALID("nf_point_sample_and_pdf",
                    nf_point_sample_and_pdf(m, &sp, u, dir, pdf, din, NULL));
-    EXPECT_INVALID("nf_points_sample", nf_points_sample(NULL, N, pts, u, dir, pdf));
-    EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, NULL, u, dir, pdf));
-    EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, NULL, dir, pdf));
-    EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, u, NULL, pdf));
-    EXPECT_INVALID("nf_points_pdf", nf_points_pdf(NULL, N, pts, din, pdf));
-    EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, NULL, din, pdf));
-    EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, pts, NULL, pdf));
-    EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, pts, din, NULL));
+    EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(NULL, N, pts, u, dir, pdf));
+    EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(m, N, NULL, u, dir, pdf));
+    EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(m, N, pts, NULL, dir, pdf));
+    EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(m, N, pts, u, NULL, pdf));
+    EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(NULL, N, pts, din, pdf));
+    EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(m, N, NULL, din, pdf));
+    EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(m, N, pts, NULL, pdf));
+    EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(m, N, pts, din, NULL));
     /* Sizes whose byte counts overflow. */
     for (int k = 0; k < 3; ++k) {
         EXPECT_INVALID("nf_point_sample", nf_point_sample(m, &sp, huge_n[k], u, dir, pdf));
         EXPECT_INVALID("nf_point_pdf", nf_point_pdf(m, &sp, huge_n[k], din, pdf));
-        EXPECT_INVALID("nf_points_sample", nf_points_sample(m, huge_n[k], pts, u, dir, pdf));
-        EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, huge_n[k], pts, din, pdf));
+        EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(m, huge_n[k], pts, u, dir, pdf));
+        EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(m, huge_n[k], pts, din, pdf));
     }
     assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
 
@@ -1300,7 +1300,7 @@ static void test_sample_pdf_bad_input(void **state)
         memcpy(bu, u, sizeof u);
         bu[2 * (N - 1) + (k & 1)] = bad_u[k / 2];
         EXPECT_INVALID("nf_point_sample", nf_point_sample(m, &sp, N, bu, dir, pdf));
-        EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, pts, bu, dir, pdf));
+        EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(m, N, pts, bu, dir, pdf));
         EXPECT_INVALID("nf_point_sample_and_pdf",
                        nf_point_sample_and_pdf(m, &sp, bu + 2 * (N - 1), dir, pdf, din, pdf + 1));
         assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
@@ -1316,7 +1316,7 @@ static void test_sample_pdf_bad_input(void **state)
             d[0] = d[1] = d[2] = k == 9 ? 0.0f : 1e-16f;
         }
         EXPECT_INVALID("nf_point_pdf", nf_point_pdf(m, &sp, N, bd, pdf));
-        EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, pts, bd, pdf));
+        EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(m, N, pts, bd, pdf));
         EXPECT_INVALID("nf_point_sample_and_pdf",
                        nf_point_sample_and_pdf(m, &sp, u, dir, pdf, d, pdf + 1));
         assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
@@ -1338,8 +1338,8 @@ static void test_sample_pdf_bad_input(void **state)
         nf_shading_point batch[N];
         memcpy(batch, pts, sizeof batch);
         batch[N - 1] = junk;
-        EXPECT_INVALID("nf_points_sample", nf_points_sample(m, N, batch, u, dir, pdf));
-        EXPECT_INVALID("nf_points_pdf", nf_points_pdf(m, N, batch, din, pdf));
+        EXPECT_INVALID("nf_point_sample_batch", nf_point_sample_batch(m, N, batch, u, dir, pdf));
+        EXPECT_INVALID("nf_point_pdf_batch", nf_point_pdf_batch(m, N, batch, din, pdf));
         assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     }
     assert_int_equal(model_lobe.samples + model_lobe.pdfs, calls);
@@ -1347,12 +1347,12 @@ static void test_sample_pdf_bad_input(void **state)
     /* n = 0 is a no-op, with NULL pointers or with outputs that stay unwritten. */
     assert_int_equal(nf_point_sample(m, &sp, 0, NULL, NULL, NULL), NF_OK);
     assert_int_equal(nf_point_pdf(m, &sp, 0, NULL, NULL), NF_OK);
-    assert_int_equal(nf_points_sample(m, 0, NULL, NULL, NULL, NULL), NF_OK);
-    assert_int_equal(nf_points_pdf(m, 0, NULL, NULL, NULL), NF_OK);
+    assert_int_equal(nf_point_sample_batch(m, 0, NULL, NULL, NULL, NULL), NF_OK);
+    assert_int_equal(nf_point_pdf_batch(m, 0, NULL, NULL, NULL), NF_OK);
     assert_int_equal(nf_point_sample(m, &sp, 0, u, dir, pdf), NF_OK);
     assert_int_equal(nf_point_pdf(m, &sp, 0, din, pdf), NF_OK);
-    assert_int_equal(nf_points_sample(m, 0, pts, u, dir, pdf), NF_OK);
-    assert_int_equal(nf_points_pdf(m, 0, pts, din, pdf), NF_OK);
+    assert_int_equal(nf_point_sample_batch(m, 0, pts, u, dir, pdf), NF_OK);
+    assert_int_equal(nf_point_pdf_batch(m, 0, pts, din, pdf), NF_OK);
     assert_true(nft_untouched(dir, 3 * N) && nft_untouched(pdf, N));
     assert_int_equal(model_lobe.samples + model_lobe.pdfs, calls);
 
@@ -1418,8 +1418,8 @@ static int count_accepted_flips(const nf_model *m, const nf_shading_point *sp, f
             nft_fill_sentinel(pdf, 1);
             nf_status s1 = nf_point_sample(m, &bad, 1, u, dir, pdf);
             nf_status s2 = nf_point_pdf(m, &bad, 1, din, pdf);
-            nf_status s3 = nf_points_sample(m, 1, &bad, u, dir, pdf);
-            nf_status s4 = nf_points_pdf(m, 1, &bad, din, pdf);
+            nf_status s3 = nf_point_sample_batch(m, 1, &bad, u, dir, pdf);
+            nf_status s4 = nf_point_pdf_batch(m, 1, &bad, din, pdf);
             if (s1 == NF_OK || s2 == NF_OK || s3 == NF_OK || s4 == NF_OK) {
                 ++accepted;
                 continue;
@@ -1560,10 +1560,10 @@ static void test_per_point_prior(void **state)
     cfg.custom_prior = lobe_callbacks(&theirs);
     nf_model *twin = create_on(cfg, NF_ISA_AUTO);
     assert_non_null(twin);
-    float *params = malloc(nf_param_count(m) * sizeof *params);
+    float *params = malloc(nf_model_param_count(m) * sizeof *params);
     assert_non_null(params);
-    assert_int_equal(nf_get_params(m, params), NF_OK);
-    assert_int_equal(nf_set_params(twin, params), NF_OK);
+    assert_int_equal(nf_model_get_params(m, params), NF_OK);
+    assert_int_equal(nf_model_set_params(twin, params), NF_OK);
     free(params);
     nf_shading_point tsp;
     assert_int_equal(nf_point_prepare(twin, &given, NULL, &tsp), NF_OK);
@@ -1594,7 +1594,7 @@ static void test_per_point_prior(void **state)
         each[i].hi = &pts[i] + 1;
     }
     const long before = model_lobe.samples + model_lobe.pdfs;
-    assert_int_equal(nf_points_sample(m, N, pts, u, dir, pdf), NF_OK);
+    assert_int_equal(nf_point_sample_batch(m, N, pts, u, dir, pdf), NF_OK);
     long sampled = 0, pdfs_before[N];
     for (int i = 0; i < N; ++i) {
         assert_int_equal(each[i].samples + each[i].pdfs, 1);
@@ -1602,7 +1602,7 @@ static void test_per_point_prior(void **state)
         pdfs_before[i] = each[i].pdfs;
     }
     assert_true(sampled > N / 2);
-    assert_int_equal(nf_points_pdf(m, N, pts, din, eval), NF_OK);
+    assert_int_equal(nf_point_pdf_batch(m, N, pts, din, eval), NF_OK);
     for (int i = 0; i < N; ++i) {
         assert_int_equal(each[i].pdfs - pdfs_before[i], 1);
         assert_int_equal(each[i].bad_ctx, 0);
@@ -1633,7 +1633,7 @@ static void test_per_point_prior(void **state)
         float flow_u[2] = {0.999f, 0.5f};
         nf_status st = k == 0   ? nf_point_sample(m, &bp, 1, zero_u, dir, pdf)
                        : k == 1 ? nf_point_pdf(m, &bp, 1, din, eval)
-                       : k == 2 ? nf_points_pdf(m, 2, two, din, eval)
+                       : k == 2 ? nf_point_pdf_batch(m, 2, two, din, eval)
                                 : nf_point_sample_and_pdf(m, &bp, k == 3 ? zero_u : flow_u,
                                                           fresh_dir, &fresh_pdf[0], din,
                                                           &fresh_pdf[1]);
@@ -1725,8 +1725,8 @@ static void *stack_thread(void *arg)
     case 1: j->status = nf_point_prepare(j->m, j->ctx, NULL, &local); break;
     case 2: j->status = nf_point_sample(j->m, j->sp, 1, u, dir, pdf); break;
     case 3: j->status = nf_point_pdf(j->m, j->sp, 2, din, pdf); break; /* a pair, in step */
-    case 4: j->status = nf_points_sample(j->m, 1, j->sp, u, dir, pdf); break;
-    case 5: j->status = nf_points_pdf(j->m, 1, j->sp, din, pdf); break;
+    case 4: j->status = nf_point_sample_batch(j->m, 1, j->sp, u, dir, pdf); break;
+    case 5: j->status = nf_point_pdf_batch(j->m, 1, j->sp, din, pdf); break;
     case 6: j->status = nf_point_sample_and_pdf(j->m, j->sp, u, dir, pdf, din, pdf + 1); break;
     default: j->status = NF_OK; break;
     }
@@ -1754,7 +1754,7 @@ static void test_stack_bound(void **state)
     skip();
 #else
     static const char *names[7] = {"-",           "nf_point_prepare", "nf_point_sample",
-                                   "nf_point_pdf", "nf_points_sample", "nf_points_pdf",
+                                   "nf_point_pdf", "nf_point_sample_batch", "nf_point_pdf_batch",
                                    "nf_point_sample_and_pdf"};
     size_t worst[7] = {0, 0, 0, 0, 0, 0, 0};
     char where[7][96];

@@ -1,7 +1,7 @@
 /*
  * test_prior_context.c - the context pointer custom prior callbacks receive (model.h,
  * nf_prior_callbacks): the caller's own &ctx[i] for nf_sample, nf_pdf, nf_loss_gradient,
- * nf_train_step and nf_prior_pdf, at every batch size (the per-sample and the tiled paths) and
+ * nf_train_step and nf_model_prior_pdf, at every batch size (the per-sample and the tiled paths) and
  * on every instruction set the CPU runs; through shading points, the context inside the
  * caller's nf_shading_point. A renderer relies on `ctx - base` being the sample's index.
  */
@@ -107,7 +107,7 @@ static void check_batch_entry_points(nf_model *m)
         u[2 * i + 1] = nft_rng_float(&r);
         w[i] = 0.5f + nft_rng_float(&r);
     }
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *grad = malloc(count * sizeof(float));
     assert_non_null(grad);
     for (size_t k = 0; k < sizeof sizes / sizeof sizes[0]; ++k) {
@@ -128,8 +128,8 @@ static void check_batch_entry_points(nf_model *m)
     free(grad);
 
     expect_range(&ctx[5], 1, sizeof(nf_context));
-    assert_true(nf_prior_pdf(m, &ctx[5], dir) > 0.0f);
-    check_recorded("nf_prior_pdf", 1);
+    assert_true(nft_prior_pdf(m, &ctx[5], dir) > 0.0f);
+    check_recorded("nf_model_prior_pdf", 1);
 }
 
 static void test_batch_calls_pass_the_callers_context(void **state)
@@ -208,23 +208,23 @@ static void test_points_pass_the_points_context(void **state)
     for (size_t i = 0; i < P; ++i) {
         expect_range(&points[i], 1, sizeof(nf_shading_point));
         rec.stride = 1;
-        assert_int_equal(nf_points_sample(m, 1, &points[i], u + 2 * i, dir + 3 * i, pdf + i),
+        assert_int_equal(nf_point_sample_batch(m, 1, &points[i], u + 2 * i, dir + 3 * i, pdf + i),
                          NF_OK);
-        check_recorded("nf_points_sample", 1);
+        check_recorded("nf_point_sample_batch", 1);
         expect_range(&points[i], 1, sizeof(nf_shading_point));
         rec.stride = 1;
-        assert_int_equal(nf_points_pdf(m, 1, &points[i], dir + 3 * i, pdf + i), NF_OK);
-        check_recorded("nf_points_pdf", 1);
+        assert_int_equal(nf_point_pdf_batch(m, 1, &points[i], dir + 3 * i, pdf + i), NF_OK);
+        check_recorded("nf_point_pdf_batch", 1);
     }
     /* and a whole array at once. */
     expect_range(points, P, sizeof(nf_shading_point));
     rec.stride = 1;
-    assert_int_equal(nf_points_sample(m, P, points, u, dir, pdf), NF_OK);
-    check_recorded("nf_points_sample", P);
+    assert_int_equal(nf_point_sample_batch(m, P, points, u, dir, pdf), NF_OK);
+    check_recorded("nf_point_sample_batch", P);
     expect_range(points, P, sizeof(nf_shading_point));
     rec.stride = 1;
-    assert_int_equal(nf_points_pdf(m, P, points, dir, pdf), NF_OK);
-    check_recorded("nf_points_pdf", P);
+    assert_int_equal(nf_point_pdf_batch(m, P, points, dir, pdf), NF_OK);
+    check_recorded("nf_point_pdf_batch", P);
     nf_model_destroy(m);
 }
 

@@ -514,13 +514,13 @@ static void test_chi2_power(void **state)
     assert_non_null(a);
     assert_non_null(b);
     assert_int_equal(nft_randomize_params(a, RANDOM_SCALE, 100u + NF_PRIOR_COSINE), NF_OK);
-    const size_t pc = nf_param_count(a);
+    const size_t pc = nf_model_param_count(a);
     float *p = malloc(pc * sizeof *p);
     assert_non_null(p);
-    assert_int_equal(nf_get_params(a, p), NF_OK);
+    assert_int_equal(nf_model_get_params(a, p), NF_OK);
     for (size_t i = 0; i < pc; ++i)
         p[i] *= 0.95f;
-    assert_int_equal(nf_set_params(b, p), NF_OK);
+    assert_int_equal(nf_model_set_params(b, p), NF_OK);
     free(p);
     nf_context ctx = chi2_context(1);
     mixed mx;

@@ -62,14 +62,14 @@ static void train(nf_model *m, unsigned steps, uint64_t seed)
  * choosing the set is identical results. */
 static void assert_same_bits(const nf_model *a, const nf_model *b)
 {
-    size_t count = nf_param_count(a);
-    assert_int_equal(count, nf_param_count(b));
+    size_t count = nf_model_param_count(a);
+    assert_int_equal(count, nf_model_param_count(b));
     assert_int_equal(nf_model_step_count(a), nf_model_step_count(b));
     float *pa = malloc(count * sizeof(float)), *pb = malloc(count * sizeof(float));
     assert_non_null(pa);
     assert_non_null(pb);
-    assert_int_equal(nf_get_params(a, pa), NF_OK);
-    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    assert_int_equal(nf_model_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_model_get_params(b, pb), NF_OK);
     assert_memory_equal(pa, pb, count * sizeof(float));
     free(pa);
     free(pb);
@@ -108,7 +108,7 @@ static void test_switched_model_trains_like_a_created_one(void **state)
     assert_int_equal(nf_model_set_isa(switched, NF_ISA_GENERIC), NF_OK);
     assert_string_equal(nf_model_isa_name(switched), "generic");
     nf_config cfg;
-    assert_int_equal(nf_model_config(switched, &cfg), NF_OK);
+    assert_int_equal(nf_model_get_config(switched, &cfg), NF_OK);
     assert_int_equal(cfg.isa, NF_ISA_GENERIC);
     train(created, STEPS, 1000u);
     train(switched, STEPS, 1000u);
@@ -180,7 +180,7 @@ static void test_refusals_leave_the_model_unchanged(void **state)
         assert_string_equal(nf_model_isa_name(m), "generic");
     }
     nf_config cfg;
-    assert_int_equal(nf_model_config(m, &cfg), NF_OK);
+    assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     assert_int_equal(cfg.isa, NF_ISA_GENERIC);
     train(m, 2, 5000u);
     train(reference, 2, 5000u);

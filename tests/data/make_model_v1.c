@@ -34,13 +34,13 @@ int main(void)
     nf_model *m = NULL;
     if (nf_model_create(&cfg, &m) != NF_OK)
         return 1;
-    size_t n = nf_param_count(m);
+    size_t n = nf_model_param_count(m);
     float *p = malloc(n * sizeof *p);
-    if (!p || nf_get_params(m, p) != NF_OK)
+    if (!p || nf_model_get_params(m, p) != NF_OK)
         return 1;
     for (size_t i = 0; i < n; ++i)
         p[i] += 0.3f * next();
-    if (nf_set_params(m, p) != NF_OK || nf_model_save(m, "model-v1.nfm") != NF_OK)
+    if (nf_model_set_params(m, p) != NF_OK || nf_model_save(m, "model-v1.nfm") != NF_OK)
         return 1;
     FILE *f = fopen("model-v1.txt", "w");
     if (!f)

@@ -589,8 +589,8 @@ static void test_shading_points_never_allocate(void **state)
                 assert_int_equal(nf_point_sample(m, &pts[i], 1, u, dir, NULL), NF_OK);
                 assert_int_equal(nf_point_pdf(m, &pts[i], D, din, pdf), NF_OK);
             }
-            assert_int_equal(nf_points_sample(m, P, pts, u, dir, pdf), NF_OK);
-            assert_int_equal(nf_points_pdf(m, P, pts, din, pdf), NF_OK);
+            assert_int_equal(nf_point_sample_batch(m, P, pts, u, dir, pdf), NF_OK);
+            assert_int_equal(nf_point_pdf_batch(m, P, pts, din, pdf), NF_OK);
             /* Refused calls. */
             nf_context bad = ctx[0];
             bad.normal[1] = NAN;
@@ -600,14 +600,14 @@ static void test_shading_points_never_allocate(void **state)
             memset(&junk, 0, sizeof junk);
             assert_int_equal(nf_point_sample(m, &junk, D, u, dir, pdf),
                              NF_ERROR_INVALID_ARGUMENT);
-            assert_int_equal(nf_points_pdf(m, 1, &junk, din, pdf), NF_ERROR_INVALID_ARGUMENT);
+            assert_int_equal(nf_point_pdf_batch(m, 1, &junk, din, pdf), NF_ERROR_INVALID_ARGUMENT);
             /* Stale points (the training step itself does not allocate either: train.h). */
             if (round == 0) {
                 f.fail_at = 0;
                 train(m, 1, 7u);
                 fail_in(&f, 0);
                 assert_int_equal(nf_point_pdf(m, &pts[1], D, din, pdf), NF_ERROR_STALE);
-                assert_int_equal(nf_points_sample(m, P, pts, u, dir, pdf), NF_ERROR_STALE);
+                assert_int_equal(nf_point_sample_batch(m, P, pts, u, dir, pdf), NF_ERROR_STALE);
             }
         }
         /* Not one call reached the allocator, and nothing was freed. */

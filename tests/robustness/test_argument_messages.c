@@ -36,10 +36,10 @@ static void test_null_arguments_are_named(void **state)
     assert_refused_naming(nf_point_prepare(m, &ctx, NULL, NULL), bad, "point is NULL");
     assert_refused_naming(nf_point_sample(m, &sp, 1, NULL, dir, &pdf), bad, "u is NULL");
     assert_refused_naming(nf_point_pdf(m, &sp, 1, dir, NULL), bad, "pdf is NULL");
-    assert_refused_naming(nf_points_pdf(m, 1, NULL, dir, &pdf), bad, "points is NULL");
+    assert_refused_naming(nf_point_pdf_batch(m, 1, NULL, dir, &pdf), bad, "points is NULL");
     assert_refused_naming(nf_train_step(m, 1, &ctx, dir, NULL, NULL), bad, "weight is NULL");
-    assert_refused_naming(nf_get_params(m, NULL), bad, "params is NULL");
-    assert_refused_naming(nf_set_params(NULL, u), bad, "m is NULL");
+    assert_refused_naming(nf_model_get_params(m, NULL), bad, "params is NULL");
+    assert_refused_naming(nf_model_set_params(NULL, u), bad, "m is NULL");
     nf_model_destroy(m);
 }
 

@@ -2,9 +2,9 @@
  * test_concurrency.c - the thread-safe entry points that test_threads.c does not cover, run
  * concurrently (model.h, io.h, train.h): on one shared const model, nf_model_clone,
  * nf_model_serialize, nf_model_save (whose temporary buffer comes from an allocator shared by
- * every thread), nf_model_config, nf_get_params, nf_prior_pdf, nf_sample and nf_pdf; and, on
+ * every thread), nf_model_get_config, nf_model_get_params, nf_model_prior_pdf, nf_sample and nf_pdf; and, on
  * models of their own, nf_model_create (kernel dispatch), nf_model_deserialize, nf_model_load,
- * nf_train_step, nf_set_params and nf_model_destroy, plus failing calls (thread-local error
+ * nf_train_step, nf_model_set_params and nf_model_destroy, plus failing calls (thread-local error
  * messages). Every result must be bit-identical to the single-threaded reference.
  *
  * It is meant for the ThreadSanitizer build of .ci/robustness, which fails on any data race
@@ -119,7 +119,7 @@ static void *work(void *arg)
 {
     worker *w = arg;
     shared *s = w->s;
-    const size_t count = nf_param_count(s->model);
+    const size_t count = nf_model_param_count(s->model);
     float *params = malloc(count * sizeof *params);
     CHECK(w, params != NULL);
     char path[128];
@@ -144,17 +144,17 @@ static void *work(void *arg)
         CHECK(w, back && same_bytes(back, s->bytes, s->size));
         /* write access to a model of its own while others read the shared one */
         if (back) {
-            CHECK(w, nf_get_params(back, params) == NF_OK);
+            CHECK(w, nf_model_get_params(back, params) == NF_OK);
             params[0] += 1.0f;
-            CHECK(w, nf_set_params(back, params) == NF_OK);
+            CHECK(w, nf_model_set_params(back, params) == NF_OK);
             CHECK(w, nf_train_step(back, N, s->ctx, s->dir, s->weight, NULL) == NF_OK);
             CHECK(w, nf_model_step_count(back) == nf_model_step_count(s->model) + 1u);
         }
         nf_model_destroy(back);
         /* accessors */
         nf_config cfg;
-        CHECK(w, nf_model_config(s->model, &cfg) == NF_OK && cfg.allocator.user == s->alloc);
-        CHECK(w, nf_get_params(s->model, params) == NF_OK);
+        CHECK(w, nf_model_get_config(s->model, &cfg) == NF_OK && cfg.allocator.user == s->alloc);
+        CHECK(w, nf_model_get_params(s->model, params) == NF_OK);
         CHECK(w, memcmp(params, s->ref_params, count * sizeof *params) == 0);
         CHECK(w, nf_model_isa_name(s->model)[0] != '\0');
         /* the const hot path */
@@ -165,7 +165,7 @@ static void *work(void *arg)
         CHECK(w, nf_pdf(s->model, N, s->ctx, s->dir, pdf) == NF_OK);
         CHECK(w, memcmp(pdf, s->ref_pdf, sizeof pdf) == 0);
         for (int i = 0; i < N; ++i) {
-            float q = nf_prior_pdf(s->model, &s->ctx[i], s->dir + 3 * i);
+            float q = nft_prior_pdf(s->model, &s->ctx[i], s->dir + 3 * i);
             CHECK(w, memcmp(&q, &s->ref_prior[i], sizeof q) == 0);
         }
         /* a model of its own, created and trained concurrently with the others */
@@ -221,13 +221,13 @@ static void test_concurrent_const_and_io(void **state)
     assert_non_null(bytes);
     assert_int_equal(nf_model_serialize(m, bytes, s.size, &s.size), NF_OK);
     s.bytes = bytes;
-    s.ref_params = malloc(nf_param_count(m) * sizeof *s.ref_params);
+    s.ref_params = malloc(nf_model_param_count(m) * sizeof *s.ref_params);
     assert_non_null(s.ref_params);
-    assert_int_equal(nf_get_params(m, s.ref_params), NF_OK);
+    assert_int_equal(nf_model_get_params(m, s.ref_params), NF_OK);
     assert_int_equal(nf_sample(m, N, s.ctx, s.u, s.ref_dir, s.ref_sample_pdf), NF_OK);
     assert_int_equal(nf_pdf(m, N, s.ctx, s.dir, s.ref_pdf), NF_OK);
     for (int i = 0; i < N; ++i)
-        s.ref_prior[i] = nf_prior_pdf(m, &s.ctx[i], s.dir + 3 * i);
+        s.ref_prior[i] = nft_prior_pdf(m, &s.ctx[i], s.dir + 3 * i);
     for (int t = 0; t < THREADS; ++t) {
         nf_status st;
         s.ref_loss[t] = own_model_loss(&s, t, &alloc, &st);

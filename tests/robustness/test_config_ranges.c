@@ -2,11 +2,11 @@
  * test_config_ranges.c - every float of nf_config and of the model format at its bounds, just
  * outside them, denormal, 0, negative, NaN and infinite, through nf_model_create
  * (NF_ERROR_INVALID_ARGUMENT), nf_model_deserialize and nf_model_load (NF_ERROR_FORMAT) and
- * nf_set_learning_rate; every refusal names the field. The ranges and their reasons:
+ * nf_model_set_learning_rate; every refusal names the field. The ranges and their reasons:
  * include/nisflow/model.h and docs/robustness.md, "Configuration ranges".
  *
  * The first test is the reproducer of fuzz_model_api's finding: a valid file (custom prior,
- * checksum fixed) whose prior_epsilon is the denormal 1.4e-45 loaded, and nf_prior_pdf then
+ * checksum fixed) whose prior_epsilon is the denormal 1.4e-45 loaded, and nf_model_prior_pdf then
  * returned exactly 0 where the custom prior is 0.
  */
 #include <float.h>
@@ -111,7 +111,7 @@ static void test_denormal_prior_epsilon_file_is_refused(void **state)
 
 /* The cosine prior with the values of the report, through nf_model_create; and at the
  * smallest accepted epsilon the defensive floor is really there: below the surface (where
- * the cosine and the custom prior are 0) nf_prior_pdf and nf_pdf are eps / (4 pi). */
+ * the cosine and the custom prior are 0) nf_model_prior_pdf and nf_pdf are eps / (4 pi). */
 static void test_prior_epsilon_floor(void **state)
 {
     (void)state;
@@ -132,7 +132,7 @@ static void test_prior_epsilon_floor(void **state)
         assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
         nf_context ctx = nft_context(0.5f, 0.5f, 0.5f, 0.0f, 0.0f, 1.0f, 0.0f, 0.0f, 1.0f);
         const float below[3] = {0.3f, -0.2f, -0.9f};
-        float prior = nf_prior_pdf(m, &ctx, below), pdf = 0.0f;
+        float prior = nft_prior_pdf(m, &ctx, below), pdf = 0.0f;
         assert_int_equal(nf_pdf(m, 1, &ctx, below, &pdf), NF_OK);
         /* eps / (4 pi) in double; the float arithmetic rounds a few times: 1e-5 relative. */
         const double floor_pdf = 1e-6 / (4.0 * 3.14159265358979323846);
@@ -312,7 +312,7 @@ static void test_bounds(void **state)
     free(valid);
 }
 
-/* nf_set_learning_rate checks what nf_model_create checks, and a refusal leaves the model
+/* nf_model_set_learning_rate checks what nf_model_create checks, and a refusal leaves the model
  * bit-identical. */
 static void test_set_learning_rate(void **state)
 {
@@ -327,14 +327,14 @@ static void test_set_learning_rate(void **state)
     for (size_t k = 0; k < n; ++k) {
         nft_snapshot snap;
         assert_int_equal(nft_snapshot_take(m, &snap), 0);
-        nf_status st = nf_set_learning_rate(m, probes[k].v);
+        nf_status st = nf_model_set_learning_rate(m, probes[k].v);
         assert_int_equal(st, probes[k].ok ? NF_OK : NF_ERROR_INVALID_ARGUMENT);
         if (!probes[k].ok) {
             assert_message_names("learning_rate");
             assert_true(nft_snapshot_equal(m, &snap));
         } else {
             nf_config now;
-            assert_int_equal(nf_model_config(m, &now), NF_OK);
+            assert_int_equal(nf_model_get_config(m, &now), NF_OK);
             assert_true(now.learning_rate == probes[k].v);
         }
         nft_snapshot_free(&snap);
@@ -344,9 +344,9 @@ static void test_set_learning_rate(void **state)
     nf_model_destroy(m);
     cfg.weight_decay = 4.0f;
     assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
-    assert_int_equal(nf_set_learning_rate(m, 0.25f), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_model_set_learning_rate(m, 0.25f), NF_ERROR_INVALID_ARGUMENT);
     assert_non_null(strstr(nf_last_error_message(), "weight_decay"));
-    assert_int_equal(nf_set_learning_rate(m, nextafterf(0.25f, 0.0f)), NF_OK);
+    assert_int_equal(nf_model_set_learning_rate(m, nextafterf(0.25f, 0.0f)), NF_OK);
     nf_model_destroy(m);
 }
 

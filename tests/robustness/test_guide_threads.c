@@ -258,12 +258,12 @@ static void test_guide_helped_by_render_threads(void **state)
     for (int i = 0; i < 2; ++i)
         pthread_join(t[i], NULL);
     assert_int_equal(nf_guide_help(helped), 0); /* no step in progress: nothing to do */
-    const size_t P = nf_param_count(m);
+    const size_t P = nf_model_param_count(m);
     float *a = malloc(P * sizeof *a), *b = malloc(P * sizeof *b);
     assert_non_null(a);
     assert_non_null(b);
-    assert_int_equal(nf_get_params(nf_guide_training_model(alone), a), NF_OK);
-    assert_int_equal(nf_get_params(nf_guide_training_model(helped), b), NF_OK);
+    assert_int_equal(nf_model_get_params(nf_guide_training_model(alone), a), NF_OK);
+    assert_int_equal(nf_model_get_params(nf_guide_training_model(helped), b), NF_OK);
     print_message("helpers: %d passes, %lu of %d tasks run by the two helpers\n", passes,
                   atomic_load(&h.helped), passes * 4 * 16);
     assert_true(atomic_load(&h.helped) > 0);
@@ -333,7 +333,7 @@ static void test_bare_model_misuse_detected(void **state)
     assert_non_null(b->points);
     assert_non_null(b->which);
     b->m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_int_equal(nf_set_learning_rate(b->m, 2e-2f), NF_OK);
+    assert_int_equal(nf_model_set_learning_rate(b->m, 2e-2f), NF_OK);
     shared tmp;
     fill(&tmp, 17);
     memcpy(b->ctx, tmp.ctx, sizeof b->ctx);

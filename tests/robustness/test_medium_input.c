@@ -97,7 +97,7 @@ static void test_batches_refuse_bad_medium_contexts(void **state)
     assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 0.3f, 5u), NF_OK);
     static float dir[3 * N], pdf[N];
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *grad = malloc(count * sizeof *grad);
     assert_non_null(grad);
     /* the good batch works everywhere (so the refusals below are the bad element's) */
@@ -133,7 +133,7 @@ static void test_batches_refuse_bad_medium_contexts(void **state)
         assert_int_equal(st, NF_ERROR_INVALID_ARGUMENT);
         assert_non_null(strstr(nf_last_error_message(), field));
         assert_memory_equal(&sp, &before, sizeof sp);
-        assert_true(nf_prior_pdf(m, &bad.ctx[N - 1], good.dir) == -1.0f);
+        assert_true(nft_prior_pdf(m, &bad.ctx[N - 1], good.dir) == -1.0f);
     }
     nft_snapshot_free(&snap);
     free(grad);

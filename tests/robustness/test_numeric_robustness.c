@@ -7,7 +7,7 @@
  *   - wo parallel and opposite to the normal; positions far outside the scene bounds;
  *   - u at 0, just below 1, at the mixture boundary 1 - eps, and outside [0, 1);
  *   - the boundaries of the spline domain (0, 1, the knots) with extreme raw parameters;
- *   - extreme but finite parameters set with nf_set_params (up to +-FLT_MAX): densities stay
+ *   - extreme but finite parameters set with nf_model_set_params (up to +-FLT_MAX): densities stay
  *     finite and positive, training either works or is refused with NF_ERROR_NUMERIC and
  *     leaves the model exactly as it was;
  *   - training weights from 1e-30 to 1e30 (and FLT_MAX, denormals) mixed in one batch.
@@ -155,7 +155,7 @@ enum { VARIANTS = 16 };
 
 /* ---- tests: geometry ------------------------------------------------------------------------- */
 
-/* nf_pdf and nf_prior_pdf of every special direction in every special context. */
+/* nf_pdf and nf_model_prior_pdf of every special direction in every special context. */
 static void test_pdf_special_directions(void **state)
 {
     (void)state;
@@ -177,7 +177,7 @@ static void test_pdf_special_directions(void **state)
                      i / SPECIAL_DIRS, i % SPECIAL_DIRS);
             expect_finite_positive(pdf[i], what);
             if (v < 8) /* the prior does not depend on the parameters */
-                expect_finite_positive(nf_prior_pdf(m, &ctx[i], dir + 3 * i), what);
+                expect_finite_positive(nft_prior_pdf(m, &ctx[i], dir + 3 * i), what);
         }
         nf_model_destroy(m);
     }
@@ -334,7 +334,7 @@ static void test_length_invariance(void **state)
                     continue;
                 assert_int_equal(nf_pdf(m, 1, &base, sd, &p), NF_OK);
                 nf_direction_to_square(sd, s);
-                float q = nf_prior_pdf(m, &base, sd), q0 = nf_prior_pdf(m, &base, dir);
+                float q = nft_prior_pdf(m, &base, sd), q0 = nft_prior_pdf(m, &base, dir);
                 if (memcmp(&q, &q0, sizeof q) != 0)
                     fail_msg("direction %zu scaled by 2^%d: prior pdf %.9g vs %.9g", d,
                              powers[k], (double)q, (double)q0);
@@ -652,8 +652,8 @@ static void extreme_params(const nf_model *m, int pattern, float scale, uint64_t
                            float *p)
 {
     nf_config c;
-    assert_int_equal(nf_model_config(m, &c), NF_OK);
-    const size_t count = nf_param_count(m), per_layer = count / c.coupling_layers;
+    assert_int_equal(nf_model_get_config(m, &c), NF_OK);
+    const size_t count = nf_model_param_count(m), per_layer = count / c.coupling_layers;
     const size_t output = ((size_t)c.hidden_width + 1) * (3u * c.spline_bins + 1u);
     nft_rng r;
     nft_rng_seed(&r, seed, 17u);
@@ -682,7 +682,7 @@ static void check_extreme_model(nf_model *m, const char *name, size_t stride,
                                 extreme_stats *stats)
 {
     static const float scales[] = {1e2f, 1e3f, 1e4f, 1e6f, 1e10f, 1e20f, 1e30f, FLT_MAX};
-    const size_t count = nf_param_count(m);
+    const size_t count = nf_model_param_count(m);
     float *p = malloc(count * sizeof *p), *grad = malloc(count * sizeof *grad);
     assert_true(p && grad);
     nf_context ctx[EXTREME_N];
@@ -708,7 +708,7 @@ static void check_extreme_model(nf_model *m, const char *name, size_t stride,
                      (double)scales[s]);
             extreme_params(m, pattern, scales[s], 1000u + s, p);
             /* Every finite parameter vector is accepted (train.h). */
-            assert_int_equal(nf_set_params(m, p), NF_OK);
+            assert_int_equal(nf_model_set_params(m, p), NF_OK);
             assert_int_equal(nf_sample(m, EXTREME_N, ctx, u, dir, pdf), NF_OK);
             for (int i = 0; i < EXTREME_N; ++i) {
                 expect_unit(dir + 3 * i, what);
@@ -745,7 +745,7 @@ static void check_extreme_model(nf_model *m, const char *name, size_t stride,
             assert_int_equal(nft_snapshot_take(m, &snap), 0);
             st = nf_train_step(m, EXTREME_N, ctx, dir, weight, &loss);
             if (st == NF_OK) {
-                assert_int_equal(nf_get_params(m, grad), NF_OK);
+                assert_int_equal(nf_model_get_params(m, grad), NF_OK);
                 for (size_t i = 0; i < count; ++i)
                     if (!isfinite(grad[i]))
                         fail_msg("%s: the step made parameter %zu %g", what, i, (double)grad[i]);
@@ -823,10 +823,10 @@ static void make_wbatch(wbatch *b, uint64_t seed)
 
 static void expect_params_finite(const nf_model *m, const char *what)
 {
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *p = malloc(count * sizeof *p);
     assert_non_null(p);
-    assert_int_equal(nf_get_params(m, p), NF_OK);
+    assert_int_equal(nf_model_get_params(m, p), NF_OK);
     for (size_t i = 0; i < count; ++i)
         if (!isfinite(p[i]))
             fail_msg("%s: parameter %zu is %g", what, i, (double)p[i]);
@@ -889,7 +889,7 @@ static void test_weight_scale_invariance(void **state)
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 0.3f, 23u), NF_OK);
-    const size_t count = nf_param_count(m);
+    const size_t count = nf_model_param_count(m);
     float *g0 = malloc(count * sizeof *g0), *g = malloc(count * sizeof *g);
     assert_true(g0 && g);
     float loss0, loss;
@@ -955,7 +955,7 @@ static void test_numeric_refusal_keeps_model(void **state)
     assert_int_equal(nft_randomize_params(m, 0.3f, 32u), NF_OK);
     for (int k = 0; k < 3; ++k) /* non-trivial AdamW state */
         assert_int_equal(nf_train_step(m, WN, b.ctx, b.dir, b.weight, NULL), NF_OK);
-    const size_t count = nf_param_count(m);
+    const size_t count = nf_model_param_count(m);
     float *g = malloc(count * sizeof *g), *keep = malloc(count * sizeof *keep);
     assert_true(g && keep);
     nft_snapshot snap;
@@ -964,11 +964,11 @@ static void test_numeric_refusal_keeps_model(void **state)
     /* 1. A learning rate of FLT_MAX would overflow the step size lr / (1 - beta1^t): it is
      *    refused with the rest of the configuration's ranges (model.h), the model untouched.
      *    The largest accepted rate takes a finite step (on a copy: it changes the model). */
-    assert_int_equal(nf_set_learning_rate(m, FLT_MAX), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_model_set_learning_rate(m, FLT_MAX), NF_ERROR_INVALID_ARGUMENT);
     assert_true(nft_snapshot_equal(m, &snap));
     nf_model *fast = NULL;
     assert_int_equal(nf_model_clone(m, &fast), NF_OK);
-    assert_int_equal(nf_set_learning_rate(fast, NF_LEARNING_RATE_MAX), NF_OK);
+    assert_int_equal(nf_model_set_learning_rate(fast, NF_LEARNING_RATE_MAX), NF_OK);
     float loss = -1.0f;
     assert_int_equal(nf_train_step(fast, WN, b.ctx, b.dir, b.weight, &loss), NF_OK);
     nf_model_destroy(fast);
@@ -980,10 +980,10 @@ static void test_numeric_refusal_keeps_model(void **state)
     assert_true(nft_snapshot_equal(m, &snap));
     /* 3. Parameters so large that the MLP overflows: the gradient is not finite. Training
      *    and nf_loss_gradient refuse; the model keeps the (valid, finite) parameters. */
-    assert_int_equal(nf_get_params(m, keep), NF_OK);
+    assert_int_equal(nf_model_get_params(m, keep), NF_OK);
     for (size_t i = 0; i < count; ++i)
         g[i] = (i % 2) ? FLT_MAX : -FLT_MAX;
-    assert_int_equal(nf_set_params(m, g), NF_OK);
+    assert_int_equal(nf_model_set_params(m, g), NF_OK);
     nft_snapshot extreme;
     assert_int_equal(nft_snapshot_take(m, &extreme), 0);
     assert_int_equal(nf_train_step(m, WN, b.ctx, b.dir, b.weight, &loss), NF_ERROR_NUMERIC);
@@ -992,7 +992,7 @@ static void test_numeric_refusal_keeps_model(void **state)
     assert_int_equal(nf_loss_gradient(m, WN, b.ctx, b.dir, b.weight, &loss, g), NF_ERROR_NUMERIC);
     assert_true(nft_snapshot_equal(m, &extreme));
     nft_snapshot_free(&extreme);
-    assert_int_equal(nf_set_params(m, keep), NF_OK);
+    assert_int_equal(nf_model_set_params(m, keep), NF_OK);
     assert_true(nft_snapshot_equal(m, &snap));
     /* A sane step is taken and changes the model. */
     assert_int_equal(nf_train_step(m, WN, b.ctx, b.dir, b.weight, &loss), NF_OK);

@@ -213,7 +213,7 @@ static void check_loss_gradient(nf_prior_kind prior)
     nf_model *m = nft_make_model(NF_PRESET_SMALL, prior);
     assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 1.0f, 3000u + (uint64_t)prior), NF_OK);
-    const size_t pc = nf_param_count(m);
+    const size_t pc = nf_model_param_count(m);
     assert_true(pc > 0);
     batch b;
     make_batch(&b, 5000u + (uint64_t)prior);
@@ -277,7 +277,7 @@ static void test_concurrent_loss_gradient(void **state)
 
 /* What one thread computes in one round: per point, POINT_DIRS samples (dir, pdf) and
  * densities through nf_point_sample / nf_point_pdf, then one direction per point through
- * nf_points_sample / nf_points_pdf. */
+ * nf_point_sample_batch / nf_point_pdf_batch. */
 enum {
     PR_DIR = 0,
     PR_PDF = PR_DIR + 3 * POINTS * POINT_DIRS,
@@ -326,9 +326,9 @@ static nf_status point_round(const point_shared *s, float *out)
         memcpy(d1 + 3 * p, s->dir_in + 3 * (size_t)p * POINT_DIRS, 3 * sizeof(float));
     }
     if (st == NF_OK)
-        st = nf_points_sample(s->model, POINTS, s->points, u1, out + PR_BDIR, out + PR_BPDF);
+        st = nf_point_sample_batch(s->model, POINTS, s->points, u1, out + PR_BDIR, out + PR_BPDF);
     if (st == NF_OK)
-        st = nf_points_pdf(s->model, POINTS, s->points, d1, out + PR_BEVAL);
+        st = nf_point_pdf_batch(s->model, POINTS, s->points, d1, out + PR_BEVAL);
     return st;
 }
 

@@ -113,7 +113,7 @@ static void test_training_stack_bound(void **state)
             nf_model *m = NULL;
             if (nf_model_create(&cfg, &m) != NF_OK)
                 continue; /* a CPU without the set */
-            float *grad = malloc(nf_param_count(m) * sizeof(float));
+            float *grad = malloc(nf_model_param_count(m) * sizeof(float));
             assert_non_null(grad);
             stack_job j = {m, 0, ctx, dir, weight, grad, 0, NF_OK, work};
             size_t base = stack_used(&j);

@@ -245,6 +245,12 @@ nf_config nft_config(nf_preset preset, nf_prior_kind prior)
     return cfg;
 }
 
+float nft_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
+{
+    float q = -1.0f;
+    return nf_model_prior_pdf(m, ctx, dir, &q) == NF_OK ? q : -1.0f;
+}
+
 nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior)
 {
     nf_config cfg = nft_config(preset, prior);
@@ -256,7 +262,7 @@ nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior)
 
 nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed)
 {
-    size_t count = nf_param_count(m);
+    size_t count = nf_model_param_count(m);
     float *p = malloc((count ? count : 1u) * sizeof *p);
     if (!p)
         return NF_ERROR_OUT_OF_MEMORY;
@@ -264,7 +270,7 @@ nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed)
     nft_rng_seed(&r, seed, 0x5eedu);
     for (size_t i = 0; i < count; ++i)
         p[i] = scale * (2.0f * nft_rng_float(&r) - 1.0f);
-    nf_status st = nf_set_params(m, p);
+    nf_status st = nf_model_set_params(m, p);
     free(p);
     return st;
 }
@@ -680,9 +686,9 @@ done:
 int nft_snapshot_take(const nf_model *m, nft_snapshot *s)
 {
     memset(s, 0, sizeof *s);
-    s->param_count = nf_param_count(m);
+    s->param_count = nf_model_param_count(m);
     s->params = malloc((s->param_count ? s->param_count : 1u) * sizeof *s->params);
-    if (!s->params || nf_get_params(m, s->params) != NF_OK)
+    if (!s->params || nf_model_get_params(m, s->params) != NF_OK)
         return -1;
     if (nf_model_serialize(m, NULL, 0, &s->bytes_size) != NF_OK)
         return -1;

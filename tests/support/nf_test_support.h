@@ -93,8 +93,10 @@ nf_config nft_config(nf_preset preset, nf_prior_kind prior);
 /* Creates a model with nft_config(preset, prior); NULL on error. */
 nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior);
 /* Replaces every parameter by a uniform value in [-scale, scale] drawn from PCG32(seed), so
- * the flow is far from the identity. Returns the nf_set_params status. */
+ * the flow is far from the identity. Returns the nf_model_set_params status. */
 nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed);
+/* nf_model_prior_pdf's density, or -1 on any error (the message is kept). */
+float nft_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]);
 /* A short name of a prior, for messages. */
 const char *nft_prior_name(nf_prior_kind prior);
 

@@ -802,7 +802,7 @@ static void path_start(const tracer *t, float px, float py, path_state *ps)
      * grow with k, so those are the first nmoments. */
     ps->nmoments = 0;
     for (int k = 0; ps->guided && k < PATH_MOMENTS; ++k) {
-        uint32_t d = k ? nf_guide_depth_of((uint32_t)k) : 0u;
+        uint32_t d = (uint32_t)k; /* kind k guides up to depth k; 0 every depth */
         if (d && t->guide_depth && (int)d >= t->guide_depth)
             break;
         nf_depth_moment_start(&ps->moments[k], d);

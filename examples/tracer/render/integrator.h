@@ -90,7 +90,7 @@ typedef struct path_state {
     /* What a guided path says of the second moments of the policies that guide less than
      * it does (nisflow/guide.h, nf_depth_moment), which budget.h's choices of passes read:
      * [0] plain path tracing's (depth 0, nf_plain_moment's), [c] for c >= 1 that of the
-     * guide's depth candidate c (nf_guide_depth_of). */
+     * guide's depth candidate c (which guides up to depth c; 0: every one). */
     nf_depth_moment moments[PATH_MOMENTS];
     int nmoments; /* the first nmoments are estimated: those of policies that guide less deep
                    * than the path; the others are the path's own, or not its to measure    */

@@ -180,7 +180,7 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
     else { /* the library's defaults, at the model's own learning rate */
         nf_config cfg;
         nf_guide_config_init(&gc);
-        if (nf_model_config(*model, &cfg) == NF_OK)
+        if (nf_model_get_config(*model, &cfg) == NF_OK)
             gc.learning_rate = cfg.learning_rate;
     }
     gc.store_capacity = 1;

@@ -56,12 +56,12 @@ static void train_and_render(const scene *s, guide_prior prior, int threads, uin
 
 static void compare_params(const nf_model *a, const nf_model *b, int expect_equal)
 {
-    size_t n = nf_param_count(a);
+    size_t n = nf_model_param_count(a);
     float *pa = malloc(n * sizeof *pa), *pb = malloc(n * sizeof *pb);
     assert_non_null(pa);
     assert_non_null(pb);
-    assert_int_equal(nf_get_params(a, pa), NF_OK);
-    assert_int_equal(nf_get_params(b, pb), NF_OK);
+    assert_int_equal(nf_model_get_params(a, pa), NF_OK);
+    assert_int_equal(nf_model_get_params(b, pb), NF_OK);
     if (expect_equal)
         assert_memory_equal(pa, pb, n * sizeof *pa);
     else

@@ -55,7 +55,7 @@ static nf_config created_config(const scene *s, const guide_settings *gs, nf_mod
     if (!guide_create(s, gs, &model, &err))
         fail_msg("%s", err.msg);
     nf_config cfg;
-    nf_model_config(model, &cfg);
+    nf_model_get_config(model, &cfg);
     if (keep)
         *keep = model;
     else
