@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# The point-cost study (docs/performance.md, "What a direction at a point costs"): what each
-# step of one direction at a shading point (nf_point_sample, nf_point_pdf) costs, measured by
-# replacing it with a trivial stand-in, and what three faster alternatives that change the
-# results' bits would save.
+# The point-cost study (docs/studies/cost-of-a-direction.md, "What a direction at a point
+# costs"): what each step of one direction at a shading point (nf_point_sample, nf_point_pdf)
+# costs, measured by replacing it with a trivial stand-in, and what three faster alternatives
+# that change the results' bits would save.
 #
 # It exports the commit the patch was written for, BASE below (the single-direction code
 # before nf_point_sample_and_pdf walked two directions in step, whose per-direction steps are
