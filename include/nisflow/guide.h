@@ -104,7 +104,9 @@ typedef struct nf_guide_config {
     size_t payload_bytes;    /* caller bytes kept with each sample (a material for a BSDF
                               * prior, say), [0, 4096]; default 0                          */
     uint32_t step_samples;   /* samples per step on this process, [1, 2^20]; default 2048  */
-    uint32_t steps_per_pass; /* steps after each training pass, [1, 4096]; default 64      */
+    uint32_t steps_per_pass; /* steps after each training pass, [1, 4096]; default 64. Best
+                              * when steps x step_samples is 2-4x the samples a pass adds
+                              * (docs/equal-time.md, "How large a training pass")         */
     uint32_t groups;         /* gradient groups per step (the most threads that help),
                               * [1, 256]; default 16. The groups are fixed by the step's
                               * samples alone, so the bits do not depend on the threads   */
