@@ -134,10 +134,9 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
     std::uniform_real_distribution<float> uni(0.0f, 1.0f);
     Vec o{0.5f, 0.02f, 0.5f};
     Vec d = normalize(Vec{(px + uni(rng)) / kWidth - 0.5f, 0.7f, 0.5f - (py + uni(rng)) / kHeight});
-    float beta = 1.0f, boost = 1.0f, p_scatter = 0.0f, p_bsdf_prev = 0.0f;
-    nf_depth_moment dm[NF_GUIDE_DEPTHS]; // guide
-    for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k)
-        nf_depth_moment_start(&dm[k], k); // nf: kind k guides up to depth k (0: every one)
+    float beta = 1.0f, p_scatter = 0.0f, p_bsdf_prev = 0.0f;
+    nf_path_state ps;   // guide: the boost, and the moments the schedule weighs
+    nf_path_start(&ps); // nf
     std::memset(out.v, 0, sizeof out.v);
     out.vertices = 0;
     out.radiance = 0.0f;
@@ -147,8 +146,7 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
             float w = depth == 1 ? 1.0f : power(p_scatter, light_pdf(o, h.p));
             float w_plain = depth == 1 ? 1.0f : power(p_bsdf_prev, light_pdf(o, h.p)); // guide
             out.radiance += beta * kLe * w;
-            nf_depth_moment_add(dm, NF_GUIDE_DEPTHS, uint32_t(depth - 1), beta * kLe * w, // nf
-                                beta * kLe * w_plain);                                  // nf
+            nf_path_add(&ps, uint32_t(depth - 1), beta * kLe * w, beta * kLe * w_plain); // nf
             if (depth > 1) {
                 nf_path_vertex &prev = out.v[out.vertices - 1];
                 // guide: the flow learns the emission as the pixel weighs it (integration.md)
@@ -160,13 +158,12 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
             break;
         Vec x = h.p, n = h.n, wo = d * -1.0f;
         nf_context ctx = {{x.x, x.y, x.z}, {n.x, n.y, n.z}, {wo.x, wo.y, wo.z}, 0.0f}; // nf
-        bool guided = m && (guide_depth == 0 || uint32_t(depth) <= guide_depth);
-        float g = guided ? nf_guide_mixture_prob(pol, boost) : 0.0f; // nf
+        float g = m ? nf_path_mixture_prob(&ps, pol, uint32_t(depth), guide_depth) : 0.0f; // nf
         nf_shading_point sp;
         if (g > 0.0f && nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK) // nf
             g = 0.0f;
         // The random numbers first: the roulette, the technique, the direction, the light.
-        float q = nf_guide_roulette_survival(pol, beta, boost); // nf
+        float q = nf_path_survival(&ps, pol, beta); // nf
         bool go_on = depth < kRrDepth || uni(rng) < q;
         float rr = depth >= kRrDepth ? 1.0f / q : 1.0f;
         bool from_flow = go_on && uni(rng) < g;
@@ -196,14 +193,13 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
             out.radiance += beta * direct;
             out.v[out.vertices].direct[0] = out.v[out.vertices].direct[1] =
                 out.v[out.vertices].direct[2] = direct;
-            nf_depth_moment_add(dm, NF_GUIDE_DEPTHS, uint32_t(depth), beta * direct,    // nf
-                                beta * f * power(p_light, p_bsdf_l));                   // nf
+            nf_path_add(&ps, uint32_t(depth), beta * direct, beta * f * power(p_light, p_bsdf_l)); // nf
         }
         nf_path_vertex &v = out.v[out.vertices++];
         if (!go_on)
             break;
         if (depth >= kRrDepth)
-            nf_depth_moment_roulette(dm, NF_GUIDE_DEPTHS, pol, uint32_t(depth), beta, q); // nf
+            nf_path_survived(&ps, pol, uint32_t(depth), beta, q); // nf
         // Scattering, weighed by the mixture.
         float cos_i = dot(n, dir), p_bsdf = cos_i > 0.0f ? cos_i / kPi : 0.0f;
         float p_mix = g * p_flow + (1.0f - g) * p_bsdf;
@@ -215,8 +211,7 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         v.f_over_p[0] = v.f_over_p[1] = v.f_over_p[2] = weight;              // guide
         v.beta[0] = v.beta[1] = v.beta[2] = weight * rr;
         v.learn = g > 0.0f;                                                  // guide
-        nf_depth_moment_scatter(dm, NF_GUIDE_DEPTHS, uint32_t(depth), p_bsdf, p_mix, g); // nf
-        boost = nf_guide_boost(boost, p_bsdf, p_mix, g);                     // nf
+        nf_path_scatter(&ps, uint32_t(depth), p_bsdf, p_mix, g); // nf: the boost and moments
         beta *= weight * rr;
         p_scatter = flow_mis ? p_mix : p_bsdf;
         p_bsdf_prev = p_bsdf;
@@ -224,7 +219,7 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         d = dir;
     }
     for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k)
-        out.moments[k] = dm[k].moment; // guide
+        out.moments[k] = ps.moments[k].moment; // guide
 }
 
 // ---- A pass ---------------------------------------------------------------------------------

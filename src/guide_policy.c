@@ -64,3 +64,48 @@ int nf_guide_light_mis_uses_flow(const nf_guide_policy *p, uint32_t depth)
         return 0;
     return p->light_mis_depth == 0 || depth <= p->light_mis_depth;
 }
+
+/* ---- One path's state ------------------------------------------------------------------------ */
+
+void nf_path_start(nf_path_state *ps)
+{
+    if (!ps)
+        return;
+    ps->boost = 1.0f;
+    for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k)
+        nf_depth_moment_start(&ps->moments[k], k); /* 0: plain path tracing */
+}
+
+float nf_path_mixture_prob(const nf_path_state *ps, const nf_guide_policy *p, uint32_t depth,
+                           uint32_t pass_depth)
+{
+    if (!ps || (pass_depth != 0 && depth > pass_depth))
+        return 0.0f;
+    return nf_guide_mixture_prob(p, ps->boost);
+}
+
+float nf_path_survival(const nf_path_state *ps, const nf_guide_policy *p, float throughput_max)
+{
+    return ps ? nf_guide_roulette_survival(p, throughput_max, ps->boost) : 0.0f;
+}
+
+void nf_path_survived(nf_path_state *ps, const nf_guide_policy *p, uint32_t depth,
+                      float throughput_max, float q_used)
+{
+    if (ps)
+        nf_depth_moment_roulette(ps->moments, NF_GUIDE_DEPTHS, p, depth, throughput_max, q_used);
+}
+
+void nf_path_scatter(nf_path_state *ps, uint32_t depth, float p_bsdf, float p_mix, float g_used)
+{
+    if (!ps)
+        return;
+    nf_depth_moment_scatter(ps->moments, NF_GUIDE_DEPTHS, depth, p_bsdf, p_mix, g_used);
+    ps->boost = nf_guide_boost(ps->boost, p_bsdf, p_mix, g_used);
+}
+
+void nf_path_add(nf_path_state *ps, uint32_t depth, float c, float c_plain)
+{
+    if (ps)
+        nf_depth_moment_add(ps->moments, NF_GUIDE_DEPTHS, depth, c, c_plain);
+}

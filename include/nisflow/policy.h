@@ -9,6 +9,8 @@
  * and shallower guiding would have had (nf_plain_moment, nf_depth_moment), which let every
  * pass measure the kinds of pass it did not render.
  *
+ * nf_path_state holds both for one camera path (the boost and the moments together).
+ *
  * Every function here is total and thread-safe: it reads its arguments and writes only what
  * its pointers name. Stack: a few dozen bytes.
  */
@@ -137,12 +139,6 @@ NF_API void nf_plain_moment_add(nf_plain_moment *m, float c);
  * no question to the flow, light samples weighed against the BSDF's density. */
 #define NF_GUIDE_DEPTHS 3u
 
-/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
-
-/* The depth of kind `candidate`: the candidate itself, 0 for candidate >= NF_GUIDE_DEPTHS. */
-NF_API NF_DEPRECATED("the candidate itself (kind c guides up to depth c)") uint32_t
-    nf_guide_depth_of(uint32_t candidate);
-
 /* A kind that guides up to depth D, measured on paths guided deeper (as nf_plain_moment
  * measures plain path tracing): its passes alone would miss the rare bright paths that rule
  * its variance (light that only guiding finds, deeper than D), and the choice would pick it by
@@ -186,6 +182,66 @@ NF_API void nf_depth_moment_roulette(nf_depth_moment *m, size_t n, const nf_guid
  * nf_plain_moment_add takes its contribution; negative or non-finite values are ignored. */
 NF_API void nf_depth_moment_add(nf_depth_moment *m, size_t n, uint32_t vertex_depth, float c,
                                 float c_plain);
+
+/* ---- One path's state -------------------------------------------------------------------- */
+
+/* What a camera path carries for guiding: its boost (nf_guide_boost) and the second moments
+ * it measures for the schedule (nf_depth_moment): moments[0] plain path tracing's, moments[k]
+ * for k >= 1 the kind that guides up to depth k (the moments a pass's paths hand to
+ * nf_schedule_add_pass, kind by kind). One struct and five calls replace the boost and the
+ * moments' array, with the same bits as the calls they make:
+ *
+ *     nf_path_state ps;  nf_path_start(&ps);                       at the camera
+ *     g = nf_path_mixture_prob(&ps, pol, depth, pass_depth);       at each vertex
+ *     q = nf_path_survival(&ps, pol, throughput_max);              roulette's probability
+ *     nf_path_survived(&ps, pol, depth, throughput_max, q);        if it went on (depth >= RR)
+ *     nf_path_scatter(&ps, depth, p_bsdf, p_mix, g);               the scattered direction
+ *     nf_path_add(&ps, depth, c, c_plain);                         every contribution
+ *     ps.moments[k].moment                                         for the schedule
+ *
+ * depth counts segments from the camera (the first vertex is 1; a contribution seen from the
+ * camera is depth 0). Every call is total and thread-safe on its own state; NULL is a no-op
+ * (the functions that return a value return 0). Stack: a few dozen bytes. */
+typedef struct nf_path_state {
+    float boost;                              /* the mixture's boost so far, from 1       */
+    nf_depth_moment moments[NF_GUIDE_DEPTHS]; /* 0: plain path tracing's; k: up to depth k */
+} nf_path_state;
+
+/* A path at the camera: boost 1, moments[k] started for depth k (0: plain path tracing). */
+NF_API void nf_path_start(nf_path_state *ps);
+
+/* The mixture probability at the vertex `depth` deep in a pass that guides up to pass_depth
+ * (0: every depth; a training pass guides every depth): nf_guide_mixture_prob of the path's
+ * boost, 0 deeper than pass_depth. */
+NF_API float nf_path_mixture_prob(const nf_path_state *ps, const nf_guide_policy *p, uint32_t depth,
+                                  uint32_t pass_depth);
+
+/* Russian roulette's survival probability for the path: nf_guide_roulette_survival of its
+ * throughput's largest channel and its boost. */
+NF_API float nf_path_survival(const nf_path_state *ps, const nf_guide_policy *p,
+                              float throughput_max);
+
+/* The path survived roulette with probability q_used at the vertex `depth` deep:
+ * nf_depth_moment_roulette on its moments. */
+NF_API void nf_path_survived(nf_path_state *ps, const nf_guide_policy *p, uint32_t depth,
+                             float throughput_max, float q_used);
+
+/* A direction scattered at the vertex `depth` deep with BSDF and mixture densities p_bsdf,
+ * p_mix (per steradian) and mixture probability g_used (a delta lobe: both densities 0):
+ * nf_depth_moment_scatter on the moments, then nf_guide_boost on the boost. */
+NF_API void nf_path_scatter(nf_path_state *ps, uint32_t depth, float p_bsdf, float p_mix,
+                            float g_used);
+
+/* A contribution that the technique of the vertex `depth` deep found (0: seen from the
+ * camera), with the path's MIS weight (c) and plain path tracing's (c_plain):
+ * nf_depth_moment_add. */
+NF_API void nf_path_add(nf_path_state *ps, uint32_t depth, float c, float c_plain);
+
+/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
+
+/* The depth of kind `candidate`: the candidate itself, 0 for candidate >= NF_GUIDE_DEPTHS. */
+NF_API NF_DEPRECATED("the candidate itself (kind c guides up to depth c)") uint32_t
+    nf_guide_depth_of(uint32_t candidate);
 
 NF_EXTERN_C_END
 
