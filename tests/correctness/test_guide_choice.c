@@ -447,6 +447,65 @@ static void test_depth_choice(void **state)
     nf_guide_destroy(g);
 }
 
+/* The training-ratio stop rule (schedule.h, nf_guide_report_training_ratio): training stops
+ * once the ratio of a training pass's variance x time to a plain pass's has not fallen by 5 %
+ * for 3 passes while it stays above 0.8, and not before; a ratio that keeps falling, or one
+ * that stalls at or below 0.8, trains on; pass_choice 0 ignores the ratios. */
+static void test_training_ratio_stop_rule(void **state)
+{
+    (void)state;
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.patience = 0; /* the held-out loss's rule out of the way */
+    nf_guide *g = make_guide(&gc);
+    assert_true(nf_guide_keep_training(g, 0.0, 0.0));
+    /* 1.5 is the best; 1.45 and 1.43 are not 5 % below it (1.425): stalled 1, 2 ... */
+    const double stalled[] = {1.5, 1.45, 1.43};
+    for (size_t i = 0; i < 3; ++i) {
+        assert_int_equal(nf_guide_report_training_ratio(g, stalled[i]), NF_OK);
+        assert_true(nf_guide_keep_training(g, 0.0, 0.0));
+    }
+    /* ... the third pass without a 5 % fall stops it */
+    assert_int_equal(nf_guide_report_training_ratio(g, 1.426), NF_OK);
+    assert_false(nf_guide_keep_training(g, 0.0, 0.0));
+    nf_guide_destroy(g);
+
+    /* Falling by 5 % or more each pass trains on, for as long as it falls. */
+    g = make_guide(&gc);
+    double r = 2.0;
+    for (int i = 0; i < 20; ++i, r *= 0.94) {
+        assert_int_equal(nf_guide_report_training_ratio(g, r), NF_OK);
+        assert_true(nf_guide_keep_training(g, 0.0, 0.0));
+    }
+    nf_guide_destroy(g);
+
+    /* Stalled at 0.8 or below: guiding pays, training goes on. */
+    g = make_guide(&gc);
+    for (int i = 0; i < 10; ++i) {
+        assert_int_equal(nf_guide_report_training_ratio(g, 0.8), NF_OK);
+        assert_true(nf_guide_keep_training(g, 0.0, 0.0));
+    }
+    /* A ratio of +inf (a pass that bought nothing) counts as stalled, above 0.8. */
+    nf_guide_destroy(g);
+    g = make_guide(&gc);
+    for (int i = 0; i < 3; ++i)
+        assert_int_equal(nf_guide_report_training_ratio(g, INFINITY), NF_OK);
+    assert_false(nf_guide_keep_training(g, 0.0, 0.0));
+    /* Refused: NaN and negative ratios, the state unchanged. */
+    assert_int_equal(nf_guide_report_training_ratio(g, NAN), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_report_training_ratio(g, -1.0), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_guide_report_training_ratio(NULL, 1.0), NF_ERROR_INVALID_ARGUMENT);
+    nf_guide_destroy(g);
+
+    /* pass_choice 0: the ratios do not stop training. */
+    gc.pass_choice = 0;
+    g = make_guide(&gc);
+    for (int i = 0; i < 6; ++i)
+        assert_int_equal(nf_guide_report_training_ratio(g, 3.0), NF_OK);
+    assert_true(nf_guide_keep_training(g, 0.0, 0.0));
+    nf_guide_destroy(g);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -460,6 +519,7 @@ int main(void)
         cmocka_unit_test(test_exploration),
         cmocka_unit_test(test_fixed_policy_and_refusals),
         cmocka_unit_test(test_depth_choice),
+        cmocka_unit_test(test_training_ratio_stop_rule),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
