@@ -28,7 +28,8 @@ BUDGET=${NF_AB_BUDGET:-30}
 test -x "$A" && test -x "$B" || { echo "ab-tracers.sh: build both tracers first" >&2; exit 1; }
 mkdir -p "$OUT"
 declare -A SIZE=([cornell-box]="--width 256 --height 256" [veach-ajar]="--width 320 --height 180"
-                 [veach-bidir]="--width 256 --height 256" [statue]="--width 256 --height 256")
+                 [veach-bidir]="--width 256 --height 256" [statue]="--width 256 --height 256"
+                 [veach-ajar-fog]="--width 320 --height 180")
 reference() {
     local s=$1 r=examples/scenes/$1/reference-tungsten.exr
     if [ -f "$r" ]; then echo "$r"; return; fi
