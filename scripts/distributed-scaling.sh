@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# How nf_tracer's training scales over MPI ranks on this machine (docs/distributed.md): the
+# How nf_paper's training scales over MPI ranks on this machine (docs/distributed.md): the
 # same job (veach-ajar 320 x 180, batches of 4,096 paths, the small model) as one process with
 # one thread, as 2 ranks x 1 thread under mpirun, and as one process with 2 threads, ROUNDS
 # times in turn. It prints a Markdown table of milliseconds per training iteration (rank 0's
@@ -13,7 +13,7 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 ITERATIONS=${1:-100}
 ROUNDS=${2:-3}
-TRACER=build/examples/nf_tracer
+TRACER=build/examples/nf_paper
 OUT=out/distributed-scaling
 test -x "$TRACER" || { echo "build first: cmake -S . -B build && cmake --build build -j2" >&2; exit 1; }
 command -v mpirun > /dev/null || { echo "mpirun is missing: scripts/install-deps.sh" >&2; exit 1; }

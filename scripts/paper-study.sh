@@ -8,7 +8,7 @@
 #   ./scripts/paper-study.sh
 #
 # Every configuration runs with seeds 1, 2 and 3; each run is one single-threaded
-# nf_tracer process and NF_STUDY_JOBS of them (default: the number of processors) run at
+# nf_paper process and NF_STUDY_JOBS of them (default: the number of processors) run at
 # once, so that all timings are for one thread. Runs land in out/study/runs/; a run whose
 # log is complete is not run again, so an interrupted study resumes where it stopped
 # (delete out/study to start over). NF_STUDY_ONLY_AGGREGATE=1 skips the runs and only
@@ -22,7 +22,7 @@ cd "$(dirname "$0")/.."
 STUDY=out/study
 RUNS=$STUDY/runs
 JOBS=${NF_STUDY_JOBS:-$(nproc)}
-TRACER=build/examples/nf_tracer
+TRACER=build/examples/nf_paper
 SEEDS="1 2 3"
 
 for tool in gnuplot python3 cmake; do
@@ -37,7 +37,7 @@ mkdir -p "$RUNS"
 
 if [ "${NF_STUDY_ONLY_AGGREGATE:-0}" != 1 ]; then
     cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
-    cmake --build build -j"$JOBS" --target nf_tracer >/dev/null
+    cmake --build build -j"$JOBS" --target nf_paper >/dev/null
     [ -x "$TRACER" ] || { echo "paper-study.sh: $TRACER was not built" >&2; exit 1; }
 
     # Scenes, at 256 pixels wide: an integer fraction of the Tungsten references (1024 x 1024
@@ -67,7 +67,7 @@ if [ "${NF_STUDY_ONLY_AGGREGATE:-0}" != 1 ]; then
     : >"$joblist"
     # (xargs -L joins a line that ends in a blank with the next one: none may.)
     add() { local line="$*"; echo "${line%"${line##*[! ]}"}" >>"$joblist"; }
-    # Every guided run follows the paper's protocol (nf_tracer --variant paper), not the
+    # Every guided run follows the paper's protocol (nf_paper --variant paper), not the
     # equal-time defaults; extra arguments may name their own --variant list including it.
     guided() { # scene prior seed name-suffix extra-args...
         local scene=$1 prior=$2 seed=$3 suffix=$4 variant="--variant paper"

@@ -21,6 +21,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TRACER=build/examples/nf_tracer
+PAPER=build/examples/nf_paper
 OUT=${NF_PC_OUT:-out/pass-choice}
 BUDGET=${NF_PC_BUDGET:-30}
 SEEDS=${NF_PC_SEEDS:-1 2 3}
@@ -44,7 +45,7 @@ reference() {
     *)
         if [ ! -f "$OUT/$s-ref.exr" ]; then
             # shellcheck disable=SC2086 # SIZE holds options
-            "$TRACER" --scene "examples/scenes/$s/scene.xml" ${SIZE[$s]} --reference-mode \
+            "$PAPER" --scene "examples/scenes/$s/scene.xml" ${SIZE[$s]} --reference-mode \
                 --spp "$REF_SPP" --threads 2 --seed 999 --out "$OUT/$s-ref" > "$OUT/$s-ref.log" 2>&1
         fi
         echo "$OUT/$s-ref.exr" ;;

@@ -39,7 +39,7 @@ if [ "${1:-}" = --smoke ]; then
 elif [ -n "${1:-}" ]; then
     SEEDS=$1
 fi
-for p in build/examples/nf_seam_study build/examples/nf_tracer build/examples/nf_compare; do
+for p in build/examples/nf_seam_study build/examples/nf_paper build/examples/nf_compare; do
     test -x "$p" || { echo "build first: cmake -S . -B build && cmake --build build -j2" >&2; exit 1; }
 done
 mkdir -p "$OUT"
@@ -78,7 +78,7 @@ for map in interval circular; do
         variant=paper
         [ "$map" = interval ] && variant=paper,phi-interval
         for ((s = 1; s <= RENDER_SEEDS; ++s)); do
-            build/examples/nf_tracer --scene "$scene/scene.xml" --prior cosine \
+            build/examples/nf_paper --scene "$scene/scene.xml" --prior cosine \
                 --variant "$variant" "${RENDER[@]}" --seed "$s" --threads 2 \
                 --out "$OUT/$map-$name-$s" > "$OUT/$map-$name-$s.log"
             read -r mape relmse < <(build/examples/nf_compare "$SRC/reference-tungsten.exr" \
@@ -107,7 +107,7 @@ done
             }' "$OUT/render-rows.md"
     done
     echo
-    echo "Guided renders (\`nf_tracer --prior cosine --variant paper[,phi-interval] ${RENDER[*]} --seed S\`) against" \
+    echo "Guided renders (\`nf_paper --prior cosine --variant paper[,phi-interval] ${RENDER[*]} --seed S\`) against" \
         "\`$SRC/reference-tungsten.exr\` (box-downsampled by nf_compare); libnisflow at commit" \
         "$(git rev-parse --short HEAD 2>/dev/null || echo '?')."
 } > "$OUT/render.md"

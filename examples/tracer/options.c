@@ -15,65 +15,88 @@
 #include "parallel.h"
 #include "ranks.h"
 
-void options_print_help(const char *program)
+const char *options_program_name(options_program program)
 {
-    printf(
-        "Usage: %s --scene FILE [options]\n"
-        "\n"
-        "Renders a Mitsuba 3 scene with a path tracer guided by a normalizing flow (libnisflow),\n"
-        "trained online while it renders. With --time-budget S: training passes, then render\n"
-        "passes, all in S seconds, combined by inverse variance (the best configuration we\n"
-        "know is the default). Without it, the paper's protocol: --iterations training\n"
-        "iterations of --batch paths, then --spp samples per pixel. It writes PREFIX.exr\n"
-        "(float RGB), PREFIX.png (sRGB preview) and, when it trained by iterations,\n"
-        "PREFIX.csv (iteration, training samples, seconds, MAPE).\n"
-        "\n"
-        "Scene and output:\n"
-        "  --scene FILE          the scene (Mitsuba 3 XML subset, see docs/tracer.md)\n"
-        "  --out PREFIX          output prefix; a directory (existing, or ending in /) gets\n"
-        "                        files named after the scene (default out/<scene name>)\n"
-        "  --width N, --height N film size (default: the scene's film)\n"
-        "  --max-depth N         longest path in segments, -1 unlimited (default: the scene's)\n"
-        "  --exposure X          PNG preview brightness in stops (default 0)\n"
-        "  --reference FILE      reference EXR for MAPE and relMSE (same size as the render,\n"
-        "                        or an integer multiple of it: then it is box-downsampled)\n"
-        "\n"
-        "Guiding:\n"
-        "  --time-budget S       the whole job in S seconds of wall time from after the scene\n"
-        "                        is loaded; replaces --iterations, --batch and --spp\n"
-        "  --prior NAME          uniform-direction, uniform-angle, cosine (default) or bsdf\n"
-        "  --model NAME          small (default, the paper's) or large\n"
-        "  --lr X                AdamW learning rate (default: the library's guide, 5e-3)\n"
-        "  --no-guiding          plain path tracing (BSDF sampling and next-event estimation)\n"
-        "  --save-model FILE     save the trained model\n"
-        "  --load-model FILE     start from a saved model (its prior and architecture replace\n"
-        "                        --prior and --model; --lr, if given, replaces its rate)\n"
-        "  --variant V[,V...]    experiments' settings, NAME or NAME=VALUE from the table of\n"
-        "                        --variant list (the paper's protocol, ablations)\n"
-        "\n"
-        "The paper's protocol (without --time-budget):\n"
-        "  --iterations N        training iterations (default 200)\n"
-        "  --batch N             training paths per iteration, each through a random film\n"
-        "                        position (default 4096)\n"
-        "  --spp N               samples per pixel of the final image (default 32)\n"
-        "  --eval-every N        evaluate every N iterations, 0 never (default 50)\n"
-        "  --eval-spp N          samples per pixel of evaluation renders (default 4)\n"
-        "  --reference-mode      render an unguided reference: no training, --spp default 1024,\n"
-        "                        default output out/<scene name>-reference\n"
-        "\n"
-        "Execution:\n"
-        "  --threads N           worker threads (default: the number of processors); under\n"
-        "                        mpirun, per rank\n"
-        "  --seed N              random seed (default 1); results are identical for the same\n"
-        "                        seed, whatever the number of threads and of MPI ranks\n"
-        "  --isa NAME            the library's kernels: auto (default, the best this CPU\n"
-        "                        runs), generic, avx2 or avx512 (nf_model_set_isa)\n"
-        "  --help                this text\n"
-        "\n"
-        "Several processes or machines (docs/distributed.md): mpirun -n N %s ... splits each\n"
-        "training batch and the film's tiles between N ranks, which train one model; rank 0\n"
-        "writes the outputs.\n",
-        program, program);
+    return program == OPTIONS_PAPER ? "nf_paper" : "nf_tracer";
+}
+
+/* The options both programs take, in the help's words. */
+static const char help_scene[] =
+    "Scene and output:\n"
+    "  --scene FILE          the scene (Mitsuba 3 XML subset, see docs/tracer.md)\n"
+    "  --out PREFIX          output prefix; a directory (existing, or ending in /) gets\n"
+    "                        files named after the scene (default out/<scene name>)\n"
+    "  --width N, --height N film size (default: the scene's film)\n"
+    "  --max-depth N         longest path in segments, -1 unlimited (default: the scene's)\n"
+    "  --exposure X          PNG preview brightness in stops (default 0)\n"
+    "  --reference FILE      reference EXR for MAPE and relMSE (same size as the render,\n"
+    "                        or an integer multiple of it: then it is box-downsampled)\n"
+    "\n";
+static const char help_guiding[] =
+    "  --prior NAME          uniform-direction, uniform-angle, cosine (default) or bsdf\n"
+    "  --model NAME          small (default, the paper's) or large\n"
+    "  --lr X                AdamW learning rate (default: the library's guide, 5e-3)\n"
+    "  --no-guiding          plain path tracing (BSDF sampling and next-event estimation)\n"
+    "  --save-model FILE     save the trained model\n"
+    "  --load-model FILE     start from a saved model (its prior and architecture replace\n"
+    "                        --prior and --model; --lr, if given, replaces its rate)\n"
+    "  --variant V[,V...]    experiments' settings, NAME or NAME=VALUE from the table of\n"
+    "                        --variant list (ablations, libnisflow 0.1's protocol)\n"
+    "\n";
+static const char help_execution[] =
+    "Execution:\n"
+    "  --threads N           worker threads (default: the number of processors); under\n"
+    "                        mpirun, per rank\n"
+    "  --seed N              random seed (default 1); results are identical for the same\n"
+    "                        seed, whatever the number of threads and of MPI ranks\n"
+    "  --isa NAME            the library's kernels: auto (default, the best this CPU\n"
+    "                        runs), generic, avx2 or avx512 (nf_model_set_isa)\n"
+    "  --help                this text\n"
+    "\n";
+
+void options_print_help(options_program program, const char *name)
+{
+    if (program == OPTIONS_TRACER)
+        printf("Usage: %s --scene FILE [options]\n"
+               "\n"
+               "Renders a Mitsuba 3 scene in a time budget with a path tracer guided by a\n"
+               "normalizing flow (libnisflow) that it trains while it renders: training passes,\n"
+               "then guided or plain render passes, as the library's schedule chooses, combined\n"
+               "by inverse variance. The defaults are the best configuration we know. It writes\n"
+               "PREFIX.exr (float RGB) and PREFIX.png (sRGB preview). nf_paper runs the paper's\n"
+               "protocol instead (training iterations, then a number of samples per pixel).\n"
+               "\n%s"
+               "Guiding:\n"
+               "  --time-budget S       the whole job in S seconds of wall time from after the scene\n"
+               "                        is loaded (default 30)\n"
+               "%s%s",
+               name, help_scene, help_guiding, help_execution);
+    else
+        printf("Usage: %s --scene FILE [options]\n"
+               "\n"
+               "The paper's protocol on nf_tracer's path tracer: --iterations training iterations\n"
+               "of --batch paths, each followed by one optimizer step, then --spp samples per\n"
+               "pixel with the trained model. It writes PREFIX.exr, PREFIX.png and, when it\n"
+               "trained, PREFIX.csv (iteration, training samples, seconds, MAPE). Its images are\n"
+               "the same bits for the same seed, whatever the threads and ranks: references,\n"
+               "studies at equal samples. nf_tracer renders in a time budget instead.\n"
+               "\n%s"
+               "Guiding:\n%s"
+               "The protocol:\n"
+               "  --iterations N        training iterations (default 200)\n"
+               "  --batch N             training paths per iteration, each through a random film\n"
+               "                        position (default 4096)\n"
+               "  --spp N               samples per pixel of the final image (default 32)\n"
+               "  --eval-every N        evaluate every N iterations, 0 never (default 50)\n"
+               "  --eval-spp N          samples per pixel of evaluation renders (default 4)\n"
+               "  --reference-mode      render an unguided reference: no training, --spp default\n"
+               "                        1024, default output out/<scene name>-reference\n"
+               "\n%s",
+               name, help_scene, help_guiding, help_execution);
+    printf("Several processes or machines (docs/distributed.md): mpirun -n N %s ... splits\n"
+           "the training and the film's tiles between N ranks, which train one model; rank 0\n"
+           "writes the outputs.\n",
+           name);
 }
 
 static int parse_int(const char *name, const char *text, long lo, long hi, int *out,
@@ -254,9 +277,30 @@ static int apply_variants(options *o, const char *list, tr_error *err)
     return 1;
 }
 
-int options_parse(int argc, char **argv, options *o, tr_error *err)
+/* Whether `flag` belongs to the other program's protocol; then a message names that program. */
+static int other_program_flag(options_program program, const char *flag, tr_error *err)
+{
+    static const char *const paper_only[] = {"--iterations", "--batch",    "--spp",
+                                             "--eval-every", "--eval-spp", "--reference-mode"};
+    if (program == OPTIONS_PAPER && !strcmp(flag, "--time-budget")) {
+        tr_fail(err, "--time-budget is nf_tracer's: nf_paper runs the paper's protocol "
+                "(--iterations, --batch, --spp)");
+        return 1;
+    }
+    for (size_t k = 0; program == OPTIONS_TRACER && k < sizeof paper_only / sizeof *paper_only;
+         ++k)
+        if (!strcmp(flag, paper_only[k])) {
+            tr_fail(err, "%s is the paper's protocol, nf_paper's: nf_tracer renders in "
+                    "--time-budget S", flag);
+            return 1;
+        }
+    return 0;
+}
+
+int options_parse(int argc, char **argv, options_program program, options *o, tr_error *err)
 {
     memset(o, 0, sizeof *o);
+    o->program = program;
     nf_guide_config_init(&o->guide);
     /* The model's defaults have one home: guide_default_settings. */
     guide_settings model = guide_default_settings(GUIDE_PRIOR_COSINE);
@@ -274,9 +318,13 @@ int options_parse(int argc, char **argv, options *o, tr_error *err)
     o->threads = processor_count();
     o->guiding = 1;
     o->mis_training = 1;
+    if (program == OPTIONS_TRACER)
+        o->time_budget = 30.0f;
 
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
+        if (other_program_flag(program, a, err))
+            return 0;
         /* Options without a value. */
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
             o->help = 1;

@@ -1,5 +1,7 @@
 /*
- * options.h - the command line of nf_tracer (nf_tracer --help prints it).
+ * options.h - the command lines of nf_tracer (a render in a time budget) and nf_paper (the
+ * paper's protocol: training iterations, then a fixed number of samples per pixel); --help
+ * prints each. The two share every option but their protocol's own.
  */
 #ifndef TRACER_OPTIONS_H
 #define TRACER_OPTIONS_H
@@ -9,7 +11,12 @@
 #include "error.h"
 #include "guide.h"
 
+/* Which program parses: each refuses the other's protocol options, naming the program that
+ * takes them. */
+typedef enum options_program { OPTIONS_TRACER, OPTIONS_PAPER } options_program;
+
 typedef struct options {
+    options_program program;
     const char *scene;
     const char *out;          /* as given; NULL: out/<scene name>                             */
     const char *reference;
@@ -30,8 +37,7 @@ typedef struct options {
     int guiding;
     int reference_mode;
     float exposure;
-    float time_budget;        /* seconds, from after the scene is loaded; 0: iterations, then
-                               * spp (the paper's protocol)                                  */
+    float time_budget;        /* nf_tracer: seconds, from after the scene is loaded (30)     */
     /* The guide: the library's defaults (nf_guide_config_init), which --variant changes. */
     nf_guide_config guide;
     /* The model and the integrator, also changed by --variant only: */
@@ -44,12 +50,16 @@ typedef struct options {
     int help, list_variants;
 } options;
 
-/* Fills the defaults, then parses argv. Returns 0 with a message on a bad command line.
+/* Fills the defaults, then parses argv for `program`. Returns 0 with a message on a bad
+ * command line.
  * The defaults are the best configuration docs/equal-time.md measured: the library's guide
  * defaults, a position-only model input (0 SH bands), training on the MIS-weighted emission.
  * Everything else an experiment may want is a --variant (options_print_variants). */
-int options_parse(int argc, char **argv, options *o, tr_error *err);
-void options_print_help(const char *program);
+int options_parse(int argc, char **argv, options_program program, options *o, tr_error *err);
+/* "nf_tracer" or "nf_paper", for messages. */
+const char *options_program_name(options_program program);
+/* The help of `program`; `name` is how it was started (argv[0]). */
+void options_print_help(options_program program, const char *name);
 /* The table of --variant settings, one per line (nf_tracer --variant list). */
 void options_print_variants(void);
 

@@ -274,7 +274,7 @@ int ranks_init(int *argc, char ***argv, tr_error *err)
     int n = launcher_world_size();
     if (n > 1)
         return tr_fail(err, "started by an MPI launcher as one of %d processes, but this "
-                            "nf_tracer was built without MPI: each process would render the "
+                            "tracer was built without MPI: each process would render the "
                             "whole job alone. Install libopenmpi-dev and rebuild "
                             "(docs/distributed.md)", n);
     return 1;

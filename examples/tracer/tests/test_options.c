@@ -2,7 +2,8 @@
  * test_options.c - the command line: the defaults are the library's guide defaults and the
  * best configuration of docs/equal-time.md; --isa names the kernels; --variant settings (the studies' and the
  * ablations') are parsed, range-checked, and reach the options; the model settings among
- * them (prior epsilon, phi map, SH bands) reach the created model's config.
+ * them (prior epsilon, phi map, SH bands) reach the created model's config; nf_tracer and
+ * nf_paper each refuse the other's protocol, naming the program that takes it.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -18,10 +19,17 @@
 #include "options.h"
 #include "scene.h"
 
-static int parse(options *o, const char *a, const char *b, tr_error *err)
+/* `program`'s command line --scene x.xml [a [b]], parsed into o. */
+static int parse_for(options_program program, options *o, const char *a, const char *b,
+                     tr_error *err)
 {
     char *argv[] = {"nf_tracer", "--scene", "x.xml", (char *)a, (char *)b, NULL};
-    return options_parse(a ? (b ? 5 : 4) : 3, argv, o, err);
+    return options_parse(a ? (b ? 5 : 4) : 3, argv, program, o, err);
+}
+
+static int parse(options *o, const char *a, const char *b, tr_error *err)
+{
+    return parse_for(OPTIONS_TRACER, o, a, b, err);
 }
 
 /* Each of `bad` given to `flag` is refused, with a message that names the flag. */
@@ -104,6 +112,41 @@ static void test_defaults_are_the_best_configuration(void **state)
     assert_int_equal(o.phi_interval, 0);
     assert_true(o.prior_epsilon < 0.0f); /* the library's */
     assert_int_equal(o.isa, NF_ISA_AUTO);
+}
+
+/* nf_tracer renders in a time budget (30 s unless told) and refuses the paper's protocol;
+ * nf_paper takes the protocol and refuses --time-budget; each message names the other
+ * program. Both take the options they share. */
+static void test_each_program_takes_its_protocol(void **state)
+{
+    (void)state;
+    options o;
+    tr_error err;
+    assert_true(parse_for(OPTIONS_TRACER, &o, NULL, NULL, &err));
+    assert_true(o.time_budget == 30.0f);
+    assert_true(parse_for(OPTIONS_TRACER, &o, "--time-budget", "12.5", &err));
+    assert_true(o.time_budget == 12.5f);
+    static const char *const paper_only[][2] = {{"--iterations", "5"}, {"--batch", "64"},
+                                                {"--spp", "4"},        {"--eval-every", "0"},
+                                                {"--eval-spp", "2"},   {"--reference-mode", NULL}};
+    for (size_t k = 0; k < sizeof paper_only / sizeof *paper_only; ++k) {
+        err.msg[0] = '\0';
+        assert_false(parse_for(OPTIONS_TRACER, &o, paper_only[k][0], paper_only[k][1], &err));
+        assert_non_null(strstr(err.msg, paper_only[k][0]));
+        assert_non_null(strstr(err.msg, "nf_paper"));
+        assert_true(parse_for(OPTIONS_PAPER, &o, paper_only[k][0], paper_only[k][1], &err));
+    }
+    assert_true(parse_for(OPTIONS_PAPER, &o, "--spp", "4", &err));
+    assert_int_equal(o.spp, 4);
+    assert_true(o.time_budget == 0.0f);
+    err.msg[0] = '\0';
+    assert_false(parse_for(OPTIONS_PAPER, &o, "--time-budget", "10", &err));
+    assert_non_null(strstr(err.msg, "nf_tracer"));
+    assert_true(parse_for(OPTIONS_PAPER, &o, "--reference-mode", NULL, &err));
+    assert_int_equal(o.guiding, 0);
+    assert_int_equal(o.spp, 1024);
+    assert_true(parse_for(OPTIONS_PAPER, &o, "--seed", "7", &err));
+    assert_true(parse_for(OPTIONS_TRACER, &o, "--seed", "7", &err));
 }
 
 /* --isa names the library's kernels; anything else is refused with a message naming it. */
@@ -218,6 +261,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_defaults_are_the_best_configuration),
+        cmocka_unit_test(test_each_program_takes_its_protocol),
         cmocka_unit_test(test_variants_are_parsed_and_range_checked),
         cmocka_unit_test(test_isa_is_parsed),
         cmocka_unit_test(test_created_model_carries_the_epsilon),
