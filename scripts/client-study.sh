@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The per-path client's studies (docs/equal-time.md, "How large a training pass" and "A
-# per-path preset"): examples/nf_guide_client.cpp at equal time with one of the guide's or the
-# model's settings varied, against plain path tracing, seed by seed, back to back.
+# The per-path client's studies (docs/equal-time.md, "How large a training pass";
+# docs/studies/cost-of-a-direction.md, "A per-path preset"): examples/nf_guide_client.cpp at
+# equal time with one of the guide's or the model's settings varied, against plain path
+# tracing, seed by seed, back to back.
 #
 # The client has no switch for them (the defaults won); this script builds a copy of the tree
 # with scripts/study/client-knobs.patch applied, which reads NF_EXP_STEPS, NF_EXP_STEP_SAMPLES
@@ -12,7 +13,7 @@
 # Usage (from the repository root):
 #   ./scripts/client-study.sh training-size     a 200-s plain reference, then 5 seeds x 6
 #                                               settings x 20 s (about 14 minutes)
-#   ./scripts/client-study.sh model-size        the same with 7 model shapes (about 16 minutes)
+#   ./scripts/client-study.sh model-size        the same with 7 model shapes (about 17 minutes)
 #   ./scripts/client-study.sh NAME --smoke      about 1 minute: a 10-s reference, one seed at
 #                                               4 s, plain and the default
 # Output: one line per run, "seed setting client-line", then each setting's mean relMSE, its
