@@ -65,7 +65,8 @@ static nf_model *trained_model(tracer *t)
     nf_guide_config gc;
     nf_guide_config_init(&gc);
     gc.policy = t->policy;
-    training_settings ts = {4, 256, 0, 1, 2, 3, NULL, &gc, NULL};
+    training_settings ts = {.iterations = 4, .batch = 256, .eval_spp = 1, .threads = 2,
+                            .seed = 3, .guide = &gc};
     training_report rep;
     if (!train_guide(t, &model, &ts, &rep, &err))
         fail_msg("%s", err.msg);

@@ -44,7 +44,8 @@ static void train_and_render(const scene *s, guide_prior prior, int threads, uin
     if (!guide_create(s, &gs, model, &err))
         fail_msg("%s", err.msg);
     tracer t = {.s = s, .policy = test_policy(0.5f), .bsdf_prior = prior == GUIDE_PRIOR_BSDF};
-    training_settings ts = {3, 200, 0, 1, threads, seed, NULL, NULL, NULL};
+    training_settings ts = {.iterations = 3, .batch = 200, .eval_spp = 1, .threads = threads,
+                            .seed = seed};
     training_report rep;
     if (!train_guide(&t, model, &ts, &rep, &err))
         fail_msg("%s", err.msg);

@@ -30,7 +30,7 @@
 #include "training.h"
 
 #include "mixed_scene.h"
-#include "test_policy.h"
+#include "test_guided.h"
 
 /* 24 x 24 pixels at 16 paths each: a standard error of about 0.4% for the cosine prior, so
  * that a 5% bias is caught. Small enough to run in seconds under the sanitizers too. */
@@ -77,35 +77,12 @@ static void furnace(const char *environment, int guided, guide_prior prior, int 
     tr_error err;
     if (!scene_load_string(furnace_xml(environment), TRACER_TEST_TMP_DIR, &s, &err))
         fail_msg("%s", err.msg);
-    nf_model *model = NULL;
-    tracer t = {.s = &s};
-    if (guided) {
-        guide_settings gs = guide_default_settings(prior);
-        gs.seed = 7;
-        if (!guide_create(&s, &gs, &model, &err))
-            fail_msg("%s", err.msg);
-        t.policy = test_policy(0.5f);
-        t.bsdf_prior = prior == GUIDE_PRIOR_BSDF;
-        /* A few training steps, so that the flow is no longer its prior: the estimator must
-         * stay unbiased for any model. */
-        training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL, NULL};
-        training_report rep;
-        if (!train_guide(&t, &model, &ts, &rep, &err))
-            fail_msg("%s", err.msg);
-        t.model = model;
-        assert_true(rep.samples > 0);
-        assert_int_equal(rep.refused, 0);
-        assert_int_equal(nf_model_step_count(model), 4);
-    }
+    tracer t = test_tracer(&s, guided, prior, 4);
     image img;
-    assert_true(image_alloc(&img, s.width, s.height, &err));
-    path_stats st = {0};
-    if (!render_image(&t, spp, 11, 0, 2, &img, &st, NULL, &err))
-        fail_msg("%s", err.msg);
-    assert_int_equal(st.nf_errors, 0);
+    test_render(&t, spp, 11, &img, NULL);
     image_stats(&img, mean, se);
     image_free(&img);
-    nf_model_destroy(model);
+    nf_model_destroy((nf_model *)t.model);
     scene_free(&s);
 }
 
@@ -248,24 +225,9 @@ static void test_guided_matches_unguided(void **state)
         fail_msg("%s", err.msg);
     image img[2];
     for (int guided = 0; guided < 2; ++guided) {
-        nf_model *model = NULL;
-        tracer t = {.s = &s};
-        if (guided) {
-            guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
-            gs.seed = 7;
-            if (!guide_create(&s, &gs, &model, &err))
-                fail_msg("%s", err.msg);
-            t.policy = test_policy(0.5f);
-            training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL, NULL};
-            training_report rep;
-            if (!train_guide(&t, &model, &ts, &rep, &err))
-                fail_msg("%s", err.msg);
-            t.model = model;
-        }
-        assert_true(image_alloc(&img[guided], s.width, s.height, &err));
-        if (!render_image(&t, 4 * SPP, 100 + (uint64_t)guided, 0, 2, &img[guided], NULL, NULL, &err))
-            fail_msg("%s", err.msg);
-        nf_model_destroy(model);
+        tracer t = test_tracer(&s, guided, GUIDE_PRIOR_COSINE, 4);
+        test_render(&t, 4 * SPP, 100 + (uint64_t)guided, &img[guided], NULL);
+        nf_model_destroy((nf_model *)t.model);
     }
     /* Pixel by pixel differences: the image's own structure cancels, what remains is the
      * noise of the two estimators (independent seeds). */

@@ -31,7 +31,7 @@
 #include "rng.h"
 #include "scene.h"
 #include "scene_errors.h"
-#include "test_policy.h"
+#include "test_guided.h"
 
 /* ---- Helpers ---------------------------------------------------------------------------- */
 
@@ -448,21 +448,10 @@ static void render_edge(int guided)
     assert_true(scene_ray_valid(&c));
     assert_true(scene_intersect(&s, &c, &h));
 
-    nf_model *model = NULL;
-    tracer t = {.s = &s};
-    if (guided) {
-        guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
-        gs.seed = 3;
-        if (!guide_create(&s, &gs, &model, &err))
-            fail_msg("%s", err.msg);
-        t.model = model;
-        t.policy = test_policy(0.5f);
-    }
+    tracer t = test_tracer(&s, guided, GUIDE_PRIOR_COSINE, 0);
     image img;
-    assert_true(image_alloc(&img, s.width, s.height, &err));
-    path_stats st = {0};
-    if (!render_image(&t, 8, 17, 0, 2, &img, &st, NULL, &err))
-        fail_msg("%s", err.msg);
+    path_stats st;
+    test_render(&t, 8, 17, &img, &st);
     assert_int_equal(st.invalid_rays, 0);
     assert_int_equal(st.nf_errors, 0);
     assert_true(st.rays > 2 * st.paths); /* paths bounce, and take light samples */
@@ -475,7 +464,7 @@ static void render_edge(int guided)
     }
     assert_true(sum > 0.0);
     image_free(&img);
-    nf_model_destroy(model);
+    nf_model_destroy((nf_model *)t.model);
     scene_free(&s);
 }
 

@@ -33,7 +33,7 @@
 #include "training.h"
 
 #include "scene_errors.h"
-#include "test_policy.h"
+#include "test_guided.h"
 #include "vol_file.h"
 
 #define SIZE 24
@@ -121,29 +121,10 @@ static void furnace(const char *label, int camera_inside, int guided, guide_prio
         fail_msg("%s", err.msg);
     assert_true(s.has_media);
     assert_int_equal(s.camera_medium, camera_inside ? 0 : -1);
-    nf_model *model = NULL;
-    tracer t = {.s = &s};
-    if (guided) {
-        guide_settings gs = guide_default_settings(prior);
-        gs.seed = 7;
-        if (!guide_create(&s, &gs, &model, &err))
-            fail_msg("%s", err.msg);
-        t.policy = test_policy(0.5f);
-        t.bsdf_prior = prior == GUIDE_PRIOR_BSDF;
-        /* A few steps, so that the flow is no longer its prior. */
-        training_settings ts = {4, 256, 0, 1, 2, 3, NULL, NULL, NULL};
-        training_report rep;
-        if (!train_guide(&t, &model, &ts, &rep, &err))
-            fail_msg("%s", err.msg);
-        t.model = model;
-        assert_int_equal(rep.refused, 0);
-    }
+    tracer t = test_tracer(&s, guided, prior, 4);
     image img;
-    assert_true(image_alloc(&img, s.width, s.height, &err));
-    path_stats st = {0};
-    if (!render_image(&t, spp, 11, 0, 2, &img, &st, NULL, &err))
-        fail_msg("%s", err.msg);
-    assert_int_equal(st.nf_errors, 0);
+    path_stats st;
+    test_render(&t, spp, 11, &img, &st);
     assert_int_equal(st.invalid_rays, 0);
     for (int c = 0; c < 3; ++c) {
         double mean, se;
@@ -160,7 +141,7 @@ static void furnace(const char *label, int camera_inside, int guided, guide_prio
 #endif
     }
     image_free(&img);
-    nf_model_destroy(model);
+    nf_model_destroy((nf_model *)t.model);
     scene_free(&s);
 }
 
