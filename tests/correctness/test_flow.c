@@ -200,11 +200,7 @@ static void check_sample_pdf(int presets, double sigma, double max_outside, doub
             nf_model *m = random_model((nf_preset)preset, prior, sigma, 300u + 10u * pi + preset);
             nft_rng r;
             nft_rng_seed(&r, 3001u + (uint64_t)pi, (uint64_t)preset);
-            for (int i = 0; i < N; ++i) {
-                nft_random_context(&r, &ctx[i]);
-                u[2 * i] = nft_rng_float(&r);
-                u[2 * i + 1] = nft_rng_float(&r);
-            }
+            nft_random_queries(&r, N, ctx, u);
             assert_int_equal(nf_sample(m, N, ctx, u, dir, pdf_s), NF_OK);
             assert_int_equal(nf_pdf(m, N, ctx, dir, pdf_e), NF_OK);
             int checked = 0, outside = 0, bad = 0;
@@ -516,11 +512,7 @@ static void test_batch_split_invariant(void **state)
     nf_model *m = random_model(NF_PRESET_LARGE, NF_PRIOR_COSINE, 0.3, 800u);
     nft_rng r;
     nft_rng_seed(&r, 3006u, 1u);
-    for (int i = 0; i < N; ++i) {
-        nft_random_context(&r, &ctx[i]);
-        u[2 * i] = nft_rng_float(&r);
-        u[2 * i + 1] = nft_rng_float(&r);
-    }
+    nft_random_queries(&r, N, ctx, u);
     assert_int_equal(nf_sample(m, N, ctx, u, dir, pdf), NF_OK);
     static const int chunks[] = {3, 5, 16, 4, 9}; /* 37 samples in all */
     for (int i = 0, c = 0; i < N; i += chunks[c++])

@@ -545,11 +545,9 @@ static void test_gradient_with_work(void **state)
     static float dir[3 * MAX_N], weight[MAX_N];
     nft_rng r;
     nft_rng_seed(&r, 77u, 3u);
-    for (int i = 0; i < MAX_N; ++i) {
-        nft_random_context(&r, &ctx[i]);
-        nft_random_unit_vector(&r, dir + 3 * i);
-        weight[i] = i % 7 == 3 ? 0.0f : 0.1f + nft_rng_float(&r);
-    }
+    nft_random_samples(&r, MAX_N, ctx, dir, weight, 0.1f);
+    for (int i = 3; i < MAX_N; i += 7)
+        weight[i] = 0.0f; /* zero-weight samples inside the batch */
     const size_t bytes = nf_training_work_bytes();
     /* At least the tile work area: NF_TRAINING_STACK_BYTES says it is most of 160 KiB. */
     assert_true(bytes > 64 * 1024);

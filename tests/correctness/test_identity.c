@@ -269,11 +269,7 @@ static void test_fresh_uniform_angle_sample_map(void **state)
     assert_non_null(m);
     nft_rng r;
     nft_rng_seed(&r, 2718u, 1u);
-    for (int i = 0; i < N; ++i) {
-        nft_random_context(&r, &ctx[i]);
-        u[2 * i] = nft_rng_float(&r);
-        u[2 * i + 1] = nft_rng_float(&r);
-    }
+    nft_random_queries(&r, N, ctx, u);
     /* The edges of the square: the poles and the seam. */
     const float edge[6][2] = {{0.0f, 0.0f},        {0.0f, 0.5f},          {0.5f, 0.0f},
                               {0.5f, 0x1.fffffep-1f}, {0x1.fffffep-1f, 0.25f}, {1e-6f, 0.999f}};

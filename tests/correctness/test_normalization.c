@@ -87,19 +87,6 @@ static void assert_far_from_prior(const nf_model *m, const nf_model *fresh,
         fail_msg("randomized model too close to its prior: max |log ratio| %.3f", worst);
 }
 
-static double integrate_model(const nf_model *m, const nf_context *ctx, uint32_t theta_res,
-                              uint32_t phi_res, const double frame[3][3])
-{
-    nft_model_fn f;
-    assert_int_equal(nft_model_fn_init(&f, m, ctx), 0);
-    double integral = nft_integrate_sphere(nft_model_pdf, &f, theta_res, phi_res, frame);
-    nf_status last = f.last;
-    nft_model_fn_free(&f);
-    if (last != NF_OK)
-        fail_msg("nf_pdf failed: %s (%s)", nf_status_string(last), nf_last_error_message());
-    return integral;
-}
-
 static void check_integral(double integral, const char *what, nf_prior_kind prior, int c)
 {
     if (!(fabs(integral - 1.0) <= TOLERANCE))
@@ -125,10 +112,10 @@ static void check_prior(nf_prior_kind prior)
         if (c == 5 || (c == 2 && seam != 2) || (c == 3 && seam != 3))
             continue; /* the random context: see test_quadrature_convergence */
         if (c == 4)
-            check_integral(integrate_model(fresh, &ctx[c], THETA_RES, PHI_RES, NULL),
+            check_integral(nft_integrate_model(fresh, &ctx[c], THETA_RES, PHI_RES, NULL),
                            "fresh", prior, c);
         assert_far_from_prior(randomized, fresh, &ctx[c]);
-        check_integral(integrate_model(randomized, &ctx[c], THETA_RES, PHI_RES, NULL),
+        check_integral(nft_integrate_model(randomized, &ctx[c], THETA_RES, PHI_RES, NULL),
                        "randomized", prior, c);
     }
     nf_model_destroy(fresh);
@@ -168,7 +155,7 @@ static void test_normalization_large_preset(void **state)
     nf_model *m = nft_make_model(NF_PRESET_LARGE, NF_PRIOR_COSINE);
     assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 5u), NF_OK);
-    check_integral(integrate_model(m, &ctx[3], THETA_RES, PHI_RES, NULL), "large randomized",
+    check_integral(nft_integrate_model(m, &ctx[3], THETA_RES, PHI_RES, NULL), "large randomized",
                    NF_PRIOR_COSINE, 3);
     nf_model_destroy(m);
 }
@@ -195,7 +182,7 @@ static void test_normalization_rotated_frame(void **state)
         assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 31u + (uint64_t)k), NF_OK);
         int c = context_of[k];
         double integral =
-            integrate_model(m, &ctx[c], THETA_RES, PHI_RES, (const double(*)[3])frame);
+            nft_integrate_model(m, &ctx[c], THETA_RES, PHI_RES, (const double(*)[3])frame);
         if (!(fabs(integral - 1.0) <= TOLERANCE))
             fail_msg("rotated frame (pole %.1f %.1f %.1f), prior %s, context %d: "
                      "integral %.6f",
@@ -217,8 +204,8 @@ static void test_quadrature_convergence(void **state)
     assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 11u + (uint64_t)NF_PRIOR_CUSTOM),
                      NF_OK);
-    double fine = integrate_model(m, &ctx[5], FINE_THETA_RES, FINE_PHI_RES, NULL);
-    double coarse = integrate_model(m, &ctx[5], THETA_RES, PHI_RES, NULL);
+    double fine = nft_integrate_model(m, &ctx[5], FINE_THETA_RES, FINE_PHI_RES, NULL);
+    double coarse = nft_integrate_model(m, &ctx[5], THETA_RES, PHI_RES, NULL);
     double err = 4.0 / 3.0 * fabs(fine - coarse);
     print_message("quadrature: %ux%u %.7f, %ux%u %.7f, estimated error of the coarse grid "
                   "%.2e\n",

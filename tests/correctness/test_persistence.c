@@ -45,19 +45,6 @@
 
 /* ---- helpers ---------------------------------------------------------------------------------- */
 
-/* CRC-32/IEEE as zlib computes it (reflected polynomial 0xEDB88320, initial value and final
- * XOR 0xFFFFFFFF), bit by bit: deliberately unlike the library's table-driven version. */
-static uint32_t crc32_ieee(const unsigned char *p, size_t n)
-{
-    uint32_t crc = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; ++i) {
-        crc ^= p[i];
-        for (int b = 0; b < 8; ++b)
-            crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
-    }
-    return ~crc;
-}
-
 static void put_u32(unsigned char *p, uint32_t v)
 {
     for (int i = 0; i < 4; ++i)
@@ -90,7 +77,7 @@ static void put_f32(unsigned char *p, float v)
 /* Rewrites the trailing CRC-32 of a buffer so that it is structurally valid again. */
 static void fix_crc(unsigned char *buf, size_t size)
 {
-    put_u32(buf + size - TRAILER, crc32_ieee(buf, size - TRAILER));
+    put_u32(buf + size - TRAILER, nft_crc32_ieee(buf, size - TRAILER));
 }
 
 /* Serializes a model into a new buffer. */
@@ -134,11 +121,7 @@ static nf_model *trained_model(nf_preset preset, nf_prior_kind prior, int steps,
     nft_rng r;
     nft_rng_seed(&r, seed, 3u);
     for (int s = 0; s < steps; ++s) {
-        for (int i = 0; i < N; ++i) {
-            nft_random_context(&r, &ctx[i]);
-            nft_random_unit_vector(&r, dir + 3 * i);
-            weight[i] = nft_rng_float(&r);
-        }
+        nft_random_samples(&r, N, ctx, dir, weight, 0.0f);
         assert_int_equal(nf_train_step(m, N, ctx, dir, weight, NULL), NF_OK);
     }
     return m;
@@ -169,11 +152,7 @@ static void assert_models_identical(const nf_model *a, const nf_model *b)
     float u[2 * N], da[3 * N], db[3 * N], pda[N], pdb[N], qa[N], qb[N];
     nft_rng r;
     nft_rng_seed(&r, 5150u, 1u);
-    for (int i = 0; i < N; ++i) {
-        nft_random_context(&r, &ctx[i]);
-        u[2 * i] = nft_rng_float(&r);
-        u[2 * i + 1] = nft_rng_float(&r);
-    }
+    nft_random_queries(&r, N, ctx, u);
     assert_int_equal(nf_sample(a, N, ctx, u, da, pda), NF_OK);
     assert_int_equal(nf_sample(b, N, ctx, u, db, pdb), NF_OK);
     assert_memory_equal(da, db, sizeof da);
@@ -198,7 +177,7 @@ static void check_round_trip(nf_preset preset, nf_prior_kind prior)
     assert_true(get_u64(buf + OFF_PARAM_COUNT) == nf_model_param_count(m));
     assert_true(get_u64(buf + OFF_STEP) == 3u);
     /* Our own CRC agrees with the stored one (little-endian, all preceding bytes). */
-    assert_true(get_u32(buf + size - TRAILER) == crc32_ieee(buf, size - TRAILER));
+    assert_true(get_u32(buf + size - TRAILER) == nft_crc32_ieee(buf, size - TRAILER));
     nf_prior_callbacks cb = nft_phong_callbacks();
     nf_model *back = NULL;
     assert_int_equal(nf_model_deserialize(buf, size, prior == NF_PRIOR_CUSTOM ? &cb : NULL,

@@ -157,11 +157,7 @@ static void test_training_passes_the_callers_context(void **state)
     static float dir[3 * N_MAX], w[N_MAX];
     nft_rng r;
     nft_rng_seed(&r, 12u, 3u);
-    for (size_t i = 0; i < N_MAX; ++i) {
-        nft_random_context(&r, &ctx[i]);
-        nft_random_unit_vector(&r, dir + 3 * i);
-        w[i] = nft_rng_float(&r);
-    }
+    nft_random_samples(&r, N_MAX, ctx, dir, w, 0.0f);
     for (size_t k = 0; k < sizeof sizes / sizeof sizes[0]; ++k) {
         size_t n = sizes[k];
         float loss = 0.0f;

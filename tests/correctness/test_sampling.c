@@ -54,8 +54,6 @@ static void run_chi2(nf_prior_kind prior)
             snprintf(name, sizeof name, "%s_%s_ctx%d", nft_prior_name(prior),
                      randomized ? "randomized" : "fresh", c);
             nf_context ctx = chi2_context(c);
-            nft_model_fn f;
-            assert_int_equal(nft_model_fn_init(&f, m, &ctx), 0);
             nft_chi2_params p = nft_chi2_defaults(name);
             p.sample_count = CHI2_SAMPLES;
             p.run_count = CHI2_RUNS;
@@ -68,13 +66,7 @@ static void run_chi2(nf_prior_kind prior)
              * 2e-3 in test_normalization; 1e-2 here catches gross errors only. */
             p.integral_tolerance = 1e-2;
             nft_chi2_result r;
-            nft_chi2_test(&p, nft_model_sample, nft_model_pdf, &f, &r);
-            nf_status last = f.last;
-            nft_model_fn_free(&f);
-            if (last != NF_OK)
-                fail_msg("%s: library call failed: %s (%s)", name, nf_status_string(last),
-                         nf_last_error_message());
-            if (!r.passed)
+            if (!nft_chi2_model(&p, m, &ctx, &r))
                 fail_msg("%s", r.message);
             print_message("%s\n", r.message);
         }

@@ -141,11 +141,7 @@ static void train(nf_model *m, int steps, uint64_t seed)
     nft_rng r;
     nft_rng_seed(&r, seed, 7u);
     for (int s = 0; s < steps; ++s) {
-        for (int i = 0; i < N; ++i) {
-            nft_random_context(&r, &ctx[i]);
-            nft_random_unit_vector(&r, dir + 3 * i);
-            w[i] = nft_rng_float(&r);
-        }
+        nft_random_samples(&r, N, ctx, dir, w, 0.0f);
         assert_int_equal(nf_train_step(m, N, ctx, dir, w, NULL), NF_OK);
     }
 }

@@ -27,17 +27,6 @@
 enum { OFF_EPS = 40, OFF_BMIN = 44, OFF_BMAX = 56, OFF_LR = 68, OFF_B1 = 72, OFF_B2 = 76 };
 enum { OFF_AEPS = 80, OFF_WD = 84 };
 
-static uint32_t crc32_ieee(const unsigned char *p, size_t n)
-{
-    uint32_t crc = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; ++i) {
-        crc ^= p[i];
-        for (int b = 0; b < 8; ++b)
-            crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
-    }
-    return ~crc;
-}
-
 static void put_f32(unsigned char *p, float v)
 {
     uint32_t bits;
@@ -48,7 +37,7 @@ static void put_f32(unsigned char *p, float v)
 
 static void fix_crc(unsigned char *buf, size_t size)
 {
-    uint32_t crc = crc32_ieee(buf, size - 4);
+    uint32_t crc = nft_crc32_ieee(buf, size - 4);
     for (int i = 0; i < 4; ++i)
         buf[size - 4 + (size_t)i] = (unsigned char)(crc >> (8 * i));
 }

@@ -88,11 +88,7 @@ static void test_training_stack_bound(void **state)
     static float dir[3 * N], weight[N];
     nft_rng r;
     nft_rng_seed(&r, 21u, 1u);
-    for (size_t i = 0; i < N; ++i) {
-        nft_random_context(&r, &ctx[i]);
-        nft_random_unit_vector(&r, dir + 3 * i);
-        weight[i] = 0.25f + nft_rng_float(&r);
-    }
+    nft_random_samples(&r, N, ctx, dir, weight, 0.25f);
     size_t worst[4] = {0, 0, 0, 0};
     char where[4][96] = {"", "", "", ""};
     void *work = malloc(nf_training_work_bytes());

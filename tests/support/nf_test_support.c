@@ -70,6 +70,25 @@ void nft_random_context(nft_rng *r, nf_context *ctx)
             ctx->wo[k] = -ctx->wo[k];
 }
 
+void nft_random_queries(nft_rng *r, size_t n, nf_context *ctx, float *u)
+{
+    for (size_t i = 0; i < n; ++i) {
+        nft_random_context(r, &ctx[i]);
+        u[2 * i] = nft_rng_float(r);
+        u[2 * i + 1] = nft_rng_float(r);
+    }
+}
+
+void nft_random_samples(nft_rng *r, size_t n, nf_context *ctx, float *dir, float *weight,
+                        float weight_min)
+{
+    for (size_t i = 0; i < n; ++i) {
+        nft_random_context(r, &ctx[i]);
+        nft_random_unit_vector(r, dir + 3 * i);
+        weight[i] = weight_min + nft_rng_float(r);
+    }
+}
+
 nf_context nft_context(float px, float py, float pz, float nx, float ny, float nz, float wx,
                        float wy, float wz)
 {
@@ -679,6 +698,51 @@ done:
     free(dir);
     free(val);
     return r->passed;
+}
+
+double nft_integrate_model(const nf_model *m, const nf_context *ctx, uint32_t theta_res,
+                           uint32_t phi_res, const double frame[3][3])
+{
+    nft_model_fn f;
+    if (nft_model_fn_init(&f, m, ctx) != 0)
+        return NAN;
+    double integral = nft_integrate_sphere(nft_model_pdf, &f, theta_res, phi_res, frame);
+    nf_status last = f.last;
+    nft_model_fn_free(&f);
+    return last == NF_OK ? integral : NAN;
+}
+
+int nft_chi2_model(const nft_chi2_params *p, const nf_model *m, const nf_context *ctx,
+                   nft_chi2_result *r)
+{
+    nft_model_fn f;
+    memset(r, 0, sizeof *r);
+    if (nft_model_fn_init(&f, m, ctx) != 0) {
+        snprintf(r->message, sizeof r->message, "chi2 %s: out of memory", p->name ? p->name : "");
+        return 0;
+    }
+    nft_chi2_test(p, nft_model_sample, nft_model_pdf, &f, r);
+    nf_status last = f.last;
+    nft_model_fn_free(&f);
+    if (last != NF_OK) { /* the library's refusal, not the statistic, says what went wrong */
+        r->passed = 0;
+        snprintf(r->message, sizeof r->message, "chi2 %s: library call failed: %s (%s)",
+                 p->name ? p->name : "", nf_status_string(last), nf_last_error_message());
+    }
+    return r->passed;
+}
+
+/* ---- model files ------------------------------------------------------------------------- */
+
+uint32_t nft_crc32_ieee(const unsigned char *p, size_t n)
+{
+    uint32_t crc = 0xFFFFFFFFu;
+    for (size_t i = 0; i < n; ++i) {
+        crc ^= p[i];
+        for (int b = 0; b < 8; ++b)
+            crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
+    }
+    return ~crc;
 }
 
 /* ---- snapshots ------------------------------------------------------------------------------- */

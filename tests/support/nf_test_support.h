@@ -43,6 +43,12 @@ void nft_random_unit_vector(nft_rng *r, float v[3]);
 /* A random context: position uniform in the unit cube, random unit normal, and wo a random
  * unit vector in the hemisphere of the normal. */
 void nft_random_context(nft_rng *r, nf_context *ctx);
+/* n sampling queries: per query in turn, a random context and its two uniforms u[2i], u[2i+1]. */
+void nft_random_queries(nft_rng *r, size_t n, nf_context *ctx, float *u);
+/* n training samples: per sample in turn, a random context, a random unit direction
+ * dir[3i..3i+2] and a weight weight_min + uniform [0, 1). */
+void nft_random_samples(nft_rng *r, size_t n, nf_context *ctx, float *dir, float *weight,
+                        float weight_min);
 /* A context from explicit vectors (normalized here in double). */
 nf_context nft_context(float px, float py, float pz, float nx, float ny, float nz, float wx,
                        float wy, float wz);
@@ -138,6 +144,12 @@ int nft_model_sample(void *user, size_t n, const float *u, float *dir);
 double nft_integrate_sphere(nft_pdf_fn pdf, void *user, uint32_t theta_res, uint32_t phi_res,
                             const double frame[3][3]);
 
+/* nft_integrate_sphere of a model's nf_pdf at one context. NAN if a call failed (out of
+ * memory, or the library refused: nf_last_error_message() on this thread says why), so that
+ * any |I - 1| check fails. */
+double nft_integrate_model(const nf_model *m, const nf_context *ctx, uint32_t theta_res,
+                           uint32_t phi_res, const double frame[3][3]);
+
 /* ---- chi-square goodness of fit -------------------------------------------------------------- */
 
 /* Q(a, x) = Gamma(a, x) / Gamma(a), the regularized upper incomplete gamma function (series
@@ -179,6 +191,18 @@ typedef struct nft_chi2_result {
  * count is 0, and on a pdf that does not integrate to 1. Returns r->passed. */
 int nft_chi2_test(const nft_chi2_params *p, nft_sample_fn sample, nft_pdf_fn pdf, void *user,
                   nft_chi2_result *r);
+
+/* nft_chi2_test of a model's nf_sample against its nf_pdf at one context. Returns r->passed;
+ * a library call that failed fails the test, its status and message in r->message. */
+int nft_chi2_model(const nft_chi2_params *p, const nf_model *m, const nf_context *ctx,
+                   nft_chi2_result *r);
+
+/* ---- model files ------------------------------------------------------------------------- */
+
+/* CRC-32/IEEE as zlib computes it (reflected polynomial 0xEDB88320, initial value and final
+ * XOR 0xFFFFFFFF), bit by bit: deliberately unlike the library's table-driven version, so
+ * that a test that re-seals an edited model file checks the library's CRC. */
+uint32_t nft_crc32_ieee(const unsigned char *p, size_t n);
 
 /* ---- snapshots ---------------------------------------------------------------------------- */
 
