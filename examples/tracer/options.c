@@ -297,7 +297,8 @@ static int other_program_flag(options_program program, const char *flag, tr_erro
     return 0;
 }
 
-int options_parse(int argc, char **argv, options_program program, options *o, tr_error *err)
+/* The defaults: the library's guide, guide_default_settings' model, the paper's protocol. */
+static void set_defaults(options_program program, options *o)
 {
     memset(o, 0, sizeof *o);
     o->program = program;
@@ -320,112 +321,103 @@ int options_parse(int argc, char **argv, options_program program, options *o, tr
     o->mis_training = 1;
     if (program == OPTIONS_TRACER)
         o->time_budget = 30.0f;
+}
 
-    for (int i = 1; i < argc; ++i) {
-        const char *a = argv[i];
-        if (other_program_flag(program, a, err))
+/* The index of `v` among `count` names, or -1 with a message that lists them (`list`). */
+static int parse_name(const char *flag, const char *v, const char *const *names, int count,
+                      const char *list, tr_error *err)
+{
+    for (int k = 0; k < count; ++k)
+        if (!strcmp(v, names[k]))
+            return k;
+    tr_fail(err, "%s: '%s' is not one of %s", flag, v, list);
+    return -1;
+}
+
+static int parse_seed(const char *v, uint64_t *seed, tr_error *err)
+{
+    char *end;
+    errno = 0;
+    unsigned long long s = strtoull(v, &end, 10);
+    if (errno || end == v || *end || v[0] == '-')
+        return tr_fail(err, "--seed: '%s' is not a non-negative integer", v);
+    *seed = (uint64_t)s;
+    return 1;
+}
+
+/* One option `a` with its value `v`. Returns 0 with a message. */
+static int parse_valued(options *o, const char *a, const char *v, tr_error *err)
+{
+    static const char *const priors[] = {"uniform-direction", "uniform-angle", "cosine", "bsdf"};
+    static const char *const isas[] = {"auto", "generic", "avx2", "avx512"};
+    int k;
+    if (!strcmp(a, "--scene"))
+        o->scene = v;
+    else if (!strcmp(a, "--out"))
+        o->out = v;
+    else if (!strcmp(a, "--reference"))
+        o->reference = v;
+    else if (!strcmp(a, "--save-model"))
+        o->save_model = v;
+    else if (!strcmp(a, "--load-model"))
+        o->load_model = v;
+    else if (!strcmp(a, "--prior")) {
+        if ((k = parse_name(a, v, priors, 4, "uniform-direction, uniform-angle, cosine, bsdf",
+                            err)) < 0)
             return 0;
-        /* Options without a value. */
-        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
-            o->help = 1;
-            continue;
-        }
-        if (!strcmp(a, "--no-guiding")) {
-            o->guiding = 0;
-            continue;
-        }
-        if (!strcmp(a, "--reference-mode")) {
-            o->reference_mode = 1;
-            continue;
-        }
-        if (strncmp(a, "--", 2) != 0)
-            return tr_fail(err, "unexpected argument '%s'", a);
-        if (i + 1 >= argc)
-            return tr_fail(err, "%s needs a value", a);
-        const char *v = argv[++i];
-        int ok = 1;
-        if (!strcmp(a, "--scene"))
-            o->scene = v;
-        else if (!strcmp(a, "--out"))
-            o->out = v;
-        else if (!strcmp(a, "--reference"))
-            o->reference = v;
-        else if (!strcmp(a, "--save-model"))
-            o->save_model = v;
-        else if (!strcmp(a, "--load-model"))
-            o->load_model = v;
-        else if (!strcmp(a, "--prior")) {
-            static const char *const names[] = {"uniform-direction", "uniform-angle", "cosine",
-                                                "bsdf"};
-            int found = -1;
-            for (int k = 0; k < 4; ++k)
-                if (!strcmp(v, names[k]))
-                    found = k;
-            if (found < 0)
-                return tr_fail(err, "--prior: '%s' is not one of uniform-direction, "
-                               "uniform-angle, cosine, bsdf", v);
-            o->prior = (guide_prior)found;
-            o->prior_given = 1;
-        } else if (!strcmp(a, "--model")) {
-            if (strcmp(v, "small") && strcmp(v, "large"))
-                return tr_fail(err, "--model: '%s' is not small or large", v);
-            o->large_model = !strcmp(v, "large");
-        } else if (!strcmp(a, "--lr")) {
-            ok = parse_float(a, v, 1e-8, 1.0, &o->learning_rate, err);
-            o->learning_rate_given = 1;
-        } else if (!strcmp(a, "--iterations"))
-            ok = parse_int(a, v, 0, 10000000, &o->iterations, err);
-        else if (!strcmp(a, "--batch"))
-            ok = parse_int(a, v, 1, 1 << 24, &o->batch, err);
-        else if (!strcmp(a, "--eval-every"))
-            ok = parse_int(a, v, 0, 10000000, &o->eval_every, err);
-        else if (!strcmp(a, "--eval-spp"))
-            ok = parse_int(a, v, 1, 1 << 20, &o->eval_spp, err);
-        else if (!strcmp(a, "--spp")) {
-            ok = parse_int(a, v, 1, 1 << 24, &o->spp, err);
-            o->spp_given = 1;
-        } else if (!strcmp(a, "--width"))
-            ok = parse_int(a, v, 1, 65536, &o->width, err);
-        else if (!strcmp(a, "--height"))
-            ok = parse_int(a, v, 1, 65536, &o->height, err);
-        else if (!strcmp(a, "--max-depth")) {
-            ok = parse_int(a, v, -1, 100000, &o->max_depth, err) &&
-                 (o->max_depth != 0 || tr_fail(err, "--max-depth must be -1 or >= 1"));
-        } else if (!strcmp(a, "--threads"))
-            ok = parse_int(a, v, 1, 4096, &o->threads, err);
-        else if (!strcmp(a, "--seed")) {
-            char *end;
-            errno = 0;
-            unsigned long long s = strtoull(v, &end, 10);
-            if (errno || end == v || *end || v[0] == '-')
-                return tr_fail(err, "--seed: '%s' is not a non-negative integer", v);
-            o->seed = (uint64_t)s;
-        } else if (!strcmp(a, "--isa")) {
-            static const char *const names[] = {"auto", "generic", "avx2", "avx512"};
-            int found = -1;
-            for (int k = 0; k < 4; ++k)
-                if (!strcmp(v, names[k]))
-                    found = k;
-            if (found < 0)
-                return tr_fail(err, "--isa: '%s' is not one of auto, generic, avx2, avx512", v);
-            o->isa = (nf_isa)found;
-        } else if (!strcmp(a, "--time-budget"))
-            ok = parse_float(a, v, 0.01, 1e6, &o->time_budget, err);
-        else if (!strcmp(a, "--exposure"))
-            ok = parse_float(a, v, -64.0, 64.0, &o->exposure, err);
-        else if (!strcmp(a, "--variant")) {
-            if (!strcmp(v, "list"))
-                o->list_variants = 1;
-            else
-                ok = apply_variants(o, v, err);
-            o->variants = v;
-        } else
-            return tr_fail(err, "unknown option '%s'", a);
-        if (!ok)
+        o->prior = (guide_prior)k;
+        o->prior_given = 1;
+    } else if (!strcmp(a, "--model")) {
+        if (strcmp(v, "small") && strcmp(v, "large"))
+            return tr_fail(err, "--model: '%s' is not small or large", v);
+        o->large_model = !strcmp(v, "large");
+    } else if (!strcmp(a, "--lr")) {
+        o->learning_rate_given = 1;
+        return parse_float(a, v, 1e-8, 1.0, &o->learning_rate, err);
+    } else if (!strcmp(a, "--iterations"))
+        return parse_int(a, v, 0, 10000000, &o->iterations, err);
+    else if (!strcmp(a, "--batch"))
+        return parse_int(a, v, 1, 1 << 24, &o->batch, err);
+    else if (!strcmp(a, "--eval-every"))
+        return parse_int(a, v, 0, 10000000, &o->eval_every, err);
+    else if (!strcmp(a, "--eval-spp"))
+        return parse_int(a, v, 1, 1 << 20, &o->eval_spp, err);
+    else if (!strcmp(a, "--spp")) {
+        o->spp_given = 1;
+        return parse_int(a, v, 1, 1 << 24, &o->spp, err);
+    } else if (!strcmp(a, "--width"))
+        return parse_int(a, v, 1, 65536, &o->width, err);
+    else if (!strcmp(a, "--height"))
+        return parse_int(a, v, 1, 65536, &o->height, err);
+    else if (!strcmp(a, "--max-depth"))
+        return parse_int(a, v, -1, 100000, &o->max_depth, err) &&
+               (o->max_depth != 0 || tr_fail(err, "--max-depth must be -1 or >= 1"));
+    else if (!strcmp(a, "--threads"))
+        return parse_int(a, v, 1, 4096, &o->threads, err);
+    else if (!strcmp(a, "--seed"))
+        return parse_seed(v, &o->seed, err);
+    else if (!strcmp(a, "--isa")) {
+        if ((k = parse_name(a, v, isas, 4, "auto, generic, avx2, avx512", err)) < 0)
             return 0;
-    }
-    if (o->help || o->list_variants)
-        return 1;
+        o->isa = (nf_isa)k;
+    } else if (!strcmp(a, "--time-budget"))
+        return parse_float(a, v, 0.01, 1e6, &o->time_budget, err);
+    else if (!strcmp(a, "--exposure"))
+        return parse_float(a, v, -64.0, 64.0, &o->exposure, err);
+    else if (!strcmp(a, "--variant")) {
+        o->variants = v;
+        if (!strcmp(v, "list"))
+            o->list_variants = 1;
+        else
+            return apply_variants(o, v, err);
+    } else
+        return tr_fail(err, "unknown option '%s'", a);
+    return 1;
+}
+
+/* What the options imply together, once all are read. */
+static int finish(options *o, tr_error *err)
+{
     if (!o->scene)
         return tr_fail(err, "--scene is required");
     if (o->reference_mode) {
@@ -440,6 +432,30 @@ int options_parse(int argc, char **argv, options_program program, options *o, tr
     if (!o->guiding && (o->load_model || o->save_model))
         return tr_fail(err, "--save-model and --load-model need guiding (drop --no-guiding)");
     return 1;
+}
+
+int options_parse(int argc, char **argv, options_program program, options *o, tr_error *err)
+{
+    set_defaults(program, o);
+    for (int i = 1; i < argc; ++i) {
+        const char *a = argv[i];
+        if (other_program_flag(program, a, err))
+            return 0;
+        /* Options without a value. */
+        if (!strcmp(a, "--help") || !strcmp(a, "-h"))
+            o->help = 1;
+        else if (!strcmp(a, "--no-guiding"))
+            o->guiding = 0;
+        else if (!strcmp(a, "--reference-mode"))
+            o->reference_mode = 1;
+        else if (strncmp(a, "--", 2) != 0)
+            return tr_fail(err, "unexpected argument '%s'", a);
+        else if (i + 1 >= argc)
+            return tr_fail(err, "%s needs a value", a);
+        else if (!parse_valued(o, a, argv[++i], err))
+            return 0;
+    }
+    return o->help || o->list_variants || finish(o, err);
 }
 
 uint64_t options_job_hash(int argc, char **argv)

@@ -82,6 +82,164 @@ static int parse_environment(loader *L, xml_node *n)
 
 /* ---- Shapes -------------------------------------------------------------------------------- */
 
+/* A <point> child, `value="x, y, z"` and/or x, y, z attributes, into *out. */
+static int read_point(loader *L, xml_node *c, vec3 *out)
+{
+    static const char *const allowed[] = {"name", "value", "x", "y", "z", NULL};
+    c->used = 1;
+    if (strcmp(c->name, "point") || !check_attrs(L, c, allowed))
+        return strcmp(c->name, "point") ? wrong_type(L, c, "point") : 0;
+    double v[3] = {out->x, out->y, out->z};
+    int count;
+    if (xml_attr(c, "value")) {
+        if (!parse_numbers(L, c, "value", xml_attr(c, "value"), v, 3, &count))
+            return 0;
+        if (count != 3)
+            return fail_at(L, c, "a point needs 3 numbers");
+    }
+    static const char *const axes[3] = {"x", "y", "z"};
+    for (int a = 0; a < 3; ++a)
+        if (xml_attr(c, axes[a]) && !parse_number_attr(L, c, axes[a], &v[a]))
+            return 0;
+    *out = v3((float)v[0], (float)v[1], (float)v[2]);
+    return 1;
+}
+
+/* The shape's geometry in its own space: a mesh file or a built-in shape. */
+static int load_shape_geometry(loader *L, xml_node *n, const char *type, mesh *m,
+                               int *face_normals)
+{
+    tr_error e;
+    int ok;
+    if (!strcmp(type, "ply") || !strcmp(type, "obj")) {
+        const char *file;
+        char path[4096];
+        int flip_uv = 1;
+        if (!get_string(L, n, "filename", NULL, &file) ||
+            !get_bool(L, n, "face_normals", 0, face_normals) ||
+            !get_bool(L, n, "flip_tex_coords", 1, &flip_uv))
+            return 0;
+        if (!file)
+            return fail_at(L, n, "missing parameter 'filename'");
+        if (!resolve_path(L, n, file, path, sizeof path))
+            return 0;
+        ok = type[0] == 'p' ? mesh_load_ply(path, m, &e) : mesh_load_obj(path, m, &e);
+        if (!ok)
+            return fail_at(L, n, "%s", e.msg);
+        /* Bitmaps have v = 0 at their top row, mesh files usually at the bottom: flip v.
+         * Mitsuba does so for OBJ only; we do it for PLY too, which is what the shipped
+         * Veach Ajar's PLY files and its (Tungsten) reference need. flip_tex_coords=false
+         * gives Mitsuba's PLY behaviour. */
+        if (flip_uv && m->uv)
+            for (uint32_t i = 0; i < m->nverts; ++i)
+                m->uv[2 * i + 1] = 1.0f - m->uv[2 * i + 1];
+        return 1;
+    }
+    if (!strcmp(type, "rectangle"))
+        ok = mesh_make_rectangle(m, &e);
+    else if (!strcmp(type, "cube"))
+        ok = mesh_make_cube(m, &e);
+    else if (!strcmp(type, "sphere")) {
+        vec3 center = v3(0.0f, 0.0f, 0.0f);
+        float radius;
+        xml_node *c;
+        if (!find_prop(L, n, "center", &c) || (c && !read_point(L, c, &center)) ||
+            !get_float(L, n, "radius", 1.0f, &radius))
+            return 0;
+        if (!(radius > 0.0f))
+            return fail_at(L, n, "the radius must be > 0");
+        ok = mesh_make_sphere(m, center, radius, &e);
+    } else
+        return fail_at(L, n, "unsupported shape type '%s' (ply, obj, rectangle, cube, sphere)",
+                       type);
+    return ok || fail_at(L, n, "%s", e.msg);
+}
+
+/* Nested objects: one material, at most one area emitter, an interior and an exterior
+ * medium (<medium name="interior"> or <ref name="interior" id="...">). */
+static int parse_shape_children(loader *L, xml_node *n, shape *sh)
+{
+    for (int i = 0; i < n->nchildren; ++i) {
+        xml_node *c = n->children[i];
+        const char *role = xml_attr(c, "name");
+        int ok = 1;
+        if (!strcmp(c->name, "medium") ||
+            (!strcmp(c->name, "ref") && role &&
+             (!strcmp(role, "interior") || !strcmp(role, "exterior")))) {
+            if (!role || (strcmp(role, "interior") && strcmp(role, "exterior")))
+                return fail_at(L, c, "a medium in a shape needs name=\"interior\" or "
+                               "name=\"exterior\"");
+            int *slot = role[0] == 'i' ? &sh->interior : &sh->exterior;
+            if (*slot >= 0)
+                return fail_at(L, c, "the shape's %s medium is given twice", role);
+            ok = nested_medium(L, c, slot);
+            sh->media_boundary = 1;
+        } else if (!strcmp(c->name, "bsdf") || !strcmp(c->name, "ref")) {
+            if (sh->bsdf >= 0)
+                return fail_at(L, c, "a shape takes one material");
+            ok = nested_bsdf(L, c, &sh->bsdf);
+        } else if (!strcmp(c->name, "emitter")) {
+            if (sh->emissive)
+                return fail_at(L, c, "a shape takes one emitter");
+            ok = parse_area_emitter(L, c, &sh->radiance);
+            sh->emissive = 1;
+        }
+        if (!ok)
+            return 0;
+    }
+    return check_all_used(L, n);
+}
+
+/* The mesh moved to world space, every vertex checked, normals made; a media boundary must
+ * be closed. */
+static int place_shape(loader *L, xml_node *n, const char *type, shape *sh,
+                       const mat4 *to_world, int face_normals, int flip)
+{
+    tr_error e;
+    mesh_transform(&sh->m, to_world);
+    for (uint32_t i = 0; i < sh->m.nverts; ++i) {
+        const vec3 p = sh->m.p[i];
+        const double pd[3] = {p.x, p.y, p.z};
+        char what[80];
+        snprintf(what, sizeof what, "vertex %u of %u (after to_world) is at", (unsigned)i,
+                 (unsigned)sh->m.nverts);
+        if (!check_world(L, n, what, pd, 3))
+            return 0;
+    }
+    if (!mesh_finish(&sh->m, face_normals, flip, &e))
+        return fail_at(L, n, "%s", e.msg);
+    /* Which side of a boundary a ray is on is only defined for a closed surface. The
+     * built-in sphere is closed by construction (its seam's vertices differ by a float
+     * rounding, which a check by position would call open). */
+    return !sh->media_boundary || !strcmp(type, "sphere") || check_closed(L, n, &sh->m);
+}
+
+/* Mitsuba's default material where none is given (diffuse, reflectance 0.5); a null
+ * material makes the shape a boundary only, which cannot emit. */
+static int shape_material(loader *L, xml_node *n, shape *sh)
+{
+    if (sh->bsdf < 0) {
+        bsdf b;
+        memset(&b, 0, sizeof b);
+        b.type = BSDF_DIFFUSE;
+        b.diffuse = constant_texture(L, n, rgb_gray(0.5f));
+        bsdf *grown = b.diffuse ? realloc(L->s->bsdfs, (size_t)(L->s->nbsdfs + 1) * sizeof *grown)
+                                : NULL;
+        if (!grown)
+            return fail_at(L, n, "out of memory");
+        L->s->bsdfs = grown;
+        sh->bsdf = L->s->nbsdfs;
+        L->s->bsdfs[L->s->nbsdfs++] = b;
+    }
+    if (L->s->bsdfs[sh->bsdf].type == BSDF_NULL) {
+        if (sh->emissive)
+            return fail_at(L, n, "a shape with the null material cannot emit");
+        sh->null_surface = 1;
+        L->s->has_media = 1;
+    }
+    return 1;
+}
+
 static int parse_shape(loader *L, xml_node *n)
 {
     const char *type = plugin_type(L, n);
@@ -90,152 +248,15 @@ static int parse_shape(loader *L, xml_node *n)
         return 0;
     shape sh;
     memset(&sh, 0, sizeof sh);
-    sh.bsdf = -1;
-    tr_error e;
-    int face_normals = 0, flip = 0, ok = 1;
+    sh.bsdf = sh.interior = sh.exterior = -1;
+    int face_normals = 0, flip = 0;
     mat4 to_world;
-    if (!get_transform(L, n, "to_world", &to_world) || !get_bool(L, n, "flip_normals", 0, &flip))
+    if (!get_transform(L, n, "to_world", &to_world) || !get_bool(L, n, "flip_normals", 0, &flip) ||
+        !load_shape_geometry(L, n, type, &sh.m, &face_normals))
         return 0;
-    if (!strcmp(type, "ply") || !strcmp(type, "obj")) {
-        const char *file;
-        char path[4096];
-        int flip_uv = 1;
-        if (!get_string(L, n, "filename", NULL, &file) ||
-            !get_bool(L, n, "face_normals", 0, &face_normals) ||
-            !get_bool(L, n, "flip_tex_coords", 1, &flip_uv))
-            return 0;
-        if (!file)
-            return fail_at(L, n, "missing parameter 'filename'");
-        if (!resolve_path(L, n, file, path, sizeof path))
-            return 0;
-        ok = type[0] == 'p' ? mesh_load_ply(path, &sh.m, &e) : mesh_load_obj(path, &sh.m, &e);
-        if (!ok)
-            return fail_at(L, n, "%s", e.msg);
-        /* Bitmaps have v = 0 at their top row, mesh files usually at the bottom: flip v.
-         * Mitsuba does so for OBJ only; we do it for PLY too, which is what the shipped
-         * Veach Ajar's PLY files and its (Tungsten) reference need. flip_tex_coords=false
-         * gives Mitsuba's PLY behaviour. */
-        if (flip_uv && sh.m.uv)
-            for (uint32_t i = 0; i < sh.m.nverts; ++i)
-                sh.m.uv[2 * i + 1] = 1.0f - sh.m.uv[2 * i + 1];
-    } else if (!strcmp(type, "rectangle")) {
-        ok = mesh_make_rectangle(&sh.m, &e);
-    } else if (!strcmp(type, "cube")) {
-        ok = mesh_make_cube(&sh.m, &e);
-    } else if (!strcmp(type, "sphere")) {
-        vec3 center = v3(0.0f, 0.0f, 0.0f);
-        float radius;
-        xml_node *c;
-        if (!find_prop(L, n, "center", &c))
-            return 0;
-        if (c) {
-            static const char *const allowed[] = {"name", "value", "x", "y", "z", NULL};
-            c->used = 1;
-            if (strcmp(c->name, "point") || !check_attrs(L, c, allowed))
-                return strcmp(c->name, "point") ? wrong_type(L, c, "point") : 0;
-            double v[3] = {0.0, 0.0, 0.0};
-            int count;
-            if (xml_attr(c, "value")) {
-                if (!parse_numbers(L, c, "value", xml_attr(c, "value"), v, 3, &count))
-                    return 0;
-                if (count != 3)
-                    return fail_at(L, c, "a point needs 3 numbers");
-            }
-            static const char *const axes[3] = {"x", "y", "z"};
-            for (int a = 0; a < 3; ++a)
-                if (xml_attr(c, axes[a]) && !parse_number_attr(L, c, axes[a], &v[a]))
-                    return 0;
-            center = v3((float)v[0], (float)v[1], (float)v[2]);
-        }
-        if (!get_float(L, n, "radius", 1.0f, &radius))
-            return 0;
-        if (!(radius > 0.0f))
-            return fail_at(L, n, "the radius must be > 0");
-        ok = mesh_make_sphere(&sh.m, center, radius, &e);
-    } else {
-        return fail_at(L, n, "unsupported shape type '%s' (ply, obj, rectangle, cube, sphere)",
-                       type);
-    }
-    if (!ok)
-        return fail_at(L, n, "%s", e.msg);
-
-    /* Nested objects: one material, at most one area emitter, an interior and an exterior
-     * medium (<medium name="interior"> or <ref name="interior" id="...">). */
-    sh.interior = sh.exterior = -1;
-    for (int i = 0; i < n->nchildren && ok; ++i) {
-        xml_node *c = n->children[i];
-        const char *role = xml_attr(c, "name");
-        if (!strcmp(c->name, "medium") ||
-            (!strcmp(c->name, "ref") && role &&
-             (!strcmp(role, "interior") || !strcmp(role, "exterior")))) {
-            if (!role || (strcmp(role, "interior") && strcmp(role, "exterior"))) {
-                ok = fail_at(L, c, "a medium in a shape needs name=\"interior\" or "
-                             "name=\"exterior\"");
-                break;
-            }
-            int *slot = role[0] == 'i' ? &sh.interior : &sh.exterior;
-            if (*slot >= 0) {
-                ok = fail_at(L, c, "the shape's %s medium is given twice", role);
-                break;
-            }
-            ok = nested_medium(L, c, slot);
-            sh.media_boundary = 1;
-        } else if (!strcmp(c->name, "bsdf") || !strcmp(c->name, "ref")) {
-            if (sh.bsdf >= 0) {
-                ok = fail_at(L, c, "a shape takes one material");
-                break;
-            }
-            ok = nested_bsdf(L, c, &sh.bsdf);
-        } else if (!strcmp(c->name, "emitter")) {
-            if (sh.emissive) {
-                ok = fail_at(L, c, "a shape takes one emitter");
-                break;
-            }
-            ok = parse_area_emitter(L, c, &sh.radiance);
-            sh.emissive = 1;
-        }
-    }
-    if (ok)
-        ok = check_all_used(L, n);
-    if (ok) {
-        mesh_transform(&sh.m, &to_world);
-        for (uint32_t i = 0; i < sh.m.nverts && ok; ++i) {
-            const vec3 p = sh.m.p[i];
-            const double pd[3] = {p.x, p.y, p.z};
-            char what[80];
-            snprintf(what, sizeof what, "vertex %u of %u (after to_world) is at", (unsigned)i,
-                     (unsigned)sh.m.nverts);
-            ok = check_world(L, n, what, pd, 3);
-        }
-        if (ok && !mesh_finish(&sh.m, face_normals, flip, &e))
-            ok = fail_at(L, n, "%s", e.msg);
-        /* Which side of a boundary a ray is on is only defined for a closed surface. The
-         * built-in sphere is closed by construction (its seam's vertices differ by a float
-         * rounding, which a check by position would call open). */
-        if (ok && sh.media_boundary && strcmp(type, "sphere"))
-            ok = check_closed(L, n, &sh.m);
-    }
-    if (ok && sh.bsdf < 0) { /* Mitsuba's default material: diffuse, reflectance 0.5 */
-        bsdf b;
-        memset(&b, 0, sizeof b);
-        b.type = BSDF_DIFFUSE;
-        b.diffuse = constant_texture(L, n, rgb_gray(0.5f));
-        bsdf *grown = b.diffuse ? realloc(L->s->bsdfs, (size_t)(L->s->nbsdfs + 1) * sizeof *grown)
-                                : NULL;
-        if (!grown) {
-            ok = fail_at(L, n, "out of memory");
-        } else {
-            L->s->bsdfs = grown;
-            sh.bsdf = L->s->nbsdfs;
-            L->s->bsdfs[L->s->nbsdfs++] = b;
-        }
-    }
-    if (ok && L->s->bsdfs[sh.bsdf].type == BSDF_NULL) {
-        if (sh.emissive)
-            ok = fail_at(L, n, "a shape with the null material cannot emit");
-        sh.null_surface = 1;
-        L->s->has_media = 1;
-    }
+    int ok = parse_shape_children(L, n, &sh) &&
+             place_shape(L, n, type, &sh, &to_world, face_normals, flip) &&
+             shape_material(L, n, &sh);
     shape *grown = ok ? realloc(L->s->shapes, (size_t)(L->s->nshapes + 1) * sizeof *grown) : NULL;
     if (!grown) {
         mesh_free(&sh.m);
