@@ -7,7 +7,7 @@
 # get unguided ones of our own, 4096 paths per pixel, rendered once into the output directory
 # (about 5 minutes). Prints one line per run and a summary per scene and method (mean and
 # standard deviation over the seeds, and relMSE without each run's 10 worst pixels, which
-# single rare paths can decide: docs/tracer.md, "Error metrics"). About 25 minutes (45 runs of 30 s); the machine should be
+# single rare paths can decide: docs/tracer-measurements.md, "Error metrics"). About 25 minutes (45 runs of 30 s); the machine should be
 # otherwise idle. Runs are cached in the output directory (a complete log is not run again).
 #
 #   scripts/pass-choice-study.sh            the study

@@ -23,7 +23,7 @@ const char *options_program_name(options_program program)
 /* The options both programs take, in the help's words. */
 static const char help_scene[] =
     "Scene and output:\n"
-    "  --scene FILE          the scene (Mitsuba 3 XML subset, see docs/tracer.md)\n"
+    "  --scene FILE          the scene (Mitsuba 3 XML subset, docs/scene-format.md)\n"
     "  --out PREFIX          output prefix; a directory (existing, or ending in /) gets\n"
     "                        files named after the scene (default out/<scene name>)\n"
     "  --width N, --height N film size (default: the scene's film)\n"

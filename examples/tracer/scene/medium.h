@@ -1,6 +1,6 @@
 /*
  * medium.h - participating media: their coefficients, the Henyey-Greenstein phase function,
- * transmittance and free-flight sampling (docs/tracer.md, "Participating media").
+ * transmittance and free-flight sampling (docs/scene-format.md, "Participating media").
  *
  * Homogeneous media track over RGB: one channel drawn in proportion to the path's
  * throughput, the distance density the balance over the three channels' densities.

@@ -73,7 +73,7 @@ typedef struct scene {
     int ntextures;
     environment env;
 
-    /* Participating media (scene_media.c, docs/tracer.md "Participating media"). */
+    /* Participating media (scene_media.c, docs/scene-format.md "Participating media"). */
     medium *media;
     int nmedia;
     int camera_medium;          /* the sensor's medium; -1: vacuum                          */
@@ -96,7 +96,7 @@ typedef struct scene {
     RTCScene rtc;
 } scene;
 
-/* The world-space range the loader accepts (docs/tracer.md, "Limits"): every coordinate of
+/* The world-space range the loader accepts (docs/scene-format.md, "Limits"): every coordinate of
  * the camera origin, of a lookat target, of every vertex after its to_world, and every entry
  * of every <transform> (so the image of the origin and of the unit vectors), after each of
  * its steps, must be finite and within +-SCENE_WORLD_LIMIT; scene_props.c's check_world()

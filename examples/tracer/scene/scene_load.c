@@ -1,6 +1,6 @@
 /*
  * scene_load.c - the scene file as a whole (the subset of Mitsuba 3's format described in
- * docs/tracer.md): <default> parameters and their $substitution, shapes, emitters, the
+ * docs/scene-format.md): <default> parameters and their $substitution, shapes, emitters, the
  * sensor and the integrator. Textures and materials are in scene_materials.c, the typed
  * parameters of an element in scene_props.c.
  */
@@ -424,8 +424,9 @@ static int substitute(loader *L, xml_node *n, const parameter *params, int npara
 /* ---- The scene ---------------------------------------------------------------------------- */
 
 /* Mitsuba 3's path integrator (the default one) renders no media: it starts every path in
- * vacuum and changes medium nowhere. Null surfaces stay invisible boundaries (tracer.md lists
- * how Mitsuba's path treats them instead). The media stay loaded and checked. */
+ * vacuum and changes medium nowhere. Null surfaces stay invisible boundaries
+ * (docs/scene-format.md lists how Mitsuba's path treats them instead). The media stay loaded
+ * and checked. */
 static void ignore_media(scene *s)
 {
     s->media_ignored = s->nmedia > 0;

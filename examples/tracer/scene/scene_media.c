@@ -2,7 +2,7 @@
  * scene_media.c - participating media in the scene file: <medium type="homogeneous"> with
  * its albedo, sigma_t, scale and a nested <phase type="isotropic|hg">; <medium
  * type="heterogeneous"> with <volume type="gridvolume"> grids for sigma_t and the albedo; and
- * the check that a shape bounding a medium is closed (docs/tracer.md, "Participating media").
+ * the check that a shape bounding a medium is closed (docs/scene-format.md, "Participating media").
  */
 #include <math.h>
 #include <stdlib.h>

@@ -129,7 +129,7 @@ int check_world(loader *L, const xml_node *n, const char *what, const double *v,
         len += (size_t)snprintf(values + len, sizeof values - len, "%s%s", i ? ", " : "", shown);
     }
     return fail_at(L, n, "%s (%s), outside the world-space range: coordinates must be "
-                   "finite and within +-%g (docs/tracer.md, \"Limits\")", what, values,
+                   "finite and within +-%g (docs/scene-format.md, \"Limits\")", what, values,
                    SCENE_WORLD_LIMIT);
 }
 

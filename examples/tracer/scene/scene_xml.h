@@ -54,7 +54,7 @@ int parse_numbers(loader *L, const xml_node *n, const char *attr, const char *te
 int parse_number_attr(loader *L, const xml_node *n, const char *attr, double *out);
 int parse_vec3_attr(loader *L, const xml_node *n, const char *attr, vec3 *out);
 
-/* The world-space range (SCENE_WORLD_LIMIT in scene.h, docs/tracer.md "Limits"), applied
+/* The world-space range (SCENE_WORLD_LIMIT in scene.h, docs/scene-format.md "Limits"), applied
  * here and nowhere else: returns 1 when every one of the `count` values is finite and within
  * +-SCENE_WORLD_LIMIT, else 0 with "<what> (v0, v1, ...), outside the world-space range: ..."
  * on element n (what: "the camera origin is at", ...). */

@@ -1,6 +1,6 @@
 /*
  * volume_grid.h - voxel grids as Mitsuba 3's `gridvolume` reads them from `.vol` files, and
- * their lookup: the values of a heterogeneous medium (docs/tracer.md, "Participating media").
+ * their lookup: the values of a heterogeneous medium (docs/scene-format.md, "Participating media").
  *
  * The file (little endian): "VOL", version byte 3, encoding 1 (float32, int32), the cell
  * counts nx, ny, nz (int32 each), the channel count (int32), a bounding box of 6 floats

@@ -1,5 +1,5 @@
 /*
- * test_limits.c - the world-space range (SCENE_WORLD_LIMIT, docs/tracer.md "Limits") and
+ * test_limits.c - the world-space range (SCENE_WORLD_LIMIT, docs/scene-format.md "Limits") and
  * the rays Embree can take (scene_ray_valid).
  *
  * A scene outside the range is refused at load time with the file, the line, the element and
