@@ -1,6 +1,6 @@
 /*
  * path.c - nf_path_training_samples (path.h): a path's training samples by the backward
- * radiance walk of docs/integration.md section 4, with Russian roulette as path.h states it.
+ * radiance walk of docs/model-layer.md section 4, with Russian roulette as path.h states it.
  *
  * Three passes over the vertices, none of which writes before the last: validate every field
  * the walk reads, walk once to count the samples (so that a full buffer writes nothing), walk

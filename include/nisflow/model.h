@@ -96,7 +96,7 @@ typedef enum nf_prior_kind {
  * sphere, denser towards the z poles), or NF_PRIOR_CUSTOM with a BSDF lobe whose density is
  * positive on both sides (reflection and transmission lobes mixed by their probabilities).
  * The prior is per model: a scene with opaque and transmissive materials can keep a model
- * per kind. docs/integration.md, section 5. */
+ * per kind. docs/model-layer.md, section 5. */
 
 /* How the flow treats the seam phi = 0 of its square (theta / pi, phi / 2 pi), docs/theory.md
  * section 4. Values are explicit and never renumbered. */

@@ -134,9 +134,9 @@ NF_API void nf_plain_moment_add(nf_plain_moment *m, float c);
  * every depth measured on its own passes, a shallower kind on every pass
  * that guides deeper than it (nf_depth_moment, as plain path tracing is measured);
  * nf_guide_choose_depth picks the kind to render, and nf_guide_choose_pass then weighs it
- * against plain passes (docs/integration.md, "Guided or plain passes"). Training passes guide
- * every depth. A vertex deeper than a pass's depth is not guided: the mixture probability 0,
- * no question to the flow, light samples weighed against the BSDF's density. */
+ * against plain passes (docs/integration.md, "The schedule"; docs/theory.md, section 8). Training
+ * passes guide every depth. A vertex deeper than a pass's depth is not guided: the mixture
+ * probability 0, no question to the flow, light samples weighed against the BSDF's density. */
 #define NF_GUIDE_DEPTHS 3u
 
 /* A kind that guides up to depth D, measured on paths guided deeper (as nf_plain_moment

@@ -17,7 +17,7 @@
  * Sharded training (several threads or machines): each shard k calls nf_loss_gradient on a
  * const model with its own gradient buffer g_k and knows its weight sum F_k = sum of its
  * weights. The gradient of the whole batch is  g = sum_k F_k g_k / sum_k F_k , which one
- * thread then passes to nf_apply_gradient. docs/integration.md shows the loop.
+ * thread then passes to nf_apply_gradient. docs/model-layer.md shows the loop.
  */
 #ifndef NISFLOW_TRAIN_H
 #define NISFLOW_TRAIN_H

@@ -493,7 +493,7 @@ static void vertex_plan_reset(vertex_plan *vp, int volume)
 /* Plans a vertex where free flight stopped in a medium of asymmetry phase_g, at p, the ray
  * travelling along d: its context has the normal (0, 0, 0) (a medium point, nisflow/model.h)
  * and the phase function's g; the phase function is its "BSDF", guided as surface vertices
- * are (docs/integration.md, section 5b). */
+ * are (docs/model-layer.md, section 5b). */
 static int volume_plan(const tracer *t, path_state *ps, rng *r, path_stats *st, vec3 p, vec3 d,
                        float phase_g, vertex_plan *vp)
 {
