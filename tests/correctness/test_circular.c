@@ -211,12 +211,8 @@ static void test_turn_carries_mass_across_seam(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_half_turn_is_the_prior_turned),
-        cmocka_unit_test(test_density_continuous_across_seam),
-        cmocka_unit_test(test_turn_carries_mass_across_seam),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_half_turn_is_the_prior_turned),
+    cmocka_unit_test(test_density_continuous_across_seam),
+    cmocka_unit_test(test_turn_carries_mass_across_seam),
+)

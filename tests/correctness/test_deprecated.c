@@ -112,13 +112,9 @@ static void test_depth_of(void **state)
     assert_int_equal(nf_guide_depth_of(UINT32_MAX), 0);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_model_names),
-        cmocka_unit_test(test_prior_pdf),
-        cmocka_unit_test(test_point_batches),
-        cmocka_unit_test(test_depth_of),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_model_names),
+    cmocka_unit_test(test_prior_pdf),
+    cmocka_unit_test(test_point_batches),
+    cmocka_unit_test(test_depth_of),
+)

@@ -480,18 +480,14 @@ static void test_square_theta_near_poles(void **state)
     }
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_oneblob_matches_formula),
-        cmocka_unit_test(test_oneblob_edges),
-        cmocka_unit_test(test_oneblob_centre),
-        cmocka_unit_test(test_sh_orthonormal),
-        cmocka_unit_test(test_sh_values),
-        cmocka_unit_test(test_sh_normalizes),
-        cmocka_unit_test(test_square_round_trip),
-        cmocka_unit_test(test_square_poles_and_seam),
-        cmocka_unit_test(test_square_theta_near_poles),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_oneblob_matches_formula),
+    cmocka_unit_test(test_oneblob_edges),
+    cmocka_unit_test(test_oneblob_centre),
+    cmocka_unit_test(test_sh_orthonormal),
+    cmocka_unit_test(test_sh_values),
+    cmocka_unit_test(test_sh_normalizes),
+    cmocka_unit_test(test_square_round_trip),
+    cmocka_unit_test(test_square_poles_and_seam),
+    cmocka_unit_test(test_square_theta_near_poles),
+)

@@ -538,17 +538,13 @@ static void test_batch_split_invariant(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_sample_pdf_consistent),
-        cmocka_unit_test(test_sample_pdf_consistent_wild),
-        cmocka_unit_test(test_random_flow_is_not_identity),
-        cmocka_unit_test(test_jacobian_finite_differences),
-        cmocka_unit_test(test_jacobian_finite_differences_wild),
-        cmocka_unit_test(test_inverse_by_newton),
-        cmocka_unit_test(test_fresh_parameters_identity),
-        cmocka_unit_test(test_batch_split_invariant),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_sample_pdf_consistent),
+    cmocka_unit_test(test_sample_pdf_consistent_wild),
+    cmocka_unit_test(test_random_flow_is_not_identity),
+    cmocka_unit_test(test_jacobian_finite_differences),
+    cmocka_unit_test(test_jacobian_finite_differences_wild),
+    cmocka_unit_test(test_inverse_by_newton),
+    cmocka_unit_test(test_fresh_parameters_identity),
+    cmocka_unit_test(test_batch_split_invariant),
+)

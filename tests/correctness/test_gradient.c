@@ -731,20 +731,16 @@ static void test_apply_gradient_adamw(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_fd_small),
-        cmocka_unit_test(test_fd_large),
-        cmocka_unit_test(test_fd_media),
-        cmocka_unit_test(test_directional_derivatives),
-        cmocka_unit_test(test_zero_weights),
-        cmocka_unit_test(test_tiles_match_single_samples),
-        cmocka_unit_test(test_weight_normalization),
-        cmocka_unit_test(test_sharding),
-        cmocka_unit_test(test_gradient_with_work),
-        cmocka_unit_test(test_train_step_adamw),
-        cmocka_unit_test(test_apply_gradient_adamw),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_fd_small),
+    cmocka_unit_test(test_fd_large),
+    cmocka_unit_test(test_fd_media),
+    cmocka_unit_test(test_directional_derivatives),
+    cmocka_unit_test(test_zero_weights),
+    cmocka_unit_test(test_tiles_match_single_samples),
+    cmocka_unit_test(test_weight_normalization),
+    cmocka_unit_test(test_sharding),
+    cmocka_unit_test(test_gradient_with_work),
+    cmocka_unit_test(test_train_step_adamw),
+    cmocka_unit_test(test_apply_gradient_adamw),
+)

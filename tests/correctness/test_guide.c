@@ -760,16 +760,12 @@ static void test_model_copy(void **state)
     nf_model_destroy(large);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_config_checked),   cmocka_unit_test(test_policy_points),
-        cmocka_unit_test(test_model_config),
-        cmocka_unit_test(test_store_bounds),     cmocka_unit_test(test_same_bits_any_threads),
-        cmocka_unit_test(test_exact_across_processes), cmocka_unit_test(test_patience),
-        cmocka_unit_test(test_publish),          cmocka_unit_test(test_payload),
-        cmocka_unit_test(test_model_copy),
-        cmocka_unit_test(test_failing_reduce_changes_nothing),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_config_checked),   cmocka_unit_test(test_policy_points),
+    cmocka_unit_test(test_model_config),
+    cmocka_unit_test(test_store_bounds),     cmocka_unit_test(test_same_bits_any_threads),
+    cmocka_unit_test(test_exact_across_processes), cmocka_unit_test(test_patience),
+    cmocka_unit_test(test_publish),          cmocka_unit_test(test_payload),
+    cmocka_unit_test(test_model_copy),
+    cmocka_unit_test(test_failing_reduce_changes_nothing),
+)

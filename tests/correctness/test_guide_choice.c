@@ -506,20 +506,16 @@ static void test_training_ratio_stop_rule(void **state)
     nf_guide_destroy(g);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_variance_by_hand),
-        cmocka_unit_test(test_variance_in_expectation),
-        cmocka_unit_test(test_variance_refuses),
-        cmocka_unit_test(test_plain_moment_in_expectation),
-        cmocka_unit_test(test_depth_moment_in_expectation),
-        cmocka_unit_test(test_warm_up),
-        cmocka_unit_test(test_cost_rule),
-        cmocka_unit_test(test_exploration),
-        cmocka_unit_test(test_fixed_policy_and_refusals),
-        cmocka_unit_test(test_depth_choice),
-        cmocka_unit_test(test_training_ratio_stop_rule),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_variance_by_hand),
+    cmocka_unit_test(test_variance_in_expectation),
+    cmocka_unit_test(test_variance_refuses),
+    cmocka_unit_test(test_plain_moment_in_expectation),
+    cmocka_unit_test(test_depth_moment_in_expectation),
+    cmocka_unit_test(test_warm_up),
+    cmocka_unit_test(test_cost_rule),
+    cmocka_unit_test(test_exploration),
+    cmocka_unit_test(test_fixed_policy_and_refusals),
+    cmocka_unit_test(test_depth_choice),
+    cmocka_unit_test(test_training_ratio_stop_rule),
+)

@@ -141,14 +141,10 @@ static void test_refuses(void **state)
         assert_true(out[i] == 42.0); /* refused calls write nothing */
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_lone_peak_takes_brightest_neighbour),
-        cmocka_unit_test(test_shared_peak_and_dark_pixels_stay),
-        cmocka_unit_test(test_one_pixel_one_row_one_column),
-        cmocka_unit_test(test_matches_definition),
-        cmocka_unit_test(test_refuses),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_lone_peak_takes_brightest_neighbour),
+    cmocka_unit_test(test_shared_peak_and_dark_pixels_stay),
+    cmocka_unit_test(test_one_pixel_one_row_one_column),
+    cmocka_unit_test(test_matches_definition),
+    cmocka_unit_test(test_refuses),
+)

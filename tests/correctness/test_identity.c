@@ -342,16 +342,12 @@ static void test_status_strings(void **state)
     assert_string_equal(nf_last_error_message(), "");
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_status_strings),
-        cmocka_unit_test(test_version_string),
-        cmocka_unit_test(test_fresh_density_is_prior),
-        cmocka_unit_test(test_fresh_density_epsilon),
-        cmocka_unit_test(test_fresh_density_at_exact_poles),
-        cmocka_unit_test(test_scaled_vectors_same_density),
-        cmocka_unit_test(test_fresh_uniform_angle_sample_map),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_status_strings),
+    cmocka_unit_test(test_version_string),
+    cmocka_unit_test(test_fresh_density_is_prior),
+    cmocka_unit_test(test_fresh_density_epsilon),
+    cmocka_unit_test(test_fresh_density_at_exact_poles),
+    cmocka_unit_test(test_scaled_vectors_same_density),
+    cmocka_unit_test(test_fresh_uniform_angle_sample_map),
+)

@@ -219,12 +219,8 @@ static void test_auto_and_invalid(void **state)
     assert_string_equal(nf_model_isa_name(NULL), "");
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_variants_agree),
-        cmocka_unit_test(test_fused_variants_agree_to_the_bit),
-        cmocka_unit_test(test_auto_and_invalid),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_variants_agree),
+    cmocka_unit_test(test_fused_variants_agree_to_the_bit),
+    cmocka_unit_test(test_auto_and_invalid),
+)

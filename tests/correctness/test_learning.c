@@ -307,12 +307,8 @@ static void test_cosine_prior_after_training(void **state)
     }
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_learns_vmf_lobe),
-        cmocka_unit_test(test_cosine_prior_premise),
-        cmocka_unit_test(test_cosine_prior_after_training),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_learns_vmf_lobe),
+    cmocka_unit_test(test_cosine_prior_premise),
+    cmocka_unit_test(test_cosine_prior_after_training),
+)

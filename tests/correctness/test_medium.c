@@ -432,15 +432,11 @@ static void test_medium_contexts_are_validated(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_fresh_model_is_the_phase_function),
-        cmocka_unit_test(test_sample_matches_pdf_and_phase_function),
-        cmocka_unit_test(test_normalization),
-        cmocka_unit_test(test_chi2),
-        cmocka_unit_test(test_training_at_medium_contexts),
-        cmocka_unit_test(test_medium_contexts_are_validated),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_fresh_model_is_the_phase_function),
+    cmocka_unit_test(test_sample_matches_pdf_and_phase_function),
+    cmocka_unit_test(test_normalization),
+    cmocka_unit_test(test_chi2),
+    cmocka_unit_test(test_training_at_medium_contexts),
+    cmocka_unit_test(test_medium_contexts_are_validated),
+)

@@ -278,17 +278,13 @@ static void test_quadrature_self_check(void **state)
     }
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_quadrature_self_check),
-        cmocka_unit_test(test_normalization_uniform_direction),
-        cmocka_unit_test(test_normalization_uniform_angle),
-        cmocka_unit_test(test_normalization_cosine),
-        cmocka_unit_test(test_normalization_custom),
-        cmocka_unit_test(test_normalization_large_preset),
-        cmocka_unit_test(test_normalization_rotated_frame),
-        cmocka_unit_test(test_quadrature_convergence),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_quadrature_self_check),
+    cmocka_unit_test(test_normalization_uniform_direction),
+    cmocka_unit_test(test_normalization_uniform_angle),
+    cmocka_unit_test(test_normalization_cosine),
+    cmocka_unit_test(test_normalization_custom),
+    cmocka_unit_test(test_normalization_large_preset),
+    cmocka_unit_test(test_normalization_rotated_frame),
+    cmocka_unit_test(test_quadrature_convergence),
+)

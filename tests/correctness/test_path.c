@@ -515,19 +515,15 @@ static void test_samples_train(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_hand_made_gray),
-        cmocka_unit_test(test_hand_made_colour),
-        cmocka_unit_test(test_emission_at_several_depths),
-        cmocka_unit_test(test_random_paths),
-        cmocka_unit_test(test_no_learned_vertex),
-        cmocka_unit_test(test_zero_weights_skipped),
-        cmocka_unit_test(test_overflow_and_underflow),
-        cmocka_unit_test(test_capacity),
-        cmocka_unit_test(test_vertex_out_optional),
-        cmocka_unit_test(test_samples_train),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_hand_made_gray),
+    cmocka_unit_test(test_hand_made_colour),
+    cmocka_unit_test(test_emission_at_several_depths),
+    cmocka_unit_test(test_random_paths),
+    cmocka_unit_test(test_no_learned_vertex),
+    cmocka_unit_test(test_zero_weights_skipped),
+    cmocka_unit_test(test_overflow_and_underflow),
+    cmocka_unit_test(test_capacity),
+    cmocka_unit_test(test_vertex_out_optional),
+    cmocka_unit_test(test_samples_train),
+)

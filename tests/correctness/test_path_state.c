@@ -91,12 +91,8 @@ static void test_null(void **state)
     assert_true(nf_path_survival(NULL, &pol, 1.0f) == 0.0f);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_same_bits_as_the_calls),
-        cmocka_unit_test(test_pass_depth),
-        cmocka_unit_test(test_null),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_same_bits_as_the_calls),
+    cmocka_unit_test(test_pass_depth),
+    cmocka_unit_test(test_null),
+)

@@ -744,24 +744,20 @@ static void test_null_arguments(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_round_trip_small),
-        cmocka_unit_test(test_round_trip_large),
-        cmocka_unit_test(test_round_trip_config),
-        cmocka_unit_test(test_save_load_file),
-        cmocka_unit_test(test_load_missing_file),
-        cmocka_unit_test(test_serialize_capacity),
-        cmocka_unit_test(test_resume_training),
-        cmocka_unit_test(test_truncated),
-        cmocka_unit_test(test_bit_flips),
-        cmocka_unit_test(test_other_version),
-        cmocka_unit_test(test_version_1_files),
-        cmocka_unit_test(test_unknown_phi_map),
-        cmocka_unit_test(test_invalid_content),
-        cmocka_unit_test(test_custom_prior_callbacks),
-        cmocka_unit_test(test_null_arguments),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_round_trip_small),
+    cmocka_unit_test(test_round_trip_large),
+    cmocka_unit_test(test_round_trip_config),
+    cmocka_unit_test(test_save_load_file),
+    cmocka_unit_test(test_load_missing_file),
+    cmocka_unit_test(test_serialize_capacity),
+    cmocka_unit_test(test_resume_training),
+    cmocka_unit_test(test_truncated),
+    cmocka_unit_test(test_bit_flips),
+    cmocka_unit_test(test_other_version),
+    cmocka_unit_test(test_version_1_files),
+    cmocka_unit_test(test_unknown_phi_map),
+    cmocka_unit_test(test_invalid_content),
+    cmocka_unit_test(test_custom_prior_callbacks),
+    cmocka_unit_test(test_null_arguments),
+)

@@ -1210,19 +1210,15 @@ static void test_stack_bound(void **state)
 #endif
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_same_bits_as_batch),
-        cmocka_unit_test(test_same_bits_around_cache_size),
-        cmocka_unit_test(test_vector_paths_same_bits_across_isas),
-        cmocka_unit_test(test_point_pdf_integrates_to_one),
-        cmocka_unit_test(test_sample_pdf_agree),
-        cmocka_unit_test(test_stale_after_parameter_changes),
-        cmocka_unit_test(test_other_models_refused),
-        cmocka_unit_test(test_per_point_prior),
-        cmocka_unit_test(test_copies_are_valid),
-        cmocka_unit_test(test_stack_bound),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_same_bits_as_batch),
+    cmocka_unit_test(test_same_bits_around_cache_size),
+    cmocka_unit_test(test_vector_paths_same_bits_across_isas),
+    cmocka_unit_test(test_point_pdf_integrates_to_one),
+    cmocka_unit_test(test_sample_pdf_agree),
+    cmocka_unit_test(test_stale_after_parameter_changes),
+    cmocka_unit_test(test_other_models_refused),
+    cmocka_unit_test(test_per_point_prior),
+    cmocka_unit_test(test_copies_are_valid),
+    cmocka_unit_test(test_stack_bound),
+)

@@ -224,12 +224,8 @@ static void test_points_pass_the_points_context(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_batch_calls_pass_the_callers_context),
-        cmocka_unit_test(test_training_passes_the_callers_context),
-        cmocka_unit_test(test_points_pass_the_points_context),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_batch_calls_pass_the_callers_context),
+    cmocka_unit_test(test_training_passes_the_callers_context),
+    cmocka_unit_test(test_points_pass_the_points_context),
+)

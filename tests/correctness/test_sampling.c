@@ -537,20 +537,16 @@ static void test_chi2_power(void **state)
     nf_model_destroy(b);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_gamma_q),
-        cmocka_unit_test(test_chi2_harness),
-        cmocka_unit_test(test_chi2_power),
-        cmocka_unit_test(test_chi2_uniform_direction),
-        cmocka_unit_test(test_chi2_uniform_angle),
-        cmocka_unit_test(test_chi2_cosine),
-        cmocka_unit_test(test_chi2_custom),
-        cmocka_unit_test(test_sample_pdf_matches_pdf),
-        cmocka_unit_test(test_sample_pdf_matches_pdf_sharp),
-        cmocka_unit_test(test_sample_is_deterministic),
-        cmocka_unit_test(test_custom_callbacks_get_caller_context),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_gamma_q),
+    cmocka_unit_test(test_chi2_harness),
+    cmocka_unit_test(test_chi2_power),
+    cmocka_unit_test(test_chi2_uniform_direction),
+    cmocka_unit_test(test_chi2_uniform_angle),
+    cmocka_unit_test(test_chi2_cosine),
+    cmocka_unit_test(test_chi2_custom),
+    cmocka_unit_test(test_sample_pdf_matches_pdf),
+    cmocka_unit_test(test_sample_pdf_matches_pdf_sharp),
+    cmocka_unit_test(test_sample_is_deterministic),
+    cmocka_unit_test(test_custom_callbacks_get_caller_context),
+)

@@ -387,16 +387,12 @@ static void test_refusals(void **state)
     nf_guide_destroy(g);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_plain_until_the_budget),
-        cmocka_unit_test(test_one_pass_at_least),
-        cmocka_unit_test(test_order_and_choice),
-        cmocka_unit_test(test_plain_wins),
-        cmocka_unit_test(test_steady_costs_decide),
-        cmocka_unit_test(test_reduce_of_one_process),
-        cmocka_unit_test(test_refusals),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_plain_until_the_budget),
+    cmocka_unit_test(test_one_pass_at_least),
+    cmocka_unit_test(test_order_and_choice),
+    cmocka_unit_test(test_plain_wins),
+    cmocka_unit_test(test_steady_costs_decide),
+    cmocka_unit_test(test_reduce_of_one_process),
+    cmocka_unit_test(test_refusals),
+)

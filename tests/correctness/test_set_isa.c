@@ -207,13 +207,9 @@ static void test_points_go_stale_when_the_kernels_change(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_switched_model_trains_like_a_created_one),
-        cmocka_unit_test(test_loaded_model_resumes_like_the_original),
-        cmocka_unit_test(test_refusals_leave_the_model_unchanged),
-        cmocka_unit_test(test_points_go_stale_when_the_kernels_change),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_switched_model_trains_like_a_created_one),
+    cmocka_unit_test(test_loaded_model_resumes_like_the_original),
+    cmocka_unit_test(test_refusals_leave_the_model_unchanged),
+    cmocka_unit_test(test_points_go_stale_when_the_kernels_change),
+)

@@ -635,21 +635,17 @@ static void test_invalid_arguments(void **state)
     assert_true(fabsf(y - 0.25f) < 1e-5f); /* identity, see test_identity_at_zero */
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_forward_matches_reference),
-        cmocka_unit_test(test_forward_end_points_exact),
-        cmocka_unit_test(test_inverse_end_points_exact),
-        cmocka_unit_test(test_round_trip_moderate),
-        cmocka_unit_test(test_round_trip_extreme),
-        cmocka_unit_test(test_derivative_finite_differences),
-        cmocka_unit_test(test_identity_at_zero),
-        cmocka_unit_test(test_monotone),
-        cmocka_unit_test(test_inverse_monotone),
-        cmocka_unit_test(test_inverse_derivative),
-        cmocka_unit_test(test_knots_interpolated),
-        cmocka_unit_test(test_invalid_arguments),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_forward_matches_reference),
+    cmocka_unit_test(test_forward_end_points_exact),
+    cmocka_unit_test(test_inverse_end_points_exact),
+    cmocka_unit_test(test_round_trip_moderate),
+    cmocka_unit_test(test_round_trip_extreme),
+    cmocka_unit_test(test_derivative_finite_differences),
+    cmocka_unit_test(test_identity_at_zero),
+    cmocka_unit_test(test_monotone),
+    cmocka_unit_test(test_inverse_monotone),
+    cmocka_unit_test(test_inverse_derivative),
+    cmocka_unit_test(test_knots_interpolated),
+    cmocka_unit_test(test_invalid_arguments),
+)

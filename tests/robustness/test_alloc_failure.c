@@ -617,15 +617,11 @@ static void test_shading_points_never_allocate(void **state)
     }
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_create),
-        cmocka_unit_test(test_clone),
-        cmocka_unit_test(test_save),
-        cmocka_unit_test(test_scenario),
-        cmocka_unit_test(test_load_and_deserialize),
-        cmocka_unit_test(test_shading_points_never_allocate),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_create),
+    cmocka_unit_test(test_clone),
+    cmocka_unit_test(test_save),
+    cmocka_unit_test(test_scenario),
+    cmocka_unit_test(test_load_and_deserialize),
+    cmocka_unit_test(test_shading_points_never_allocate),
+)

@@ -83,12 +83,8 @@ static void test_zeroed_config_points_at_init(void **state)
     assert_null(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_null_arguments_are_named),
-        cmocka_unit_test(test_empty_calls_check_the_rest),
-        cmocka_unit_test(test_zeroed_config_points_at_init),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_null_arguments_are_named),
+    cmocka_unit_test(test_empty_calls_check_the_rest),
+    cmocka_unit_test(test_zeroed_config_points_at_init),
+)

@@ -263,10 +263,6 @@ static void test_concurrent_const_and_io(void **state)
     assert_int_equal(atomic_load(&alloc.live), 0);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_concurrent_const_and_io),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_concurrent_const_and_io),
+)

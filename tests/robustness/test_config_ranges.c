@@ -339,14 +339,10 @@ static void test_set_learning_rate(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_denormal_prior_epsilon_file_is_refused),
-        cmocka_unit_test(test_prior_epsilon_floor),
-        cmocka_unit_test(test_every_float_field),
-        cmocka_unit_test(test_bounds),
-        cmocka_unit_test(test_set_learning_rate),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_denormal_prior_epsilon_file_is_refused),
+    cmocka_unit_test(test_prior_epsilon_floor),
+    cmocka_unit_test(test_every_float_field),
+    cmocka_unit_test(test_bounds),
+    cmocka_unit_test(test_set_learning_rate),
+)

@@ -378,12 +378,8 @@ static void test_bare_model_misuse_detected(void **state)
     free(b);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_guide_train_while_sampling),
-        cmocka_unit_test(test_guide_helped_by_render_threads),
-        cmocka_unit_test(test_bare_model_misuse_detected),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_guide_train_while_sampling),
+    cmocka_unit_test(test_guide_helped_by_render_threads),
+    cmocka_unit_test(test_bare_model_misuse_detected),
+)

@@ -120,13 +120,9 @@ static void test_load_wrong_content(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_load_directory),
-        cmocka_unit_test(test_load_devices),
-        cmocka_unit_test(test_save_unwritable),
-        cmocka_unit_test(test_load_wrong_content),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_load_directory),
+    cmocka_unit_test(test_load_devices),
+    cmocka_unit_test(test_save_unwritable),
+    cmocka_unit_test(test_load_wrong_content),
+)

@@ -109,13 +109,9 @@ static void test_save_into_missing_directory(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_missing_file),
-        cmocka_unit_test(test_garbage_file),
-        cmocka_unit_test(test_long_path),
-        cmocka_unit_test(test_save_into_missing_directory),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_missing_file),
+    cmocka_unit_test(test_garbage_file),
+    cmocka_unit_test(test_long_path),
+    cmocka_unit_test(test_save_into_missing_directory),
+)

@@ -169,11 +169,7 @@ static void test_guide_refuses_bad_medium_contexts(void **state)
     nf_model_destroy(m);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_batches_refuse_bad_medium_contexts),
-        cmocka_unit_test(test_guide_refuses_bad_medium_contexts),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_batches_refuse_bad_medium_contexts),
+    cmocka_unit_test(test_guide_refuses_bad_medium_contexts),
+)

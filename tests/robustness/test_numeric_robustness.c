@@ -1005,20 +1005,16 @@ static void test_numeric_refusal_keeps_model(void **state)
     print_message("  %lu checks\n", checks);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_pdf_special_directions),
-        cmocka_unit_test(test_sample_special_u),
-        cmocka_unit_test(test_square_boundaries),
-        cmocka_unit_test(test_length_invariance),
-        cmocka_unit_test(test_positions_outside_bounds),
-        cmocka_unit_test(test_blocks_outside_domain),
-        cmocka_unit_test(test_spline_domain_boundaries),
-        cmocka_unit_test(test_extreme_parameters),
-        cmocka_unit_test(test_extreme_weights),
-        cmocka_unit_test(test_weight_scale_invariance),
-        cmocka_unit_test(test_numeric_refusal_keeps_model),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_pdf_special_directions),
+    cmocka_unit_test(test_sample_special_u),
+    cmocka_unit_test(test_square_boundaries),
+    cmocka_unit_test(test_length_invariance),
+    cmocka_unit_test(test_positions_outside_bounds),
+    cmocka_unit_test(test_blocks_outside_domain),
+    cmocka_unit_test(test_spline_domain_boundaries),
+    cmocka_unit_test(test_extreme_parameters),
+    cmocka_unit_test(test_extreme_weights),
+    cmocka_unit_test(test_weight_scale_invariance),
+    cmocka_unit_test(test_numeric_refusal_keeps_model),
+)

@@ -232,13 +232,9 @@ static void test_learned_vertex_context_and_direction(void **state)
     assert_accepted(v, N);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_null_and_counts),
-        cmocka_unit_test(test_bad_rgb_fields),
-        cmocka_unit_test(test_bad_emitted_mis),
-        cmocka_unit_test(test_learned_vertex_context_and_direction),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_null_and_counts),
+    cmocka_unit_test(test_bad_rgb_fields),
+    cmocka_unit_test(test_bad_emitted_mis),
+    cmocka_unit_test(test_learned_vertex_context_and_direction),
+)

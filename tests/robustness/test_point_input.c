@@ -409,14 +409,10 @@ static void test_corrupted_context_refused(void **state)
         fail_msg("corrupted points accepted (bit flips accepted of those tried):%s", report);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_prepare_bad_input),
-        cmocka_unit_test(test_sample_pdf_bad_input),
-        cmocka_unit_test(test_u_clamped),
-        cmocka_unit_test(test_corrupted_identity_refused),
-        cmocka_unit_test(test_corrupted_context_refused),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_prepare_bad_input),
+    cmocka_unit_test(test_sample_pdf_bad_input),
+    cmocka_unit_test(test_u_clamped),
+    cmocka_unit_test(test_corrupted_identity_refused),
+    cmocka_unit_test(test_corrupted_context_refused),
+)

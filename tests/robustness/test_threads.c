@@ -544,13 +544,9 @@ static void test_error_message_is_thread_local(void **state)
     assert_string_equal(c[1].second, c[1].first);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_concurrent_sample_pdf),
-        cmocka_unit_test(test_concurrent_loss_gradient),
-        cmocka_unit_test(test_concurrent_shared_points),
-        cmocka_unit_test(test_error_message_is_thread_local),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_concurrent_sample_pdf),
+    cmocka_unit_test(test_concurrent_loss_gradient),
+    cmocka_unit_test(test_concurrent_shared_points),
+    cmocka_unit_test(test_error_message_is_thread_local),
+)
