@@ -297,7 +297,7 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
              (b.type == BSDF_PLASTIC || get_roughness(L, n, &b));
         b.ior = ok ? int_ior / ext_ior : 1.0f;
     } else if (!strcmp(type, "null")) {
-        b.type = BSDF_NULL; /* the invisible boundary of a medium (integrator.c) */
+        b.type = BSDF_NULL; /* the invisible boundary of a medium (render/vertex.c) */
     } else {
         return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, conductor, "
                        "roughconductor, dielectric, plastic, roughplastic, null)", type);
