@@ -114,9 +114,9 @@ static void output_prefix(const options *o, char *out, size_t size)
 
 /* Writes the EXR, the PNG and the model, and reports the error against the reference and what
  * the statistics say is wrong with the scene. */
-static int write_results(const options *o, const char *program, const char *prefix, const image *img,
-                         const image *reference, const nf_model *model, const path_stats *stats,
-                         tr_error *err)
+static int write_results(const options *o, const char *program, const char *prefix,
+                         const image *img, const image *reference, const nf_model *model,
+                         const path_stats *stats, tr_error *err)
 {
     char path[4200];
     if (stats->camera_backfaces > stats->paths / 100)
