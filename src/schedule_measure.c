@@ -2,7 +2,7 @@
  * schedule_measure.c - what each kind of pass measures (nisflow/schedule.h): the per-pixel
  * reference, the pooled moments of the kinds a pass did not render, the kinds' relative
  * variances for the choice, and a training pass's ratio to a plain pass. The formulas are
- * docs/theory.md's "Guided or plain passes"; the rules for which passes measure what are
+ * docs/schedule-theory.md; the rules for which passes measure what are
  * docs/integration.md's "The schedule".
  */
 #include <math.h>

@@ -93,7 +93,7 @@ NF_API int nf_guide_light_mis_uses_flow(const nf_guide_policy *p, uint32_t depth
  * path adds at its k-th contribution is worth c_k / R_k to plain path tracing, and
  *     sum over k of c_k^2 / R_k + 2 sum over j < k of c_j c_k / R_j
  * has plain path tracing's second moment as its expectation over guided paths (importance
- * weighting; docs/theory.md, "Guided or plain passes"). Start a path with
+ * weighting; docs/schedule-theory.md). Start a path with
  * nf_plain_moment_start, follow its scatters and roulette, add its contributions; a plain
  * path (R = 1) gives the square of its luminance. Add each contribution with the MIS weight
  * plain path tracing would give it (light sampling against the BSDF's density), not the
@@ -134,7 +134,7 @@ NF_API void nf_plain_moment_add(nf_plain_moment *m, float c);
  * every depth measured on its own passes, a shallower kind on every pass
  * that guides deeper than it (nf_depth_moment, as plain path tracing is measured);
  * nf_guide_choose_depth picks the kind to render, and nf_guide_choose_pass then weighs it
- * against plain passes (docs/integration.md, "The schedule"; docs/theory.md, section 8). Training
+ * against plain passes (docs/integration.md, "The schedule"; docs/schedule-theory.md). Training
  * passes guide every depth. A vertex deeper than a pass's depth is not guided: the mixture
  * probability 0, no question to the flow, light samples weighed against the BSDF's density. */
 #define NF_GUIDE_DEPTHS 3u

@@ -77,7 +77,7 @@ NF_EXTERN_C_BEGIN
  * box lit directly), plain passes give more per second. A renderer that renders in passes
  * (each pixel once, say) measures both kinds on the passes it renders anyway, asks
  * nf_guide_choose_pass which kind to render next, and combines the passes of both kinds by
- * inverse variance (docs/theory.md, section 8). The choice stays unbiased:
+ * inverse variance (docs/schedule-theory.md). The choice stays unbiased:
  * every pass is an unbiased estimate, whichever kind it is. */
 
 typedef enum nf_pass_kind { NF_PASS_GUIDED = 0, NF_PASS_PLAIN = 1 } nf_pass_kind;

@@ -86,7 +86,7 @@ static void test_variance_in_expectation(void **state)
 }
 
 /* nf_plain_moment has plain path tracing's second moment as its expectation over guided
- * paths (docs/theory.md section 8), checked on a path of one scatter in [0, 1] with
+ * paths (docs/schedule-theory.md), checked on a path of one scatter in [0, 1] with
  * integrand f(x) = x^2: emission 0.5 seen at the camera, then a direction drawn from the
  * guided density p_g(x) = 2x where plain path tracing draws it uniformly (p_p = 1), Russian
  * roulette survived with probability 0.5 where plain path tracing's rule would have given
