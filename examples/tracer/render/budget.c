@@ -13,6 +13,7 @@
 
 #include "guide.h"
 #include "parallel.h"
+#include "path_record.h"
 #include "progress.h"
 #include "ranks.h"
 #include "render.h"
@@ -22,61 +23,17 @@
 
 /* ---- Training on a pass's records ------------------------------------------------------------ */
 
-/* The records of a pass as the guide's store takes them: structure of arrays, each sample
- * keyed by its place in the pass (records come in tile and path order, the same for any
- * number of threads), its material as the payload (the BSDF prior's callbacks read it). */
-typedef struct sample_arrays {
-    uint64_t *key;
-    nf_context *ctx;
-    float *dir, *weight;
-    guide_point *payload;
-    size_t capacity;
-} sample_arrays;
-
-static void samples_free(sample_arrays *a)
-{
-    free(a->key);
-    free(a->ctx);
-    free(a->dir);
-    free(a->weight);
-    free(a->payload);
-    memset(a, 0, sizeof *a);
-}
-
-static int samples_reserve(sample_arrays *a, size_t n)
-{
-    if (n <= a->capacity)
-        return 1;
-    samples_free(a);
-    a->key = malloc(n * sizeof *a->key);
-    a->ctx = malloc(n * sizeof *a->ctx);
-    a->dir = malloc(3 * n * sizeof *a->dir);
-    a->weight = malloc(n * sizeof *a->weight);
-    a->payload = malloc(n * sizeof *a->payload);
-    a->capacity = a->key && a->ctx && a->dir && a->weight && a->payload ? n : 0;
-    return a->capacity != 0;
-}
-
 /* Hands a pass's records to the guide, then trains on them. Collective (the guide's steps
  * reduce over the ranks). */
-static int train_on_pass(nf_guide *g, sample_arrays *a, const record_buffer *rec, int threads,
+static int train_on_pass(nf_guide *g, record_arrays *a, const record_buffer *rec, int threads,
                          uint32_t pass, budget_report *rep, tr_error *err)
 {
     size_t n = rec->count;
-    int ok = samples_reserve(a, n ? n : 1) ||
+    int ok = record_arrays_from(a, rec) ||
              tr_fail(err, "out of memory for %zu training samples", n);
     if (!ranks_agree(ok, err))
         return 0;
-    for (size_t i = 0; i < n; ++i) {
-        const train_record *x = &rec->data[i];
-        a->key[i] = i;
-        a->ctx[i] = x->ctx;
-        memcpy(a->dir + 3 * i, x->dir, sizeof x->dir);
-        a->weight[i] = x->weight;
-        memcpy(a->payload[i].position, x->ctx.position, sizeof x->ctx.position);
-        a->payload[i].bp = x->bp;
-    }
-    nf_status st = nf_guide_add_samples(g, n, a->key, a->ctx, a->dir, a->weight, a->payload);
+    nf_status st = nf_guide_add_samples(g, n, a->key, a->ctx, a->dir, a->weight, a->points);
     if (!ranks_agree(st == NF_OK || tr_fail(err, "training pass %u: %s", pass,
                                              nf_last_error_message()),
                      err))
@@ -105,7 +62,7 @@ static int train_on_pass(nf_guide *g, sample_arrays *a, const record_buffer *rec
 /* The pieces of the job that live as long as it. */
 typedef struct budget_job {
     nf_schedule *schedule;
-    sample_arrays arrays;
+    record_arrays arrays;
     record_buffer records;
     image pass;
     float *moment;
@@ -115,7 +72,7 @@ typedef struct budget_job {
 static void job_free(budget_job *j)
 {
     nf_schedule_destroy(j->schedule);
-    samples_free(&j->arrays);
+    record_arrays_free(&j->arrays);
     record_buffer_free(&j->records);
     image_free(&j->pass);
     free(j->moment);

@@ -86,3 +86,57 @@ void recorder_close(const tracer *t, const path_recorder *pr, uint32_t pixel,
         st->nf_errors++;
 }
 
+/* Grows every array to hold n samples (at least one, so that none is NULL). */
+static int record_arrays_reserve(record_arrays *a, size_t n)
+{
+    if (n <= a->capacity && a->capacity)
+        return 1;
+    size_t cap = a->capacity ? a->capacity : 1024;
+    while (cap < n)
+        cap *= 2;
+    uint64_t *key = realloc(a->key, cap * sizeof *key);
+    if (key)
+        a->key = key;
+    nf_context *ctx = realloc(a->ctx, cap * sizeof *ctx);
+    if (ctx)
+        a->ctx = ctx;
+    float *dir = realloc(a->dir, cap * 3 * sizeof *dir);
+    if (dir)
+        a->dir = dir;
+    float *weight = realloc(a->weight, cap * sizeof *weight);
+    if (weight)
+        a->weight = weight;
+    guide_point *points = realloc(a->points, cap * sizeof *points);
+    if (points)
+        a->points = points;
+    if (!key || !ctx || !dir || !weight || !points)
+        return 0;
+    a->capacity = cap;
+    return 1;
+}
+
+int record_arrays_from(record_arrays *a, const record_buffer *b)
+{
+    if (!record_arrays_reserve(a, b->count))
+        return 0;
+    for (size_t i = 0; i < b->count; ++i) {
+        const train_record *r = &b->data[i];
+        a->key[i] = i;
+        a->ctx[i] = r->ctx;
+        memcpy(a->dir + 3 * i, r->dir, sizeof r->dir);
+        a->weight[i] = r->weight;
+        memcpy(a->points[i].position, r->ctx.position, sizeof r->ctx.position);
+        a->points[i].bp = r->bp;
+    }
+    return 1;
+}
+
+void record_arrays_free(record_arrays *a)
+{
+    free(a->key);
+    free(a->ctx);
+    free(a->dir);
+    free(a->weight);
+    free(a->points);
+    memset(a, 0, sizeof *a);
+}

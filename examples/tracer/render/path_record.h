@@ -11,6 +11,7 @@
 
 #include <nisflow/nisflow.h>
 
+#include "guide.h"
 #include "integrator.h"
 
 #define MAX_RECORDED_VERTICES 256
@@ -56,5 +57,22 @@ static inline void recorder_open(path_recorder *pr, nf_path_vertex **v, vertex_e
  * are appended to `records`; a path the library refuses counts in st->nf_errors. */
 void recorder_close(const tracer *t, const path_recorder *pr, uint32_t pixel,
                     record_buffer *records, path_stats *st);
+
+/* Training records as structure of arrays, as the guide (nf_guide_add_samples,
+ * nf_guide_train_batch) takes them: each sample keyed by its place among the records (which
+ * come in tile and path order, the same for any number of threads), its material as the
+ * payload the BSDF prior's callbacks read. Zero-initialize; grows as needed. */
+typedef struct record_arrays {
+    uint64_t *key;
+    nf_context *ctx;
+    float *dir, *weight;
+    guide_point *points;
+    size_t capacity;
+} record_arrays;
+
+/* Fills `a` with every record of `b` (index i of the arrays is b->data[i]). Returns 0 when
+ * out of memory; `a` then keeps what it held. */
+int record_arrays_from(record_arrays *a, const record_buffer *b);
+void record_arrays_free(record_arrays *a);
 
 #endif /* TRACER_PATH_RECORD_H */

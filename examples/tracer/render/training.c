@@ -16,6 +16,7 @@
 
 #include "guide.h"
 #include "metrics.h"
+#include "path_record.h"
 #include "progress.h"
 #include "ranks.h"
 #include "render.h"
@@ -23,47 +24,6 @@
 /* Paths per gradient group: a multiple of render.c's chunks of 64; 16 groups in a batch of
  * 4,096, enough to keep 2 threads (or 2 ranks x 8 threads) busy. */
 #define GROUP_PATHS 256
-
-/* Structure-of-arrays copies of a batch, as nf_train_step takes them. */
-typedef struct batch_arrays {
-    nf_context *ctx;
-    float *dir, *weight;
-    guide_point *points; /* the BSDF prior's material of each context */
-    size_t capacity;
-} batch_arrays;
-
-static int batch_reserve(batch_arrays *b, size_t n)
-{
-    if (n <= b->capacity)
-        return 1;
-    size_t cap = b->capacity ? b->capacity : 1024;
-    while (cap < n)
-        cap *= 2;
-    nf_context *ctx = realloc(b->ctx, cap * sizeof *ctx);
-    if (ctx)
-        b->ctx = ctx;
-    float *dir = realloc(b->dir, cap * 3 * sizeof *dir);
-    if (dir)
-        b->dir = dir;
-    float *weight = realloc(b->weight, cap * sizeof *weight);
-    if (weight)
-        b->weight = weight;
-    guide_point *points = realloc(b->points, cap * sizeof *points);
-    if (points)
-        b->points = points;
-    if (!ctx || !dir || !weight || !points)
-        return 0;
-    b->capacity = cap;
-    return 1;
-}
-
-static void batch_free(batch_arrays *b)
-{
-    free(b->ctx);
-    free(b->dir);
-    free(b->weight);
-    free(b->points);
-}
 
 /* Renders an evaluation image (every rank its tiles, assembled on rank 0) and writes a CSV
  * row. `samples` is this rank's count; the row has all ranks'. Collective. */
@@ -114,7 +74,7 @@ static size_t group_paths(size_t paths)
 
 /* Trains with `guide` on the iteration's batch (this rank's groups of it): one step of the
  * guide's training model, summed exactly over the groups, threads and ranks. */
-static int step_on_batch(nf_guide *guide, const tracer *t, const batch_arrays *batch, size_t n,
+static int step_on_batch(nf_guide *guide, const tracer *t, const record_arrays *batch, size_t n,
                          const size_t *group_end, size_t groups, int threads, int it,
                          training_report *rep, float *loss, tr_error *err)
 {
@@ -162,7 +122,7 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
                 training_report *rep, tr_error *err)
 {
     record_buffer records = {0};
-    batch_arrays batch = {0};
+    record_arrays batch = {0};
     progress bar;
     nf_guide *guide = NULL;
     const size_t paths = (size_t)ts->batch, per_group = group_paths(paths),
@@ -208,19 +168,11 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
         }
         double t1 = now_seconds(), c1 = cpu_seconds();
         size_t n = records.count;
-        if (ok && !batch_reserve(&batch, n))
+        if (ok && !record_arrays_from(&batch, &records))
             ok = tr_fail(err, "out of memory for a training batch of %zu samples", n);
         if (!ranks_agree(ok, err)) { /* a rank that failed stops them all */
             ok = 0;
             break;
-        }
-        for (size_t i = 0; i < n; ++i) {
-            const train_record *r = &records.data[i];
-            batch.ctx[i] = r->ctx;
-            memcpy(batch.dir + 3 * i, r->dir, 3 * sizeof(float));
-            batch.weight[i] = r->weight;
-            memcpy(batch.points[i].position, r->ctx.position, sizeof r->ctx.position);
-            batch.points[i].bp = r->bp;
         }
         for (size_t g = g0; g < g1; ++g) {
             size_t last = (g + 1) * per_group < paths ? (g + 1) * per_group : paths;
@@ -260,7 +212,7 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
         ok = guide_take_trained(guide, model, err);
     nf_guide_destroy(guide);
     record_buffer_free(&records);
-    batch_free(&batch);
+    record_arrays_free(&batch);
     free(path_end);
     free(group_end);
     return ok;
