@@ -6,12 +6,8 @@
  */
 #include "integrator.h"
 
-#include <math.h>
 #include <stdlib.h>
-#include <string.h>
 
-#include "guide.h"
-#include "path_record.h"
 #include "vertex.h"
 
 void path_stats_add(path_stats *a, const path_stats *b)
