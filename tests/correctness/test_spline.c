@@ -162,6 +162,47 @@ static const uint32_t bin_choices[] = {2, 3, 8, 16, 64};
 static const float scale_choices[] = {0.5f, 3.0f, 20.0f};
 #define SCALE_CHOICES (sizeof scale_choices / sizeof scale_choices[0])
 
+/* The random splines a test runs on: `per_pair` of each pair of bin_choices x scales (the
+ * scale_choices when scales is NULL), in that order, drawn from one seeded stream, each with
+ * its double reference. The stream (r) is the test's too, for the points it draws on a
+ * spline. */
+typedef struct spline_case {
+    nft_rng r;
+    int next, count, per_pair;
+    const float *scales;
+    size_t scale_count;
+    int index; /* the spline's number within its pair */
+    uint32_t bins;
+    float scale;
+    float raw[MAX_RAW];
+    ref_spline ref;
+} spline_case;
+
+static void spline_cases_begin(spline_case *c, uint64_t seed, int per_pair, const float *scales,
+                               size_t scale_count)
+{
+    nft_rng_seed(&c->r, seed, 1u);
+    c->next = 0;
+    c->per_pair = per_pair;
+    c->scales = scales ? scales : scale_choices;
+    c->scale_count = scales ? scale_count : SCALE_CHOICES;
+    c->count = per_pair * (int)(BIN_CHOICES * c->scale_count);
+}
+
+/* Draws the next case; 0 after the last. */
+static int spline_cases_next(spline_case *c)
+{
+    if (c->next == c->count)
+        return 0;
+    size_t pair = (size_t)(c->next / c->per_pair);
+    c->index = c->next++ % c->per_pair;
+    c->bins = bin_choices[pair / c->scale_count];
+    c->scale = c->scales[pair % c->scale_count];
+    random_raw(&c->r, c->bins, c->scale, c->raw);
+    ref_build(c->bins, c->raw, &c->ref);
+    return 1;
+}
+
 /* Prints the raw parameters of a failing spline, so the failure can be reproduced. */
 static void print_raw(uint32_t bins, const float *raw)
 {
@@ -177,41 +218,32 @@ static void print_raw(uint32_t bins, const float *raw)
 static void test_forward_matches_reference(void **state)
 {
     (void)state;
-    nft_rng r;
-    nft_rng_seed(&r, 1001u, 1u);
-    float raw[MAX_RAW];
-    ref_spline ref;
+    spline_case c;
+    spline_cases_begin(&c, 1001u, 40, NULL, 0);
     double worst_y = 0.0, worst_d = 0.0;
     int points = 0;
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (size_t sc = 0; sc < SCALE_CHOICES; ++sc) {
-            for (int spline = 0; spline < 40; ++spline) {
-                uint32_t bins = bin_choices[b];
-                random_raw(&r, bins, scale_choices[sc], raw);
-                ref_build(bins, raw, &ref);
-                for (int i = 0; i < 60; ++i, ++points) {
-                    float x = nft_rng_float(&r);
-                    float y, dydx;
-                    assert_int_equal(nf_spline_forward(bins, raw, x, &y, &dydx), NF_OK);
-                    double ry, rd;
-                    ref_forward(&ref, x, &ry, &rd);
-                    /* The library's knots are off by up to ~(K + 8) 2^-24 (see
-                     * ref_dydx_tolerance); a knot shift moves y by at most (1 + dydx) times as
-                     * much, and the evaluation adds a few ulps: factor 2. */
-                    double tol_y = 2.0 * (bins + 8) * ULP1 * (1.0 + rd);
-                    double tol_d = ref_dydx_tolerance(&ref, x);
-                    double ey = fabs(y - ry), ed = fabs(dydx - rd) / rd;
-                    worst_y = fmax(worst_y, ey / tol_y);
-                    worst_d = fmax(worst_d, ed / tol_d);
-                    if (ey > tol_y || ed > tol_d)
-                        fail_msg("bins %u scale %g x %.9g: y %.9g vs ref %.12g (tol %.3g), dydx "
-                                 "%.9g vs ref %.12g (rel %.3g, tol %.3g)",
-                                 bins, (double)scale_choices[sc], (double)x, (double)y, ry,
-                                 tol_y, (double)dydx, rd, ed, tol_d);
-                    assert_true(y >= 0.0f && y <= 1.0f);
-                    assert_true(dydx > 0.0f && isfinite(dydx));
-                }
-            }
+    while (spline_cases_next(&c)) {
+        for (int i = 0; i < 60; ++i, ++points) {
+            float x = nft_rng_float(&c.r);
+            float y, dydx;
+            assert_int_equal(nf_spline_forward(c.bins, c.raw, x, &y, &dydx), NF_OK);
+            double ry, rd;
+            ref_forward(&c.ref, x, &ry, &rd);
+            /* The library's knots are off by up to ~(K + 8) 2^-24 (see
+             * ref_dydx_tolerance); a knot shift moves y by at most (1 + dydx) times as
+             * much, and the evaluation adds a few ulps: factor 2. */
+            double tol_y = 2.0 * (c.bins + 8) * ULP1 * (1.0 + rd);
+            double tol_d = ref_dydx_tolerance(&c.ref, x);
+            double ey = fabs(y - ry), ed = fabs(dydx - rd) / rd;
+            worst_y = fmax(worst_y, ey / tol_y);
+            worst_d = fmax(worst_d, ed / tol_d);
+            if (ey > tol_y || ed > tol_d)
+                fail_msg("bins %u scale %g x %.9g: y %.9g vs ref %.12g (tol %.3g), dydx "
+                         "%.9g vs ref %.12g (rel %.3g, tol %.3g)",
+                         c.bins, (double)c.scale, (double)x, (double)y, ry,
+                         tol_y, (double)dydx, rd, ed, tol_d);
+            assert_true(y >= 0.0f && y <= 1.0f);
+            assert_true(dydx > 0.0f && isfinite(dydx));
         }
     }
     assert_true(points >= 10000);
@@ -219,69 +251,46 @@ static void test_forward_matches_reference(void **state)
                   worst_y, worst_d);
 }
 
-/* forward(0) = 0 and forward(1) = 1 exactly, for every kind of spline; inputs outside [0,1]
- * are clamped to them. */
-static void test_forward_end_points_exact(void **state)
-{
-    (void)state;
-    nft_rng r;
-    nft_rng_seed(&r, 1002u, 1u);
-    float raw[MAX_RAW];
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (size_t sc = 0; sc < SCALE_CHOICES; ++sc) {
-            for (int spline = 0; spline < 50; ++spline) {
-                uint32_t bins = bin_choices[b];
-                random_raw(&r, bins, scale_choices[sc], raw);
-                float v0, v1, lo, hi;
-                assert_int_equal(nf_spline_forward(bins, raw, 0.0f, &v0, NULL), NF_OK);
-                assert_int_equal(nf_spline_forward(bins, raw, 1.0f, &v1, NULL), NF_OK);
-                assert_int_equal(nf_spline_forward(bins, raw, -0.5f, &lo, NULL), NF_OK);
-                assert_int_equal(nf_spline_forward(bins, raw, 7.0f, &hi, NULL), NF_OK);
-                if (v0 != 0.0f || v1 != 1.0f || lo != 0.0f || hi != 1.0f) {
-                    print_raw(bins, raw);
-                    fail_msg("bins %u scale %g spline %d: forward(0) = %a, forward(1) = %a, "
-                             "forward(-0.5) = %a, forward(7) = %a",
-                             bins, (double)scale_choices[sc], spline, (double)v0, (double)v1,
-                             (double)lo, (double)hi);
-                }
-            }
-        }
-    }
-}
+typedef nf_status (*spline_fn)(uint32_t bins, const float *raw, float in, float *out,
+                               float *dydx);
 
-/* inverse(0) = 0 and inverse(1) = 1 exactly (the spline fixes both end points, so its inverse
- * must too); inputs outside [0,1] are clamped to them. */
-static void test_inverse_end_points_exact(void **state)
+/* f(0) = 0 and f(1) = 1 exactly for every kind of spline, and inputs outside [0,1] are
+ * clamped to them: the spline fixes both end points, so its inverse must too. */
+static void check_end_points(const char *name, spline_fn f)
 {
-    (void)state;
-    nft_rng r;
-    nft_rng_seed(&r, 1002u, 1u);
-    float raw[MAX_RAW];
-    int bad = 0, total = 0;
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (size_t sc = 0; sc < SCALE_CHOICES; ++sc) {
-            for (int spline = 0; spline < 50; ++spline, ++total) {
-                uint32_t bins = bin_choices[b];
-                random_raw(&r, bins, scale_choices[sc], raw);
-                float i0, i1, lo, hi;
-                assert_int_equal(nf_spline_inverse(bins, raw, 0.0f, &i0, NULL), NF_OK);
-                assert_int_equal(nf_spline_inverse(bins, raw, 1.0f, &i1, NULL), NF_OK);
-                assert_int_equal(nf_spline_inverse(bins, raw, -0.5f, &lo, NULL), NF_OK);
-                assert_int_equal(nf_spline_inverse(bins, raw, 7.0f, &hi, NULL), NF_OK);
-                if (i0 != 0.0f || i1 != 1.0f || lo != i0 || hi != i1) {
-                    if (bad++ < 5)
-                        print_error("bins %u scale %g spline %d: inverse(0) = %a, inverse(1) = "
-                                    "%a, inverse(-0.5) = %a, inverse(7) = %a\n",
-                                    bins, (double)scale_choices[sc], spline, (double)i0,
-                                    (double)i1, (double)lo, (double)hi);
-                    if (bad <= 2)
-                        print_raw(bins, raw);
-                }
-            }
+    spline_case c;
+    spline_cases_begin(&c, 1002u, 50, NULL, 0);
+    int bad = 0;
+    while (spline_cases_next(&c)) {
+        float v0, v1, lo, hi;
+        assert_int_equal(f(c.bins, c.raw, 0.0f, &v0, NULL), NF_OK);
+        assert_int_equal(f(c.bins, c.raw, 1.0f, &v1, NULL), NF_OK);
+        assert_int_equal(f(c.bins, c.raw, -0.5f, &lo, NULL), NF_OK);
+        assert_int_equal(f(c.bins, c.raw, 7.0f, &hi, NULL), NF_OK);
+        if (v0 != 0.0f || v1 != 1.0f || lo != 0.0f || hi != 1.0f) {
+            if (bad++ < 5)
+                print_error("bins %u scale %g spline %d: %s(0) = %a, %s(1) = %a, %s(-0.5) = %a, "
+                            "%s(7) = %a\n",
+                            c.bins, (double)c.scale, c.index, name, (double)v0, name,
+                            (double)v1, name, (double)lo, name, (double)hi);
+            if (bad <= 2)
+                print_raw(c.bins, c.raw);
         }
     }
     if (bad)
-        fail_msg("%d of %d splines do not invert the end points exactly", bad, total);
+        fail_msg("%d of %d splines do not map the end points exactly (%s)", bad, c.count, name);
+}
+
+static void test_forward_end_points_exact(void **state)
+{
+    (void)state;
+    check_end_points("forward", nf_spline_forward);
+}
+
+static void test_inverse_end_points_exact(void **state)
+{
+    (void)state;
+    check_end_points("inverse", nf_spline_inverse);
 }
 
 /* forward(inverse(y)) = y and inverse(forward(x)) = x on 10^4 points per range of parameters.
@@ -291,34 +300,27 @@ static void test_inverse_end_points_exact(void **state)
  * inverse of a flat stretch is ill-conditioned, and no float solve can do better. */
 static void check_round_trip(float scale, uint64_t seed)
 {
-    nft_rng r;
-    nft_rng_seed(&r, seed, 1u);
-    float raw[MAX_RAW];
-    ref_spline ref;
+    spline_case c;
+    spline_cases_begin(&c, seed, 50, &scale, 1);
     double worst = 0.0;
     int points = 0, bad = 0;
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (int spline = 0; spline < 50; ++spline) {
-            uint32_t bins = bin_choices[b];
-            random_raw(&r, bins, scale, raw);
-            ref_build(bins, raw, &ref);
-            for (int i = 0; i < 50; ++i, ++points) {
-                float x = nft_rng_float(&r), y, dydx, x2, dydx2, y2;
-                assert_int_equal(nf_spline_forward(bins, raw, x, &y, &dydx), NF_OK);
-                assert_int_equal(nf_spline_inverse(bins, raw, y, &x2, &dydx2), NF_OK);
-                assert_int_equal(nf_spline_forward(bins, raw, x2, &y2, NULL), NF_OK);
-                double tol_y = ULP1 * (8.0 * ref_solve_scale(&ref, x) + 8.0 + dydx);
-                double tol_x = tol_y / dydx + 2.0 * FLT_EPSILON * x;
-                double ey = fabs((double)y2 - y), ex = fabs((double)x2 - x);
-                worst = fmax(worst, fmax(ey / tol_y, ex / tol_x));
-                if (ey > tol_y || ex > tol_x) {
-                    if (bad++ < 5) {
-                        print_error("bins %u scale %g: x %.9g -> y %.9g -> x %.9g -> y %.9g "
-                                    "(dydx %.4g; tol y %.3g, x %.3g)\n",
-                                    bins, (double)scale, (double)x, (double)y, (double)x2,
-                                    (double)y2, (double)dydx, tol_y, tol_x);
-                        print_raw(bins, raw);
-                    }
+    while (spline_cases_next(&c)) {
+        for (int i = 0; i < 50; ++i, ++points) {
+            float x = nft_rng_float(&c.r), y, dydx, x2, dydx2, y2;
+            assert_int_equal(nf_spline_forward(c.bins, c.raw, x, &y, &dydx), NF_OK);
+            assert_int_equal(nf_spline_inverse(c.bins, c.raw, y, &x2, &dydx2), NF_OK);
+            assert_int_equal(nf_spline_forward(c.bins, c.raw, x2, &y2, NULL), NF_OK);
+            double tol_y = ULP1 * (8.0 * ref_solve_scale(&c.ref, x) + 8.0 + dydx);
+            double tol_x = tol_y / dydx + 2.0 * FLT_EPSILON * x;
+            double ey = fabs((double)y2 - y), ex = fabs((double)x2 - x);
+            worst = fmax(worst, fmax(ey / tol_y, ex / tol_x));
+            if (ey > tol_y || ex > tol_x) {
+                if (bad++ < 5) {
+                    print_error("bins %u scale %g: x %.9g -> y %.9g -> x %.9g -> y %.9g "
+                                "(dydx %.4g; tol y %.3g, x %.3g)\n",
+                                c.bins, (double)c.scale, (double)x, (double)y, (double)x2,
+                                (double)y2, (double)dydx, tol_y, tol_x);
+                    print_raw(c.bins, c.raw);
                 }
             }
         }
@@ -347,64 +349,58 @@ static void test_round_trip_extreme(void **state)
 static void test_derivative_finite_differences(void **state)
 {
     (void)state;
-    nft_rng r;
-    nft_rng_seed(&r, 1004u, 1u);
-    float raw[MAX_RAW];
-    ref_spline ref;
+    /* Moderate parameters: bins wide enough to hold points 2h from every knot. */
+    static const float moderate[] = {2.0f};
+    spline_case c;
+    spline_cases_begin(&c, 1004u, 60, moderate, 1);
     const double h = 1.0 / 4096.0;
     int checked = 0;
     double worst = 0.0, worst_knot = 0.0;
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (int spline = 0; spline < 60; ++spline) {
-            uint32_t bins = bin_choices[b];
-            /* Moderate parameters: bins wide enough to hold points 2h from every knot. */
-            random_raw(&r, bins, 2.0f, raw);
-            ref_build(bins, raw, &ref);
-            for (int i = 0; i < 40; ++i) {
-                float x = (float)(2.0 * h + (1.0 - 4.0 * h) * nft_rng_double(&r));
-                if (ref_knot_distance(&ref, x) < 2.5 * h)
-                    continue; /* x +- 2h must stay inside one bin: the RQ pieces are smooth */
-                float xs[4] = {(float)(x - 2.0 * h), (float)(x - h), (float)(x + h),
-                               (float)(x + 2.0 * h)};
-                float ys[4], yc, dydx;
-                for (int k = 0; k < 4; ++k)
-                    assert_int_equal(nf_spline_forward(bins, raw, xs[k], &ys[k], NULL), NF_OK);
-                assert_int_equal(nf_spline_forward(bins, raw, x, &yc, &dydx), NF_OK);
-                /* The steps actually taken (x +- h rounded to float), in double. */
-                double fd1 = ((double)ys[2] - ys[1]) / ((double)xs[2] - xs[1]);
-                double fd2 = ((double)ys[3] - ys[0]) / ((double)xs[3] - xs[0]);
-                /* Central differences err by ~ h^2 y'''/6; fd2 errs four times as much, so
-                 * |fd2 - fd1| ~ 3x the truncation error of fd1 (a Richardson estimate): twice
-                 * that covers it with a factor 6. Each y carries <= 4 ulps of 1 of rounding,
-                 * so fd1 has a rounding error <= 8 2^-24 / (2h), and fd2 half that, which the
-                 * Richardson term may carry too: 3x. dydx itself is good to its own
-                 * tolerance (ref_dydx_tolerance). */
-                double tol = 2.0 * fabs(fd2 - fd1) + 3.0 * 8.0 * ULP1 / (2.0 * h) +
-                             ref_dydx_tolerance(&ref, x) * dydx;
-                double err = fabs(fd1 - dydx);
-                worst = fmax(worst, err / tol);
-                ++checked;
-                if (err > tol)
-                    fail_msg("bins %u x %.9g: dydx %.9g, central difference %.9g (h %g, "
-                             "tol %.3g)",
-                             bins, (double)x, (double)dydx, fd1, h, tol);
-            }
-            /* At each interior knot the derivative is continuous (d_k on both sides), even
-             * though the second derivative jumps: compare dydx one float step to either side
-             * with the reference's d_k, to the reference test's tolerance. */
-            for (uint32_t k = 1; k < bins; ++k) {
-                float knot = (float)ref.x[k];
-                float side[2] = {nextafterf(knot, 0.0f), nextafterf(knot, 1.0f)};
-                for (int j = 0; j < 2; ++j) {
-                    float y, d;
-                    assert_int_equal(nf_spline_forward(bins, raw, side[j], &y, &d), NF_OK);
-                    double tol = ref_dydx_tolerance(&ref, side[j]);
-                    worst_knot = fmax(worst_knot, fabs(d - ref.d[k]) / (tol * ref.d[k]));
-                    if (fabs(d - ref.d[k]) > tol * ref.d[k])
-                        fail_msg("bins %u knot %u at %.9g: dydx %.9g at %.9g, d_k %.9g (tol "
-                                 "%.3g)",
-                                 bins, k, ref.x[k], (double)d, (double)side[j], ref.d[k], tol);
-                }
+    while (spline_cases_next(&c)) {
+        for (int i = 0; i < 40; ++i) {
+            float x = (float)(2.0 * h + (1.0 - 4.0 * h) * nft_rng_double(&c.r));
+            if (ref_knot_distance(&c.ref, x) < 2.5 * h)
+                continue; /* x +- 2h must stay inside one bin: the RQ pieces are smooth */
+            float xs[4] = {(float)(x - 2.0 * h), (float)(x - h), (float)(x + h),
+                           (float)(x + 2.0 * h)};
+            float ys[4], yc, dydx;
+            for (int k = 0; k < 4; ++k)
+                assert_int_equal(nf_spline_forward(c.bins, c.raw, xs[k], &ys[k], NULL), NF_OK);
+            assert_int_equal(nf_spline_forward(c.bins, c.raw, x, &yc, &dydx), NF_OK);
+            /* The steps actually taken (x +- h rounded to float), in double. */
+            double fd1 = ((double)ys[2] - ys[1]) / ((double)xs[2] - xs[1]);
+            double fd2 = ((double)ys[3] - ys[0]) / ((double)xs[3] - xs[0]);
+            /* Central differences err by ~ h^2 y'''/6; fd2 errs four times as much, so
+             * |fd2 - fd1| ~ 3x the truncation error of fd1 (a Richardson estimate): twice
+             * that covers it with a factor 6. Each y carries <= 4 ulps of 1 of rounding,
+             * so fd1 has a rounding error <= 8 2^-24 / (2h), and fd2 half that, which the
+             * Richardson term may carry too: 3x. dydx itself is good to its own
+             * tolerance (ref_dydx_tolerance). */
+            double tol = 2.0 * fabs(fd2 - fd1) + 3.0 * 8.0 * ULP1 / (2.0 * h) +
+                         ref_dydx_tolerance(&c.ref, x) * dydx;
+            double err = fabs(fd1 - dydx);
+            worst = fmax(worst, err / tol);
+            ++checked;
+            if (err > tol)
+                fail_msg("bins %u x %.9g: dydx %.9g, central difference %.9g (h %g, "
+                         "tol %.3g)",
+                         c.bins, (double)x, (double)dydx, fd1, h, tol);
+        }
+        /* At each interior knot the derivative is continuous (d_k on both sides), even
+         * though the second derivative jumps: compare dydx one float step to either side
+         * with the reference's d_k, to the reference test's tolerance. */
+        for (uint32_t k = 1; k < c.bins; ++k) {
+            float knot = (float)c.ref.x[k];
+            float side[2] = {nextafterf(knot, 0.0f), nextafterf(knot, 1.0f)};
+            for (int j = 0; j < 2; ++j) {
+                float y, d;
+                assert_int_equal(nf_spline_forward(c.bins, c.raw, side[j], &y, &d), NF_OK);
+                double tol = ref_dydx_tolerance(&c.ref, side[j]);
+                worst_knot = fmax(worst_knot, fabs(d - c.ref.d[k]) / (tol * c.ref.d[k]));
+                if (fabs(d - c.ref.d[k]) > tol * c.ref.d[k])
+                    fail_msg("bins %u knot %u at %.9g: dydx %.9g at %.9g, d_k %.9g (tol "
+                             "%.3g)",
+                             c.bins, k, c.ref.x[k], (double)d, (double)side[j], c.ref.d[k], tol);
             }
         }
     }
@@ -450,45 +446,35 @@ static void test_identity_at_zero(void **state)
 static void test_monotone(void **state)
 {
     (void)state;
-    nft_rng r;
-    nft_rng_seed(&r, 1005u, 1u);
-    float raw[MAX_RAW];
-    ref_spline ref;
+    spline_case c;
+    spline_cases_begin(&c, 1005u, 8, NULL, 0);
     const double slack = 4.0 * ULP1, resolvable = 16.0 * ULP1;
     int strict_checks = 0;
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (size_t sc = 0; sc < SCALE_CHOICES; ++sc) {
-            for (int spline = 0; spline < 8; ++spline) {
-                uint32_t bins = bin_choices[b];
-                float scale = scale_choices[sc];
-                random_raw(&r, bins, scale, raw);
-                ref_build(bins, raw, &ref);
-                const int n = 16384;
-                float prev = 0.0f;
-                double prev_ref = 0.0, dummy;
-                for (int i = 0; i <= n; ++i) {
-                    float x = (float)i / (float)n, y, dydx;
-                    assert_int_equal(nf_spline_forward(bins, raw, x, &y, &dydx), NF_OK);
-                    assert_true(y >= 0.0f && y <= 1.0f && dydx > 0.0f);
-                    double ry;
-                    ref_forward(&ref, x, &ry, &dummy);
-                    if (i > 0) {
-                        if ((double)y < (double)prev - slack)
-                            fail_msg("bins %u scale %g: y(%.9g) = %.9g < previous %.9g", bins,
-                                     (double)scale, (double)x, (double)y, (double)prev);
-                        if (ry - prev_ref > resolvable) {
-                            ++strict_checks;
-                            if (!(y > prev))
-                                fail_msg("bins %u scale %g: y(%.9g) = %.9g <= previous %.9g "
-                                         "though the exact rise is %.3g",
-                                         bins, (double)scale, (double)x, (double)y,
-                                         (double)prev, ry - prev_ref);
-                        }
-                    }
-                    prev = y;
-                    prev_ref = ry;
+    while (spline_cases_next(&c)) {
+        const int n = 16384;
+        float prev = 0.0f;
+        double prev_ref = 0.0, dummy;
+        for (int i = 0; i <= n; ++i) {
+            float x = (float)i / (float)n, y, dydx;
+            assert_int_equal(nf_spline_forward(c.bins, c.raw, x, &y, &dydx), NF_OK);
+            assert_true(y >= 0.0f && y <= 1.0f && dydx > 0.0f);
+            double ry;
+            ref_forward(&c.ref, x, &ry, &dummy);
+            if (i > 0) {
+                if ((double)y < (double)prev - slack)
+                    fail_msg("bins %u scale %g: y(%.9g) = %.9g < previous %.9g", c.bins,
+                             (double)c.scale, (double)x, (double)y, (double)prev);
+                if (ry - prev_ref > resolvable) {
+                    ++strict_checks;
+                    if (!(y > prev))
+                        fail_msg("bins %u scale %g: y(%.9g) = %.9g <= previous %.9g "
+                                 "though the exact rise is %.3g",
+                                 c.bins, (double)c.scale, (double)x, (double)y,
+                                 (double)prev, ry - prev_ref);
                 }
             }
+            prev = y;
+            prev_ref = ry;
         }
     }
     assert_true(strict_checks > 100000);
@@ -501,46 +487,36 @@ static void test_monotone(void **state)
 static void test_inverse_monotone(void **state)
 {
     (void)state;
-    nft_rng r;
-    nft_rng_seed(&r, 1008u, 1u);
-    float raw[MAX_RAW];
-    ref_spline ref;
+    spline_case c;
+    spline_cases_begin(&c, 1008u, 8, NULL, 0);
     int bad = 0, strict_checks = 0;
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (size_t sc = 0; sc < SCALE_CHOICES; ++sc) {
-            for (int spline = 0; spline < 8; ++spline) {
-                uint32_t bins = bin_choices[b];
-                float scale = scale_choices[sc];
-                random_raw(&r, bins, scale, raw);
-                ref_build(bins, raw, &ref);
-                const int n = 16384;
-                float prev = 0.0f;
-                for (int i = 0; i <= n; ++i) {
-                    float y = (float)i / (float)n, x, dydx;
-                    assert_int_equal(nf_spline_inverse(bins, raw, y, &x, &dydx), NF_OK);
-                    assert_true(x >= 0.0f && x <= 1.0f && dydx > 0.0f);
-                    double tol_y = ULP1 * (8.0 * ref_solve_scale(&ref, x) + 8.0 + dydx);
-                    double tol_x = tol_y / dydx + 2.0 * FLT_EPSILON * x;
-                    if (i > 0) {
-                        if ((double)x < (double)prev - tol_x && bad++ < 5)
-                            print_error("bins %u scale %g: inverse(%.9g) = %.9g < previous "
-                                        "%.9g (tol %.3g)\n",
-                                        bins, (double)scale, (double)y, (double)x,
-                                        (double)prev, tol_x);
-                        /* The exact rise over the step 1/n is >= (1/n) / max dydx; use the
-                         * derivative at x as its estimate only when it is unambiguous. */
-                        if ((1.0 / n) / dydx > 2.0 * tol_x + 1e-4) {
-                            ++strict_checks;
-                            if (!(x > prev) && bad++ < 5)
-                                print_error("bins %u scale %g: inverse(%.9g) = %.9g <= previous "
-                                            "%.9g\n",
-                                            bins, (double)scale, (double)y, (double)x,
-                                            (double)prev);
-                        }
-                    }
-                    prev = x;
+    while (spline_cases_next(&c)) {
+        const int n = 16384;
+        float prev = 0.0f;
+        for (int i = 0; i <= n; ++i) {
+            float y = (float)i / (float)n, x, dydx;
+            assert_int_equal(nf_spline_inverse(c.bins, c.raw, y, &x, &dydx), NF_OK);
+            assert_true(x >= 0.0f && x <= 1.0f && dydx > 0.0f);
+            double tol_y = ULP1 * (8.0 * ref_solve_scale(&c.ref, x) + 8.0 + dydx);
+            double tol_x = tol_y / dydx + 2.0 * FLT_EPSILON * x;
+            if (i > 0) {
+                if ((double)x < (double)prev - tol_x && bad++ < 5)
+                    print_error("bins %u scale %g: inverse(%.9g) = %.9g < previous "
+                                "%.9g (tol %.3g)\n",
+                                c.bins, (double)c.scale, (double)y, (double)x,
+                                (double)prev, tol_x);
+                /* The exact rise over the step 1/n is >= (1/n) / max dydx; use the
+                 * derivative at x as its estimate only when it is unambiguous. */
+                if ((1.0 / n) / dydx > 2.0 * tol_x + 1e-4) {
+                    ++strict_checks;
+                    if (!(x > prev) && bad++ < 5)
+                        print_error("bins %u scale %g: inverse(%.9g) = %.9g <= previous "
+                                    "%.9g\n",
+                                    c.bins, (double)c.scale, (double)y, (double)x,
+                                    (double)prev);
                 }
             }
+            prev = x;
         }
     }
     assert_true(strict_checks > 10000);
@@ -552,36 +528,27 @@ static void test_inverse_monotone(void **state)
 static void test_inverse_derivative(void **state)
 {
     (void)state;
-    nft_rng r;
-    nft_rng_seed(&r, 1006u, 1u);
-    float raw[MAX_RAW];
-    ref_spline ref;
-    for (size_t b = 0; b < BIN_CHOICES; ++b) {
-        for (size_t sc = 0; sc < SCALE_CHOICES; ++sc) {
-            for (int spline = 0; spline < 20; ++spline) {
-                uint32_t bins = bin_choices[b];
-                random_raw(&r, bins, scale_choices[sc], raw);
-                ref_build(bins, raw, &ref);
-                for (int i = 0; i < 50; ++i) {
-                    float y = nft_rng_float(&r), x, d_inv, y2, d_fwd;
-                    assert_int_equal(nf_spline_inverse(bins, raw, y, &x, &d_inv), NF_OK);
-                    assert_int_equal(nf_spline_forward(bins, raw, x, &y2, &d_fwd), NF_OK);
-                    /* The same function at the same x: equal up to the evaluation's rounding,
-                     * unless x sits on a knot and the two calls pick neighbouring bins; dydx
-                     * is continuous there, so both agree to the reference test's tolerance. */
-                    double tol = ref_dydx_tolerance(&ref, x);
-                    if (fabs((double)d_inv - d_fwd) > tol * d_fwd)
-                        fail_msg("bins %u: inverse(%.9g) = %.9g with dydx %.9g, forward dydx "
-                                 "%.9g",
-                                 bins, (double)y, (double)x, (double)d_inv, (double)d_fwd);
-                    /* And it is the reference's derivative at x. */
-                    double ry, rd;
-                    ref_forward(&ref, x, &ry, &rd);
-                    if (fabs((double)d_inv - rd) > tol * rd)
-                        fail_msg("bins %u: inverse dydx %.9g at x %.9g, reference %.9g", bins,
-                                 (double)d_inv, (double)x, rd);
-                }
-            }
+    spline_case c;
+    spline_cases_begin(&c, 1006u, 20, NULL, 0);
+    while (spline_cases_next(&c)) {
+        for (int i = 0; i < 50; ++i) {
+            float y = nft_rng_float(&c.r), x, d_inv, y2, d_fwd;
+            assert_int_equal(nf_spline_inverse(c.bins, c.raw, y, &x, &d_inv), NF_OK);
+            assert_int_equal(nf_spline_forward(c.bins, c.raw, x, &y2, &d_fwd), NF_OK);
+            /* The same function at the same x: equal up to the evaluation's rounding,
+             * unless x sits on a knot and the two calls pick neighbouring c.bins; dydx
+             * is continuous there, so both agree to the reference test's tolerance. */
+            double tol = ref_dydx_tolerance(&c.ref, x);
+            if (fabs((double)d_inv - d_fwd) > tol * d_fwd)
+                fail_msg("bins %u: inverse(%.9g) = %.9g with dydx %.9g, forward dydx "
+                         "%.9g",
+                         c.bins, (double)y, (double)x, (double)d_inv, (double)d_fwd);
+            /* And it is the reference's derivative at x. */
+            double ry, rd;
+            ref_forward(&c.ref, x, &ry, &rd);
+            if (fabs((double)d_inv - rd) > tol * rd)
+                fail_msg("bins %u: inverse dydx %.9g at x %.9g, reference %.9g", c.bins,
+                         (double)d_inv, (double)x, rd);
         }
     }
 }
