@@ -9,6 +9,8 @@
 #include <stdint.h>
 
 #include <cmocka.h>
+
+#include "nf_test_main.h"
 #include <math.h>
 
 #include "../../src/kernels/fastmath.h"
@@ -102,13 +104,9 @@ static void test_atan2_error(void **state)
     assert_true(nf_fast_atan2(-1e-30f, 1.0f) <= 0.0f);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_exp_relative_error),
-        cmocka_unit_test(test_log_error),
-        cmocka_unit_test(test_sincos_error),
-        cmocka_unit_test(test_atan2_error),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_exp_relative_error),
+    cmocka_unit_test(test_log_error),
+    cmocka_unit_test(test_sincos_error),
+    cmocka_unit_test(test_atan2_error),
+)

@@ -20,20 +20,12 @@
 
 #include <nisflow/nisflow.h>
 
+#include "nf_test_main.h"
+
 #define NFT_PI 3.14159265358979323846
 
 /* The largest batch the quadrature and the chi-square harness pass to a callback. */
 #define NFT_BATCH 4096u
-
-/* A test program's main: its cmocka tests, one group without setup, run in order; main returns
- * the number of tests that failed. The arguments are cmocka_unit_test(...) entries, each with
- * a trailing comma. Expand it after including cmocka.h. */
-#define NFT_TEST_MAIN(...)                                                                     \
-    int main(void)                                                                             \
-    {                                                                                          \
-        const struct CMUnitTest tests[] = {__VA_ARGS__};                                       \
-        return cmocka_run_group_tests(tests, NULL, NULL);                                      \
-    }
 
 /* ---- PCG32 -------------------------------------------------------------------------------- */
 

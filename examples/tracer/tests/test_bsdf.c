@@ -22,6 +22,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "bsdf.h"
 #include "rng.h"
 
@@ -354,18 +356,14 @@ static void test_energy_is_conserved(void **state)
     }
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_chi2_diffuse),
-        cmocka_unit_test(test_chi2_roughconductor_ggx),
-        cmocka_unit_test(test_chi2_roughconductor_beckmann),
-        cmocka_unit_test(test_chi2_roughplastic),
-        cmocka_unit_test(test_chi2_plastic_base),
-        cmocka_unit_test(test_chi2_bsdf_prior),
-        cmocka_unit_test(test_chi2_detects_a_wrong_density),
-        cmocka_unit_test(test_sample_weight_is_f_cos_over_pdf),
-        cmocka_unit_test(test_energy_is_conserved),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_chi2_diffuse),
+    cmocka_unit_test(test_chi2_roughconductor_ggx),
+    cmocka_unit_test(test_chi2_roughconductor_beckmann),
+    cmocka_unit_test(test_chi2_roughplastic),
+    cmocka_unit_test(test_chi2_plastic_base),
+    cmocka_unit_test(test_chi2_bsdf_prior),
+    cmocka_unit_test(test_chi2_detects_a_wrong_density),
+    cmocka_unit_test(test_sample_weight_is_f_cos_over_pdf),
+    cmocka_unit_test(test_energy_is_conserved),
+)

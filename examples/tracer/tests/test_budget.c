@@ -22,6 +22,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "budget.h"
 #include "guide.h"
 #include "integrator.h"
@@ -377,15 +379,11 @@ static void test_budget_job_black_scene(void **state)
     scene_free(&s);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_levers_match_unguided),
-        cmocka_unit_test(test_boost_cap_lowers_guiding),
-        cmocka_unit_test(test_budget_job),
-        cmocka_unit_test(test_budget_job_guided_passes),
-        cmocka_unit_test(test_budget_job_black_scene),
-        cmocka_unit_test(test_budget_job_bsdf_prior),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_levers_match_unguided),
+    cmocka_unit_test(test_boost_cap_lowers_guiding),
+    cmocka_unit_test(test_budget_job),
+    cmocka_unit_test(test_budget_job_guided_passes),
+    cmocka_unit_test(test_budget_job_black_scene),
+    cmocka_unit_test(test_budget_job_bsdf_prior),
+)

@@ -16,6 +16,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "guide.h"
 #include "render.h"
 #include "scene.h"
@@ -232,13 +234,9 @@ static void test_batched_pass_equals_one_path_at_a_time(void **state)
     check_batched_pass_in("cornell-box-smoke", GUIDE_PRIOR_BSDF, 0, 0);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_threads_do_not_change_results_cosine),
-        cmocka_unit_test(test_threads_do_not_change_results_bsdf_prior),
-        cmocka_unit_test(test_saved_model_renders_identically),
-        cmocka_unit_test(test_batched_pass_equals_one_path_at_a_time),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_threads_do_not_change_results_cosine),
+    cmocka_unit_test(test_threads_do_not_change_results_bsdf_prior),
+    cmocka_unit_test(test_saved_model_renders_identically),
+    cmocka_unit_test(test_batched_pass_equals_one_path_at_a_time),
+)

@@ -14,6 +14,8 @@
 #include <unistd.h>
 
 #include <cmocka.h>
+
+#include "nf_test_main.h"
 #include <openexr.h>
 #if TRACER_TEST_ZLIB
 #include <zlib.h>
@@ -258,14 +260,10 @@ static void test_metrics(void **state)
     image_free(&img);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_exr_round_trip_is_bit_exact),
-        cmocka_unit_test(test_exr_chunk_zlib_cannot_shrink_is_stored_raw),
-        cmocka_unit_test(test_exr_errors),
-        cmocka_unit_test(test_png_preview),
-        cmocka_unit_test(test_metrics),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_exr_round_trip_is_bit_exact),
+    cmocka_unit_test(test_exr_chunk_zlib_cannot_shrink_is_stored_raw),
+    cmocka_unit_test(test_exr_errors),
+    cmocka_unit_test(test_png_preview),
+    cmocka_unit_test(test_metrics),
+)

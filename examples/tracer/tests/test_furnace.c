@@ -23,6 +23,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "guide.h"
 #include "integrator.h"
 #include "render.h"
@@ -251,17 +253,13 @@ static void test_guided_matches_unguided(void **state)
     scene_free(&s);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_furnace_unguided),
-        cmocka_unit_test(test_furnace_guided_cosine),
-        cmocka_unit_test(test_furnace_guided_uniform_direction),
-        cmocka_unit_test(test_furnace_guided_uniform_angle),
-        cmocka_unit_test(test_furnace_guided_bsdf_prior),
-        cmocka_unit_test(test_furnace_envmap_guided),
-        cmocka_unit_test(test_envmap_sampling_density),
-        cmocka_unit_test(test_guided_matches_unguided),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_furnace_unguided),
+    cmocka_unit_test(test_furnace_guided_cosine),
+    cmocka_unit_test(test_furnace_guided_uniform_direction),
+    cmocka_unit_test(test_furnace_guided_uniform_angle),
+    cmocka_unit_test(test_furnace_guided_bsdf_prior),
+    cmocka_unit_test(test_furnace_envmap_guided),
+    cmocka_unit_test(test_envmap_sampling_density),
+    cmocka_unit_test(test_guided_matches_unguided),
+)

@@ -25,6 +25,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "guide.h"
 #include "integrator.h"
 #include "render.h"
@@ -480,16 +482,12 @@ static void test_edge_of_the_range(void **state)
                  RANGE, NULL);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_ray_valid),
-        cmocka_unit_test(test_invalid_ray_never_reaches_embree),
-        cmocka_unit_test(test_refused_camera_origin),
-        cmocka_unit_test(test_refused_transform),
-        cmocka_unit_test(test_refused_vertex),
-        cmocka_unit_test(test_refused_non_finite),
-        cmocka_unit_test(test_edge_of_the_range),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_ray_valid),
+    cmocka_unit_test(test_invalid_ray_never_reaches_embree),
+    cmocka_unit_test(test_refused_camera_origin),
+    cmocka_unit_test(test_refused_transform),
+    cmocka_unit_test(test_refused_vertex),
+    cmocka_unit_test(test_refused_non_finite),
+    cmocka_unit_test(test_edge_of_the_range),
+)

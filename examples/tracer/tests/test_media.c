@@ -25,6 +25,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "guide.h"
 #include "integrator.h"
 #include "medium.h"
@@ -304,22 +306,18 @@ static void test_bad_media(void **state)
                  "unsupported medium type 'homogenous' (homogeneous, heterogeneous)", NULL);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_hg_sampling),
-        cmocka_unit_test(test_no_media),
-        cmocka_unit_test(test_bad_media),
-        cmocka_unit_test(test_furnace_plain_inside),
-        cmocka_unit_test(test_furnace_plain_outside),
-        cmocka_unit_test(test_furnace_plain_glass),
-        cmocka_unit_test(test_furnace_guided_cosine),
-        cmocka_unit_test(test_furnace_guided_uniform_direction),
-        cmocka_unit_test(test_furnace_guided_uniform_angle),
-        cmocka_unit_test(test_furnace_guided_bsdf),
-        cmocka_unit_test(test_furnace_grid_plain_inside),
-        cmocka_unit_test(test_furnace_grid_plain_outside),
-        cmocka_unit_test(test_furnace_grid_guided_cosine),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_hg_sampling),
+    cmocka_unit_test(test_no_media),
+    cmocka_unit_test(test_bad_media),
+    cmocka_unit_test(test_furnace_plain_inside),
+    cmocka_unit_test(test_furnace_plain_outside),
+    cmocka_unit_test(test_furnace_plain_glass),
+    cmocka_unit_test(test_furnace_guided_cosine),
+    cmocka_unit_test(test_furnace_guided_uniform_direction),
+    cmocka_unit_test(test_furnace_guided_uniform_angle),
+    cmocka_unit_test(test_furnace_guided_bsdf),
+    cmocka_unit_test(test_furnace_grid_plain_inside),
+    cmocka_unit_test(test_furnace_grid_plain_outside),
+    cmocka_unit_test(test_furnace_grid_guided_cosine),
+)

@@ -15,6 +15,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "guide.h"
 #include "options.h"
 #include "scene.h"
@@ -257,16 +259,12 @@ static void test_sh_bands_reach_the_model(void **state)
     scene_free(&s);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_defaults_are_the_best_configuration),
-        cmocka_unit_test(test_each_program_takes_its_protocol),
-        cmocka_unit_test(test_variants_are_parsed_and_range_checked),
-        cmocka_unit_test(test_isa_is_parsed),
-        cmocka_unit_test(test_created_model_carries_the_epsilon),
-        cmocka_unit_test(test_phi_map_reaches_the_model),
-        cmocka_unit_test(test_sh_bands_reach_the_model),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_defaults_are_the_best_configuration),
+    cmocka_unit_test(test_each_program_takes_its_protocol),
+    cmocka_unit_test(test_variants_are_parsed_and_range_checked),
+    cmocka_unit_test(test_isa_is_parsed),
+    cmocka_unit_test(test_created_model_carries_the_epsilon),
+    cmocka_unit_test(test_phi_map_reaches_the_model),
+    cmocka_unit_test(test_sh_bands_reach_the_model),
+)

@@ -13,6 +13,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "mesh.h"
 #include "scene.h"
 #include "scene_errors.h"
@@ -338,21 +340,17 @@ static void test_error_syntax_and_parameters(void **state)
                  "</scene>", "<string>:4:", "a shape takes one material", NULL);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_cornell_box),
-        cmocka_unit_test(test_veach_ajar),
-        cmocka_unit_test(test_veach_bidir),
-        cmocka_unit_test(test_statue),
-        cmocka_unit_test(test_defaults_refs_and_transforms),
-        cmocka_unit_test(test_ply_ascii_and_obj),
-        cmocka_unit_test(test_error_unknown_element),
-        cmocka_unit_test(test_error_missing_attribute),
-        cmocka_unit_test(test_error_bad_number),
-        cmocka_unit_test(test_error_unknown_ref),
-        cmocka_unit_test(test_error_missing_file),
-        cmocka_unit_test(test_error_syntax_and_parameters),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_cornell_box),
+    cmocka_unit_test(test_veach_ajar),
+    cmocka_unit_test(test_veach_bidir),
+    cmocka_unit_test(test_statue),
+    cmocka_unit_test(test_defaults_refs_and_transforms),
+    cmocka_unit_test(test_ply_ascii_and_obj),
+    cmocka_unit_test(test_error_unknown_element),
+    cmocka_unit_test(test_error_missing_attribute),
+    cmocka_unit_test(test_error_bad_number),
+    cmocka_unit_test(test_error_unknown_ref),
+    cmocka_unit_test(test_error_missing_file),
+    cmocka_unit_test(test_error_syntax_and_parameters),
+)

@@ -24,6 +24,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "image.h"
 #include "integrator.h"
 #include "render.h"
@@ -354,17 +356,13 @@ static void test_null_crossing_keeps_far_end(void **state)
     scene_free(&s);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_null_crossing_keeps_far_end),
-        cmocka_unit_test(test_short_shadow_rays),
-        cmocka_unit_test(test_slab),
-        cmocka_unit_test(test_light_just_inside),
-        cmocka_unit_test(test_light_just_outside),
-        cmocka_unit_test(test_grazing_boundary),
-        cmocka_unit_test(test_path_ignores_media),
-        cmocka_unit_test(test_transparent_haze_in_indirect_box),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_null_crossing_keeps_far_end),
+    cmocka_unit_test(test_short_shadow_rays),
+    cmocka_unit_test(test_slab),
+    cmocka_unit_test(test_light_just_inside),
+    cmocka_unit_test(test_light_just_outside),
+    cmocka_unit_test(test_grazing_boundary),
+    cmocka_unit_test(test_path_ignores_media),
+    cmocka_unit_test(test_transparent_haze_in_indirect_box),
+)

@@ -14,6 +14,8 @@
 
 #include <cmocka.h>
 
+#include "nf_test_main.h"
+
 #include "medium.h"
 #include "scene.h"
 #include "volume_grid.h"
@@ -294,13 +296,9 @@ static void test_bad_media(void **state)
                  "scale x the density's maximum = 7e+30", NULL);
 }
 
-int main(void)
-{
-    const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_bad_files),
-        cmocka_unit_test(test_lookup),
-        cmocka_unit_test(test_tracking),
-        cmocka_unit_test(test_bad_media),
-    };
-    return cmocka_run_group_tests(tests, NULL, NULL);
-}
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_bad_files),
+    cmocka_unit_test(test_lookup),
+    cmocka_unit_test(test_tracking),
+    cmocka_unit_test(test_bad_media),
+)

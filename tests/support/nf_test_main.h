@@ -1,0 +1,25 @@
+/*
+ * nf_test_main.h - a cmocka test program's main, shared by the library's tests and the example
+ * tracer's (header only: it needs nothing but cmocka).
+ */
+#ifndef NF_TEST_MAIN_H
+#define NF_TEST_MAIN_H
+
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+
+/* A test program's main: its cmocka tests, one group without setup, run in order; main returns
+ * the number of tests that failed. The arguments are cmocka_unit_test(...) entries, each with
+ * a trailing comma. */
+#define NFT_TEST_MAIN(...)                                                                     \
+    int main(void)                                                                             \
+    {                                                                                          \
+        const struct CMUnitTest tests[] = {__VA_ARGS__};                                       \
+        return cmocka_run_group_tests(tests, NULL, NULL);                                      \
+    }
+
+#endif /* NF_TEST_MAIN_H */
