@@ -33,29 +33,13 @@
 static const nf_prior_kind all_priors[4] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR_UNIFORM_ANGLE,
                                             NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};
 
-/* A standard normal variate (Box-Muller, double). */
-static double gaussian(nft_rng *r)
-{
-    double u1 = 1.0 - nft_rng_double(r), u2 = nft_rng_double(r);
-    return sqrt(-2.0 * log(u1)) * cos(2.0 * NFT_PI * u2);
-}
-
 /* A model whose parameters are its initial ones plus N(0, sigma^2) each, so that the output
  * layers are non-zero and every spline is far from the identity. */
 static nf_model *random_model(nf_preset preset, nf_prior_kind prior, double sigma, uint64_t seed)
 {
     nf_model *m = nft_make_model(preset, prior);
     assert_non_null(m);
-    size_t count = nf_model_param_count(m);
-    float *p = malloc(count * sizeof *p);
-    assert_non_null(p);
-    assert_int_equal(nf_model_get_params(m, p), NF_OK);
-    nft_rng r;
-    nft_rng_seed(&r, seed, 77u);
-    for (size_t i = 0; i < count; ++i)
-        p[i] += (float)(sigma * gaussian(&r));
-    assert_int_equal(nf_model_set_params(m, p), NF_OK);
-    free(p);
+    assert_int_equal(nft_perturb_params(m, sigma, 1, seed, 77u), NF_OK);
     return m;
 }
 

@@ -40,16 +40,7 @@ static nf_model *random_model(nf_preset preset, nf_prior_kind prior, uint64_t se
 {
     nf_model *m = nft_make_model(preset, prior);
     assert_non_null(m);
-    size_t count = nf_model_param_count(m);
-    float *p = malloc(count * sizeof *p);
-    assert_non_null(p);
-    assert_int_equal(nf_model_get_params(m, p), NF_OK);
-    nft_rng r;
-    nft_rng_seed(&r, seed, 91u);
-    for (size_t i = 0; i < count; ++i)
-        p[i] += 0.3f * (2.0f * nft_rng_float(&r) - 1.0f);
-    assert_int_equal(nf_model_set_params(m, p), NF_OK);
-    free(p);
+    assert_int_equal(nft_perturb_params(m, 0.3, 0, seed, 91u), NF_OK);
     return m;
 }
 

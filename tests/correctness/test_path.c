@@ -62,6 +62,17 @@ static void make_learned(nf_path_vertex *v, int index)
     v->learn = 1;
 }
 
+/* n learned vertices, zeroed but for gray f_over_p and beta. */
+static void make_learned_path(nf_path_vertex *v, int n, float f_over_p, float beta)
+{
+    memset(v, 0, (size_t)n * sizeof *v);
+    for (int j = 0; j < n; ++j) {
+        make_learned(&v[j], j);
+        set_gray(v[j].f_over_p, f_over_p);
+        set_gray(v[j].beta, beta);
+    }
+}
+
 /* The forward reference: the expected weight of vertex j in double. */
 static double reference_weight(const nf_path_vertex *v, size_t n, size_t j)
 {
@@ -216,11 +227,8 @@ static void test_emission_at_several_depths(void **state)
 {
     (void)state;
     nf_path_vertex v[4];
-    memset(v, 0, sizeof v);
+    make_learned_path(v, 4, 0.5f, 0.5f);
     for (int j = 0; j < 4; ++j) {
-        make_learned(&v[j], j);
-        set_gray(v[j].f_over_p, 0.5f);
-        set_gray(v[j].beta, 0.5f);
         set_gray(v[j].emitted, (float)(j + 1));
         v[j].emitted_mis = 0.5f;
     }
@@ -333,12 +341,7 @@ static void test_zero_weights_skipped(void **state)
 {
     (void)state;
     nf_path_vertex v[4];
-    memset(v, 0, sizeof v);
-    for (int j = 0; j < 4; ++j) {
-        make_learned(&v[j], j);
-        set_gray(v[j].f_over_p, 0.5f);
-        set_gray(v[j].beta, 0.5f);
-    }
+    make_learned_path(v, 4, 0.5f, 0.5f);
     set_gray(v[1].emitted, 1.0f); /* found by v1's ray: v0 and v1 see light */
     v[1].emitted_mis = 1.0f;
     set_gray(v[0].f_over_p, 0.0f); /* ... but v0's f_over_p is black */
@@ -357,13 +360,9 @@ static void test_overflow_and_underflow(void **state)
 {
     (void)state;
     nf_path_vertex v[12];
-    memset(v, 0, sizeof v);
-    for (int j = 0; j < 12; ++j) {
-        make_learned(&v[j], j);
-        set_gray(v[j].f_over_p, FLT_MAX);
-        set_gray(v[j].beta, FLT_MAX);
+    make_learned_path(v, 12, FLT_MAX, FLT_MAX);
+    for (int j = 0; j < 12; ++j)
         v[j].emitted_mis = 1.0f;
-    }
     set_gray(v[11].emitted, 1.0f);
     /* Vertex 11: weight FLT_MAX * 1, kept (exactly FLT_MAX); every earlier one overflows a
      * float; from some depth on, the double walk itself overflows to Inf. */

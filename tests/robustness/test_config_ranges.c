@@ -186,6 +186,24 @@ static size_t probes_of(const field *f, probe *p)
     return n;
 }
 
+/* A create or load of a value in range (expected NF_OK) made model m, which is destroyed; one
+ * out of range left m NULL and named the field in its message. */
+static void check_outcome(const char *call, nf_status st, nf_status expected, nf_model *m,
+                          const char *name, const char *what)
+{
+    if (st != expected) {
+        print_error("%s: %s %s: status %d (%s)\n", call, name, what, (int)st,
+                    nf_last_error_message());
+        fail();
+    }
+    if (st == NF_OK) {
+        nf_model_destroy(m);
+    } else {
+        assert_null(m);
+        assert_message_names(name);
+    }
+}
+
 /* Creates and loads `cfg` (whose field `name` holds `v`); both must agree with `ok`. */
 static void check_create_and_load(const nf_config *cfg, const unsigned char *valid, size_t size,
                                   const size_t *file_offs, const float *values, size_t count,
@@ -193,17 +211,7 @@ static void check_create_and_load(const nf_config *cfg, const unsigned char *val
 {
     nf_model *m = (nf_model *)(uintptr_t)valid;
     nf_status st = nf_model_create(cfg, &m);
-    if (st != (ok ? NF_OK : NF_ERROR_INVALID_ARGUMENT)) {
-        print_error("create: %s %s: status %d (%s)\n", name, what, (int)st,
-                    nf_last_error_message());
-        fail();
-    }
-    if (ok)
-        nf_model_destroy(m);
-    else {
-        assert_null(m);
-        assert_message_names(name);
-    }
+    check_outcome("create", st, ok ? NF_OK : NF_ERROR_INVALID_ARGUMENT, m, name, what);
     unsigned char *buf = malloc(size);
     assert_non_null(buf);
     memcpy(buf, valid, size);
@@ -213,16 +221,7 @@ static void check_create_and_load(const nf_config *cfg, const unsigned char *val
     const nf_prior_callbacks cb = nft_phong_callbacks();
     m = (nf_model *)buf;
     st = nf_model_deserialize(buf, size, &cb, &m);
-    if (st != (ok ? NF_OK : NF_ERROR_FORMAT)) {
-        print_error("load: %s %s: status %d (%s)\n", name, what, (int)st, nf_last_error_message());
-        fail();
-    }
-    if (ok)
-        nf_model_destroy(m);
-    else {
-        assert_null(m);
-        assert_message_names(name);
-    }
+    check_outcome("load", st, ok ? NF_OK : NF_ERROR_FORMAT, m, name, what);
     free(buf);
 }
 

@@ -152,13 +152,10 @@ static lobe model_lobe = {1.0, NULL, NULL, NULL, 0, 0, 0, 0};
 
 /* ---- models ------------------------------------------------------------------------------ */
 
+/* nft_config, with the cosine lobe above as the custom prior. */
 static inline nf_config config_for(nf_preset preset, nf_prior_kind prior)
 {
-    nf_config cfg;
-    memset(&cfg, 0, sizeof cfg);
-    nf_config_init(&cfg, preset);
-    nft_apply_phi_map(&cfg);
-    cfg.prior = prior;
+    nf_config cfg = nft_config(preset, prior);
     if (prior == NF_PRIOR_CUSTOM)
         cfg.custom_prior = lobe_callbacks(&model_lobe);
     return cfg;

@@ -294,6 +294,30 @@ nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed)
     return st;
 }
 
+nf_status nft_perturb_params(nf_model *m, double scale, int gaussian, uint64_t seed,
+                             uint64_t stream)
+{
+    size_t count = nf_model_param_count(m);
+    float *p = malloc((count ? count : 1u) * sizeof *p);
+    if (!p)
+        return NF_ERROR_OUT_OF_MEMORY;
+    nf_status st = nf_model_get_params(m, p);
+    nft_rng r;
+    nft_rng_seed(&r, seed, stream);
+    for (size_t i = 0; st == NF_OK && i < count; ++i) {
+        if (gaussian) {
+            double u1 = 1.0 - nft_rng_double(&r), u2 = nft_rng_double(&r);
+            p[i] += (float)(scale * (sqrt(-2.0 * log(u1)) * cos(2.0 * NFT_PI * u2)));
+        } else {
+            p[i] += (float)scale * (2.0f * nft_rng_float(&r) - 1.0f);
+        }
+    }
+    if (st == NF_OK)
+        st = nf_model_set_params(m, p);
+    free(p);
+    return st;
+}
+
 const char *nft_prior_name(nf_prior_kind prior)
 {
     switch (prior) {

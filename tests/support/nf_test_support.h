@@ -103,13 +103,18 @@ nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior);
 /* Replaces every parameter by a uniform value in [-scale, scale] drawn from PCG32(seed), so
  * the flow is far from the identity. Returns the nf_model_set_params status. */
 nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed);
+/* Adds noise to each of m's parameters: scale x a standard normal variate (Box-Muller, in
+ * double) when gaussian, else scale x a uniform one in [-1, 1) (in float), drawn in order
+ * from the stream (seed, stream). NF_ERROR_OUT_OF_MEMORY, or nf_model_set_params's status. */
+nf_status nft_perturb_params(nf_model *m, double scale, int gaussian, uint64_t seed,
+                             uint64_t stream);
 /* nf_model_prior_pdf's density, or -1 on any error (the message is kept). */
 float nft_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]);
 /* A short name of a prior, for messages. */
 const char *nft_prior_name(nf_prior_kind prior);
 
 /* Runs fn(arg) on a thread with a painted stack of stack_bytes (ours) and returns how many
- * bytes of it the thread touched; 0 if the thread could not run (the caller asserts > 0). */
+ * bytes of it the thread touched. Fails the test when the thread cannot run. */
 size_t nft_stack_used(void *(*fn)(void *), void *arg, size_t stack_bytes);
 
 /* The analytic solid-angle density of docs/theory.md section 2 (with the eps mixture for cosine and
