@@ -1086,13 +1086,7 @@ static void test_copies_are_valid(void **state)
  * libm included. Custom priors are left out (their callbacks' stack is the caller's). Only in
  * optimized builds without sanitizers: the figures are for those, and sanitizers grow every
  * frame. */
-#if !NFT_UNDER_SANITIZER && defined(NDEBUG) && defined(__OPTIMIZE__)
-#define STACK_CHECK 1
-#else
-#define STACK_CHECK 0
-#endif
-
-#if STACK_CHECK
+#if NFT_STACK_CHECK
 enum { STACK_BYTES = 256 * 1024 };
 
 typedef struct stack_job {
@@ -1133,7 +1127,7 @@ static void *stack_thread(void *arg)
 static void test_stack_bound(void **state)
 {
     (void)state;
-#if !STACK_CHECK
+#if !NFT_STACK_CHECK
     skip();
 #else
     static const char *names[7] = {"-",           "nf_point_prepare", "nf_point_sample",

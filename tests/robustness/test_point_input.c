@@ -340,14 +340,13 @@ static int count_accepted_flips(const nf_model *m, const nf_shading_point *sp, f
     return accepted;
 }
 
-/* The fields that identify a point: its mark, model, parameter generation, cache flag and
- * check hash. Any flipped bit must be refused as NF_ERROR_INVALID_ARGUMENT (a corrupted
- * point, point.h), not NF_ERROR_STALE, with nothing written. */
-static void test_corrupted_identity_refused(void **state)
+/* Flips bits of each of `fields` in a point of a small model and of an uncached one (seeded
+ * by `seed`) and fails, naming them, when any flip is accepted; the point left behind must
+ * still work. */
+static void check_flips_refused(const field *fields, size_t count, uint64_t seed)
 {
-    (void)state;
-    const field fields[] = {FIELD(magic_), FIELD(model_id_), FIELD(generation_), FIELD(cached_),
-                            FIELD(check_)};
+    char report[256] = "";
+    size_t used = 0;
     for (int big = 0; big < 2; ++big) {
         nf_config cfg = config_for(NF_PRESET_SMALL, NF_PRIOR_COSINE);
         if (big) { /* uncached */
@@ -356,19 +355,35 @@ static void test_corrupted_identity_refused(void **state)
         }
         nf_model *m = create_on(cfg, NF_ISA_AUTO);
         assert_non_null(m);
-        perturb(m, 31u);
+        perturb(m, seed);
         nf_context ctx[6];
-        make_contexts(32u, ctx, 6);
+        make_contexts(seed + 1u, ctx, 6);
         nf_shading_point sp;
         assert_int_equal(nf_point_prepare(m, &ctx[5], NULL, &sp), NF_OK);
-        for (size_t f = 0; f < sizeof fields / sizeof fields[0]; ++f) {
+        for (size_t f = 0; f < count; ++f) {
             int accepted = count_accepted_flips(m, &sp, fields[f]);
-            if (accepted)
-                fail_msg("%d bit flips in %s were accepted", accepted, fields[f].name);
+            if (accepted && used < sizeof report)
+                used += (size_t)snprintf(report + used, sizeof report - used,
+                                         " %s%s: %d of %zu;", fields[f].name,
+                                         big ? " (uncached)" : "", accepted,
+                                         3 * fields[f].size);
         }
         assert_point_intact(m, &sp, &ctx[5]);
         nf_model_destroy(m);
     }
+    if (used)
+        fail_msg("corrupted points accepted (bit flips accepted of those tried):%s", report);
+}
+
+/* The fields that identify a point: its mark, model, parameter generation, cache flag and
+ * check hash. Any flipped bit must be refused as NF_ERROR_INVALID_ARGUMENT (a corrupted
+ * point, point.h), not NF_ERROR_STALE, with nothing written. */
+static void test_corrupted_identity_refused(void **state)
+{
+    (void)state;
+    const field fields[] = {FIELD(magic_), FIELD(model_id_), FIELD(generation_), FIELD(cached_),
+                            FIELD(check_)};
+    check_flips_refused(fields, sizeof fields / sizeof fields[0], 31u);
 }
 
 /* The other fields that point.h's check_ claims to cover ("a hash of the fields above"): the
@@ -380,33 +395,7 @@ static void test_corrupted_context_refused(void **state)
 {
     (void)state;
     const field fields[] = {FIELD(context_), FIELD(prior_), FIELD(frame_)};
-    char report[256] = "";
-    size_t used = 0;
-    for (int big = 0; big < 2; ++big) {
-        nf_config cfg = config_for(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-        if (big) {
-            cfg.coupling_layers = 8;
-            cfg.hidden_width = 64;
-        }
-        nf_model *m = create_on(cfg, NF_ISA_AUTO);
-        assert_non_null(m);
-        perturb(m, 33u);
-        nf_context ctx[6];
-        make_contexts(34u, ctx, 6);
-        nf_shading_point sp;
-        assert_int_equal(nf_point_prepare(m, &ctx[5], NULL, &sp), NF_OK);
-        for (size_t f = 0; f < sizeof fields / sizeof fields[0]; ++f) {
-            int accepted = count_accepted_flips(m, &sp, fields[f]);
-            if (accepted && used < sizeof report)
-                used += (size_t)snprintf(report + used, sizeof report - used,
-                                         " %s%s: %d of %zu;", fields[f].name,
-                                         big ? " (uncached)" : "", accepted,
-                                         3 * fields[f].size);
-        }
-        nf_model_destroy(m);
-    }
-    if (used)
-        fail_msg("corrupted points accepted (bit flips accepted of those tried):%s", report);
+    check_flips_refused(fields, sizeof fields / sizeof fields[0], 33u);
 }
 
 NFT_TEST_MAIN(

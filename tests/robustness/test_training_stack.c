@@ -26,13 +26,7 @@
 
 #include "nf_test_support.h"
 
-#if !NFT_UNDER_SANITIZER && defined(NDEBUG) && defined(__OPTIMIZE__)
-#define STACK_CHECK 1
-#else
-#define STACK_CHECK 0
-#endif
-
-#if STACK_CHECK
+#if NFT_STACK_CHECK
 enum { STACK_BYTES = 512 * 1024, N = 37 };
 
 typedef struct stack_job {
@@ -72,7 +66,7 @@ static void *stack_thread(void *arg)
 static void test_training_stack_bound(void **state)
 {
     (void)state;
-#if !STACK_CHECK
+#if !NFT_STACK_CHECK
     skip();
 #else
     static const nf_isa isas[3] = {NF_ISA_GENERIC, NF_ISA_AVX2, NF_ISA_AVX512};
@@ -92,14 +86,8 @@ static void test_training_stack_bound(void **state)
             nf_config cfg;
             nf_config_init(&cfg, s == 0 ? NF_PRESET_SMALL : NF_PRESET_LARGE);
             cfg.isa = isas[k];
-            if (s == 2) { /* every limit at once: the tape cannot hold all layers */
-                cfg.coupling_layers = NF_MAX_COUPLING_LAYERS;
-                cfg.spline_bins = NF_MAX_SPLINE_BINS;
-                cfg.hidden_layers = NF_MAX_HIDDEN_LAYERS;
-                cfg.hidden_width = NF_MAX_HIDDEN_WIDTH;
-                cfg.oneblob_bins = NF_MAX_ONEBLOB_BINS;
-                cfg.sh_bands = NF_MAX_SH_BANDS;
-            }
+            if (s == 2) /* every limit at once: the tape cannot hold all layers */
+                nft_config_largest(&cfg);
             nf_model *m = NULL;
             if (nf_model_create(&cfg, &m) != NF_OK)
                 continue; /* a CPU without the set */

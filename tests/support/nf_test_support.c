@@ -270,6 +270,16 @@ float nft_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]
     return nf_model_prior_pdf(m, ctx, dir, &q) == NF_OK ? q : -1.0f;
 }
 
+void nft_config_largest(nf_config *cfg)
+{
+    cfg->coupling_layers = NF_MAX_COUPLING_LAYERS;
+    cfg->spline_bins = NF_MAX_SPLINE_BINS;
+    cfg->hidden_layers = NF_MAX_HIDDEN_LAYERS;
+    cfg->hidden_width = NF_MAX_HIDDEN_WIDTH;
+    cfg->oneblob_bins = NF_MAX_ONEBLOB_BINS;
+    cfg->sh_bands = NF_MAX_SH_BANDS;
+}
+
 nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior)
 {
     nf_config cfg = nft_config(preset, prior);

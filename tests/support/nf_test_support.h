@@ -241,6 +241,17 @@ void nft_snapshot_free(nft_snapshot *s);
 #define NFT_UNDER_SANITIZER 0
 #endif
 
+/* 1 where the stack-use tests measure (nft_stack_used): optimized builds without sanitizers,
+ * the builds the headers' stack figures are for (sanitizers grow every frame). */
+#if !NFT_UNDER_SANITIZER && defined(NDEBUG) && defined(__OPTIMIZE__)
+#define NFT_STACK_CHECK 1
+#else
+#define NFT_STACK_CHECK 0
+#endif
+
+/* Sets every size field of cfg to its largest value (NF_MAX_*): the largest model. */
+void nft_config_largest(nf_config *cfg);
+
 /* Outputs that a refused call must leave alone: nft_fill_sentinel writes NFT_SENTINEL, a value
  * no call produces, and nft_untouched checks that every float still has its bits. */
 #define NFT_SENTINEL 12345.0f
