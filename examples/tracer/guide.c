@@ -13,49 +13,38 @@
 #include "parallel.h"
 #include "ranks.h"
 
-/* The batch being trained on: the contexts the library passes to the callbacks and their
- * points (guide.h). Written before the training calls, only read during them. */
-static const nf_context *batch_ctx;
-static const guide_point *batch_points;
-static size_t batch_count;
-
-void guide_begin_batch(const nf_context *ctx, const guide_point *points, size_t n)
+void guide_lookup_init(guide_lookup *l)
 {
-    batch_ctx = ctx;
-    batch_points = points;
-    batch_count = n;
+    l->guide = NULL;
+    l->batch_ctx = NULL;
+    l->batch_points = NULL;
+    l->batch_count = 0;
+    atomic_init(&l->failures, 0);
 }
 
-void guide_end(void)
+/* The lookup of a model with the BSDF prior (its callbacks' user), else NULL. */
+static guide_lookup *lookup_of(const nf_model *m)
 {
-    batch_ctx = NULL;
-    batch_points = NULL;
-    batch_count = 0;
+    nf_config cfg;
+    if (!m || nf_model_get_config(m, &cfg) != NF_OK || cfg.prior != NF_PRIOR_CUSTOM ||
+        cfg.custom_prior.sample != guide_bsdf_callbacks(NULL).sample)
+        return NULL;
+    return cfg.custom_prior.user;
 }
 
-/* Lookups that found no shading point (and fell back to a cosine lobe). */
-static atomic_ullong lookup_failures;
-
-unsigned long long guide_lookup_failures(void)
+static const guide_point *find_point(guide_lookup *l, const nf_context *ctx)
 {
-    return atomic_load(&lookup_failures);
-}
-
-/* The guide whose step the callbacks are computing (guide_hooks_init), if any. */
-static const nf_guide *training_guide;
-
-static const guide_point *find_point(const nf_context *ctx)
-{
-    const guide_point *stored = nf_guide_payload(training_guide, ctx);
+    const guide_point *stored = l ? nf_guide_payload(l->guide, ctx) : NULL;
     if (stored)
         return stored;
     /* Compare addresses as integers: relational operators between pointers into different
      * objects are undefined. */
-    uintptr_t p = (uintptr_t)ctx, base = (uintptr_t)batch_ctx;
-    if (batch_ctx && p >= base && (p - base) % sizeof *ctx == 0 &&
-        (p - base) / sizeof *ctx < batch_count)
-        return &batch_points[(p - base) / sizeof *ctx];
-    atomic_fetch_add(&lookup_failures, 1);
+    uintptr_t p = (uintptr_t)ctx, base = l ? (uintptr_t)l->batch_ctx : 0;
+    if (base && p >= base && (p - base) % sizeof *ctx == 0 &&
+        (p - base) / sizeof *ctx < l->batch_count)
+        return &l->batch_points[(p - base) / sizeof *ctx];
+    if (l)
+        atomic_fetch_add(&l->failures, 1);
     return NULL;
 }
 
@@ -99,7 +88,7 @@ static nf_status reduce_sum(void *user, int64_t *v, size_t n)
     return ranks_sum_i64(v, n, &err) ? NF_OK : NF_ERROR_IO;
 }
 
-void guide_hooks_init(guide_hooks *h, const nf_guide *g, int threads)
+void guide_hooks_init(guide_hooks *h, int threads)
 {
     h->threads = threads < 1 ? 1 : threads;
     h->parallel.run = run_parallel;
@@ -108,13 +97,43 @@ void guide_hooks_init(guide_hooks *h, const nf_guide *g, int threads)
     h->reduce_storage.sum_i64 = reduce_sum;
     h->reduce_storage.user = NULL;
     h->reduce = ranks_size() > 1 ? &h->reduce_storage : NULL;
-    training_guide = g;
 }
 
-void guide_hooks_end(guide_hooks *h)
+nf_status guide_train_pass(nf_guide *g, const guide_hooks *h, nf_guide_pass_report *report)
 {
-    (void)h;
-    training_guide = NULL;
+    guide_lookup *l = lookup_of(nf_guide_training_model(g));
+    if (l)
+        l->guide = g;
+    nf_status st = nf_guide_train_pass(g, &h->parallel, h->reduce, report);
+    if (l)
+        l->guide = NULL;
+    return st;
+}
+
+nf_status guide_train_batch(nf_guide *g, const guide_hooks *h, size_t n, const nf_context *ctx,
+                            const guide_point *points, const float *dir, const float *weight,
+                            const size_t *group_end, size_t groups, float *loss)
+{
+    guide_lookup *l = lookup_of(nf_guide_training_model(g));
+    if (l) {
+        l->batch_ctx = ctx;
+        l->batch_points = points;
+        l->batch_count = n;
+    }
+    nf_status st = nf_guide_train_batch(g, n, ctx, dir, weight, group_end, groups, &h->parallel,
+                                        h->reduce, loss);
+    if (l) {
+        l->batch_ctx = NULL;
+        l->batch_points = NULL;
+        l->batch_count = 0;
+    }
+    return st;
+}
+
+unsigned long long guide_lookup_failures(const nf_model *m)
+{
+    guide_lookup *l = lookup_of(m);
+    return l ? atomic_load(&l->failures) : 0;
 }
 
 int guide_take_trained(nf_guide *g, nf_model **model, tr_error *err)
@@ -129,13 +148,6 @@ int guide_take_trained(nf_guide *g, nf_model **model, tr_error *err)
 
 /* ---- The BSDF prior ------------------------------------------------------------------------ */
 
-/* The shading point of a callback: its own (user, from guide_point_callbacks) when the call
- * comes through a prepared nf_shading_point, else the published batch's (training). */
-static const guide_point *point_of(void *user, const nf_context *ctx)
-{
-    return user ? (const guide_point *)user : find_point(ctx);
-}
-
 /* A context in a medium (normal exactly zero, nisflow/model.h): the BSDF prior is then the
  * medium's phase function, Henyey-Greenstein with the context's g around the propagation
  * direction -wo, as the library's cosine prior is there. */
@@ -149,8 +161,9 @@ static vec3 propagation(const nf_context *ctx)
     return v3_normalize(v3(-ctx->wo[0], -ctx->wo[1], -ctx->wo[2]));
 }
 
-static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
-                               float dir[3])
+/* The BSDF prior at ctx with p's material (NULL: none known, a cosine lobe). */
+static float prior_sample(const guide_point *p, const nf_context *ctx, float u0, float u1,
+                          float dir[3])
 {
     if (in_medium(ctx)) {
         float pdf;
@@ -163,7 +176,6 @@ static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, floa
     vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
     frame f = frame_from_normal(n);
     vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
-    const guide_point *p = point_of(user, ctx);
     vec3 wi;
     float pdf;
     if (p) {
@@ -179,7 +191,7 @@ static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, floa
     return pdf;
 }
 
-static float bsdf_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
+static float prior_pdf(const guide_point *p, const nf_context *ctx, const float dir[3])
 {
     if (in_medium(ctx))
         return phase_hg(ctx->phase_g,
@@ -188,22 +200,47 @@ static float bsdf_prior_pdf(void *user, const nf_context *ctx, const float dir[3
     frame f = frame_from_normal(n);
     vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
     vec3 wi = v3_normalize(frame_to_local(&f, v3(dir[0], dir[1], dir[2])));
-    const guide_point *p = point_of(user, ctx);
     return p ? bsdf_lobe_pdf(&p->bp, wo, wi) : pdf_cosine_hemisphere(wi);
 }
 
-nf_prior_callbacks guide_bsdf_callbacks(void)
+/* The two kinds of callbacks: bound to one shading point (user, from guide_point_callbacks),
+ * or model-wide (user a guide_lookup, for training). */
+static float point_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
+                                float dir[3])
+{
+    return prior_sample(user, ctx, u0, u1, dir);
+}
+
+static float point_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
+{
+    return prior_pdf(user, ctx, dir);
+}
+
+static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
+                               float dir[3])
+{
+    return prior_sample(in_medium(ctx) ? NULL : find_point(user, ctx), ctx, u0, u1, dir);
+}
+
+static float bsdf_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
+{
+    return prior_pdf(in_medium(ctx) ? NULL : find_point(user, ctx), ctx, dir);
+}
+
+nf_prior_callbacks guide_bsdf_callbacks(guide_lookup *l)
 {
     nf_prior_callbacks cb;
     cb.sample = bsdf_prior_sample;
     cb.pdf = bsdf_prior_pdf;
-    cb.user = NULL;
+    cb.user = l;
     return cb;
 }
 
 nf_prior_callbacks guide_point_callbacks(const guide_point *p)
 {
-    nf_prior_callbacks cb = guide_bsdf_callbacks();
+    nf_prior_callbacks cb;
+    cb.sample = point_prior_sample;
+    cb.pdf = point_prior_pdf;
     cb.user = (void *)(uintptr_t)p; /* read only: the callbacks take it back as const */
     return cb;
 }
@@ -270,7 +307,8 @@ int guide_bounds_match(const scene *s, const nf_model *m, char *msg, size_t size
     return match;
 }
 
-int guide_create(const scene *s, const guide_settings *settings, nf_model **out, tr_error *err)
+int guide_create(const scene *s, const guide_settings *settings, guide_lookup *lookup,
+                 nf_model **out, tr_error *err)
 {
     nf_config cfg;
     nf_config_init(&cfg, settings->large ? NF_PRESET_LARGE : NF_PRESET_SMALL);
@@ -280,7 +318,7 @@ int guide_create(const scene *s, const guide_settings *settings, nf_model **out,
     if (settings->phi_interval)
         cfg.phi_map = NF_PHI_INTERVAL;
     if (settings->prior == GUIDE_PRIOR_BSDF)
-        cfg.custom_prior = guide_bsdf_callbacks();
+        cfg.custom_prior = guide_bsdf_callbacks(lookup);
     if (settings->prior_epsilon >= 0.0f)
         cfg.prior_epsilon = settings->prior_epsilon;
     if (settings->sh_bands >= 0)
@@ -295,9 +333,9 @@ int guide_create(const scene *s, const guide_settings *settings, nf_model **out,
     return 1;
 }
 
-int guide_load(const char *path, nf_model **out, tr_error *err)
+int guide_load(const char *path, guide_lookup *lookup, nf_model **out, tr_error *err)
 {
-    nf_prior_callbacks cb = guide_bsdf_callbacks();
+    nf_prior_callbacks cb = guide_bsdf_callbacks(lookup);
     nf_status st = nf_model_load(path, &cb, out);
     if (st != NF_OK)
         return tr_fail(err, "%s: nf_model_load: %s: %s", path, nf_status_string(st),

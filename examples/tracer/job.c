@@ -153,10 +153,10 @@ static int write_results(const options *o, const char *program, const char *pref
                            nf_last_error_message());
         printf("wrote      %s\n", o->save_model);
     }
-    if (guide_lookup_failures())
+    if (guide_lookup_failures(model))
         fprintf(stderr, "%s: warning: the BSDF prior fell back to a cosine lobe %llu times "
                 "(a shading point was not published; please report this)\n",
-                program, guide_lookup_failures());
+                program, guide_lookup_failures(model));
     return 1;
 }
 
@@ -264,8 +264,8 @@ static int make_model(job *j, tr_error *err)
     gs.prior_epsilon = o->prior_epsilon;
     gs.sh_bands = o->sh_bands;
     gs.seed = o->seed;
-    int ok = o->load_model ? guide_load(o->load_model, &j->model, err)
-                           : guide_create(&j->s, &gs, &j->model, err);
+    int ok = o->load_model ? guide_load(o->load_model, &j->lookup, &j->model, err)
+                           : guide_create(&j->s, &gs, &j->lookup, &j->model, err);
     if (ok && o->load_model && o->learning_rate_given &&
         nf_model_set_learning_rate(j->model, o->learning_rate) != NF_OK)
         ok = tr_fail(err, "--lr: %s", nf_last_error_message());
@@ -326,6 +326,7 @@ static void set_up_tracer(job *j)
 static int job_start(int argc, char **argv, options_program program, job *j, int *exit_code)
 {
     memset(j, 0, sizeof *j);
+    guide_lookup_init(&j->lookup);
     options *o = &j->o;
     tr_error err;
     const char *name = options_program_name(program);

@@ -40,9 +40,8 @@ static int train_on_pass(nf_guide *g, record_arrays *a, const record_buffer *rec
         return 0;
     nf_guide_pass_report pr;
     guide_hooks hooks;
-    guide_hooks_init(&hooks, g, threads);
-    st = nf_guide_train_pass(g, &hooks.parallel, hooks.reduce, &pr);
-    guide_hooks_end(&hooks);
+    guide_hooks_init(&hooks, threads);
+    st = guide_train_pass(g, &hooks, &pr);
     if (st != NF_OK) /* the hooks failed (MPI): the same on every rank */
         return tr_fail(err, "training pass %u: %s", pass, nf_last_error_message());
     if (pr.refused && rep->refused < 5 && ranks_rank() == 0)
@@ -89,7 +88,7 @@ static int job_start(budget_job *j, tracer *t, nf_guide *guide, const budget_set
     sc.height = (uint32_t)s->height;
     sc.budget = bs->seconds;
     sc.guide_depth = (uint32_t)t->guide_depth; /* --variant guide-depth: every guided pass */
-    guide_hooks_init(&j->hooks, NULL, bs->threads);
+    guide_hooks_init(&j->hooks, bs->threads);
     int ready = image_alloc(img, s->width, s->height, err) &&
                 image_alloc(&j->pass, s->width, s->height, err);
     j->moment = calloc(PATH_MOMENTS * (size_t)s->width * (size_t)s->height, sizeof *j->moment);

@@ -74,19 +74,14 @@ static size_t group_paths(size_t paths)
 
 /* Trains with `guide` on the iteration's batch (this rank's groups of it): one step of the
  * guide's training model, summed exactly over the groups, threads and ranks. */
-static int step_on_batch(nf_guide *guide, const tracer *t, const record_arrays *batch, size_t n,
+static int step_on_batch(nf_guide *guide, const record_arrays *batch, size_t n,
                          const size_t *group_end, size_t groups, int threads, int it,
                          training_report *rep, float *loss, tr_error *err)
 {
     guide_hooks hooks;
-    guide_hooks_init(&hooks, NULL, threads);
-    if (t->bsdf_prior) /* the BSDF prior's callbacks look the materials up here */
-        guide_begin_batch(batch->ctx, batch->points, n);
-    nf_status st = nf_guide_train_batch(guide, n, batch->ctx, batch->dir, batch->weight,
-                                        groups ? group_end : NULL, groups, &hooks.parallel,
-                                        hooks.reduce, loss);
-    guide_end();
-    guide_hooks_end(&hooks);
+    guide_hooks_init(&hooks, threads);
+    nf_status st = guide_train_batch(guide, &hooks, n, batch->ctx, batch->points, batch->dir,
+                                     batch->weight, groups ? group_end : NULL, groups, loss);
     if (st == NF_ERROR_NUMERIC) {
         /* A refused batch leaves the model unchanged (on every rank): report it, go on. */
         if (rep->refused++ < 5 && ranks_rank() == 0)
@@ -179,7 +174,7 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
             group_end[g - g0] = path_end[last - 1 - first];
         }
         float loss = NAN;
-        ok = step_on_batch(guide, t, &batch, n, group_end, g1 - g0, ts->threads, it, rep, &loss,
+        ok = step_on_batch(guide, &batch, n, group_end, g1 - g0, ts->threads, it, rep, &loss,
                            err);
         double t2 = now_seconds();
         rep->step_cpu_seconds += cpu_seconds() - c1;

@@ -41,7 +41,7 @@ static void test_bounds_match(void **state)
         fail_msg("%s", err.msg);
     guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
     nf_model *model = NULL, *loaded = NULL;
-    if (!guide_create(&mixed, &gs, &model, &err))
+    if (!guide_create(&mixed, &gs, NULL, &model, &err))
         fail_msg("%s", err.msg);
     char msg[512] = "";
     assert_true(guide_bounds_match(&mixed, model, msg, sizeof msg));
@@ -51,7 +51,7 @@ static void test_bounds_match(void **state)
     char path[4096];
     snprintf(path, sizeof path, "%s/test_guide.nf", TRACER_TEST_TMP_DIR);
     assert_int_equal(nf_model_save(model, path), NF_OK);
-    if (!guide_load(path, &loaded, &err))
+    if (!guide_load(path, NULL, &loaded, &err))
         fail_msg("%s", err.msg);
     assert_true(guide_bounds_match(&mixed, loaded, msg, sizeof msg));
 

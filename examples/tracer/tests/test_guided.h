@@ -17,6 +17,10 @@
 #include "test_policy.h"
 #include "training.h"
 
+/* What the BSDF prior's callbacks of the models made here read (guide.h); static, so zero
+ * is a valid empty lookup. */
+static guide_lookup test_lookup;
+
 /* A tracer of `s`: plain when `guided` is 0; otherwise guided by a model with `prior` (model
  * seed 7) trained `iterations` iterations of 256 paths on 2 threads (seed 3), none refused,
  * through the paper's protocol (render/training.c). The caller destroys its model with
@@ -30,7 +34,7 @@ static inline tracer test_tracer(const scene *s, int guided, guide_prior prior, 
     nf_model *model = NULL;
     guide_settings gs = guide_default_settings(prior);
     gs.seed = 7;
-    if (!guide_create(s, &gs, &model, &err))
+    if (!guide_create(s, &gs, &test_lookup, &model, &err))
         fail_msg("%s", err.msg);
     t.policy = test_policy(0.5f);
     t.bsdf_prior = prior == GUIDE_PRIOR_BSDF;

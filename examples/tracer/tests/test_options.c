@@ -62,7 +62,7 @@ static nf_config created_config(const scene *s, const guide_settings *gs, nf_mod
 {
     tr_error err;
     nf_model *model = NULL;
-    if (!guide_create(s, gs, &model, &err))
+    if (!guide_create(s, gs, NULL, &model, &err))
         fail_msg("%s", err.msg);
     nf_config cfg;
     nf_model_get_config(model, &cfg);
