@@ -697,11 +697,8 @@ static void test_stale_after_parameter_changes(void **state)
 {
     (void)state;
     for (int p = 0; p < 4; ++p) {
-        nf_model *m = create_on(config_for(NF_PRESET_SMALL, all_priors[p]), NF_ISA_AUTO);
-        assert_non_null(m);
-        perturb(m, 70u + (uint64_t)p);
         nf_context ctx[6];
-        make_contexts(71u, ctx, 6);
+        nf_model *m = perturbed_model(all_priors[p], 70u + (uint64_t)p, 71u, ctx);
         const nf_context *c = &ctx[5];
         nf_shading_point sp;
         const size_t pc = nf_model_param_count(m);
@@ -900,19 +897,12 @@ static void test_per_point_prior(void **state)
 {
     (void)state;
     enum { N = 24 };
-    nf_model *m = create_on(config_for(NF_PRESET_SMALL, NF_PRIOR_CUSTOM), NF_ISA_AUTO);
-    assert_non_null(m);
-    perturb(m, 40u);
     nf_context ctx[6];
-    make_contexts(41u, ctx, 6);
+    nf_model *m = perturbed_model(NF_PRIOR_CUSTOM, 40u, 41u, ctx);
     float u[2 * N], din[3 * N];
     nft_rng r;
     nft_rng_seed(&r, 42u, 1u);
-    for (int i = 0; i < N; ++i) {
-        u[2 * i] = nft_rng_float(&r);
-        u[2 * i + 1] = nft_rng_float(&r);
-        nft_random_unit_vector(&r, din + 3 * i);
-    }
+    nft_random_u_dir(&r, N, u, din);
 
     /* A sharper lobe (exponent 20) for this point only; the model's is a cosine. */
     nf_context given = ctx[5];

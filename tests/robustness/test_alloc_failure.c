@@ -568,11 +568,7 @@ static void test_shading_points_never_allocate(void **state)
         nft_rng_seed(&r, 6u, 1u);
         for (int i = 0; i < P; ++i)
             nft_random_context(&r, &ctx[i]);
-        for (int i = 0; i < D; ++i) {
-            u[2 * i] = nft_rng_float(&r);
-            u[2 * i + 1] = nft_rng_float(&r);
-            nft_random_unit_vector(&r, din + 3 * i);
-        }
+        nft_random_u_dir(&r, D, u, din);
         const nf_prior_callbacks own = nft_phong_callbacks();
         for (int round = 0; round < 2; ++round) {
             for (int i = 0; i < P; ++i) {

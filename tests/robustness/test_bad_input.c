@@ -110,13 +110,7 @@ static batch valid_batch(void)
     batch b;
     nft_rng r;
     nft_rng_seed(&r, 12u, 34u);
-    for (int i = 0; i < N; ++i) {
-        nft_random_context(&r, &b.ctx[i]);
-        b.u[2 * i] = nft_rng_float(&r);
-        b.u[2 * i + 1] = nft_rng_float(&r);
-        nft_random_unit_vector(&r, b.dir + 3 * i);
-        b.weight[i] = 0.5f + nft_rng_float(&r);
-    }
+    nft_random_batch(&r, N, b.ctx, b.u, b.dir, b.weight, 0.5f);
     return b;
 }
 

@@ -207,13 +207,7 @@ static void test_concurrent_const_and_io(void **state)
     s.alloc = &alloc;
     nft_rng r;
     nft_rng_seed(&r, 2u, 3u);
-    for (int i = 0; i < N; ++i) {
-        nft_random_context(&r, &s.ctx[i]);
-        s.u[2 * i] = nft_rng_float(&r);
-        s.u[2 * i + 1] = nft_rng_float(&r);
-        nft_random_unit_vector(&r, s.dir + 3 * i);
-        s.weight[i] = nft_rng_float(&r);
-    }
+    nft_random_batch(&r, N, s.ctx, s.u, s.dir, s.weight, 0.0f);
     assert_int_equal(nf_train_step(m, N, s.ctx, s.dir, s.weight, NULL), NF_OK);
     /* single-threaded references */
     assert_int_equal(nf_model_serialize(m, NULL, 0, &s.size), NF_OK);

@@ -38,11 +38,7 @@ static void assert_point_intact(const nf_model *m, const nf_shading_point *sp,
     float u[2 * N], dir[3 * N], d1[3 * N], d2[3 * N], p1[N], p2[N], e1[N], e2[N];
     nft_rng r;
     nft_rng_seed(&r, 8u, 8u);
-    for (int i = 0; i < N; ++i) {
-        u[2 * i] = nft_rng_float(&r);
-        u[2 * i + 1] = nft_rng_float(&r);
-        nft_random_unit_vector(&r, dir + 3 * i);
-    }
+    nft_random_u_dir(&r, N, u, dir);
     nf_shading_point fresh;
     assert_int_equal(nf_point_prepare(m, ctx, NULL, &fresh), NF_OK);
     assert_int_equal(nf_point_sample(m, &fresh, N, u, d1, p1), NF_OK);
@@ -138,11 +134,8 @@ static void test_sample_pdf_bad_input(void **state)
 {
     (void)state;
     enum { N = 6 };
-    nf_model *m = create_on(config_for(NF_PRESET_SMALL, NF_PRIOR_CUSTOM), NF_ISA_AUTO);
-    assert_non_null(m);
-    perturb(m, 9u);
     nf_context ctx[6];
-    make_contexts(10u, ctx, 6);
+    nf_model *m = perturbed_model(NF_PRIOR_CUSTOM, 9u, 10u, ctx);
     nf_shading_point sp, pts[N];
     assert_int_equal(nf_point_prepare(m, &ctx[5], NULL, &sp), NF_OK);
     for (int i = 0; i < N; ++i)
@@ -150,11 +143,7 @@ static void test_sample_pdf_bad_input(void **state)
     nft_rng r;
     nft_rng_seed(&r, 11u, 1u);
     float u[2 * N], din[3 * N], dir[3 * N], pdf[N];
-    for (int i = 0; i < N; ++i) {
-        u[2 * i] = nft_rng_float(&r);
-        u[2 * i + 1] = nft_rng_float(&r);
-        nft_random_unit_vector(&r, din + 3 * i);
-    }
+    nft_random_u_dir(&r, N, u, din);
     nft_fill_sentinel(dir, 3 * N);
     nft_fill_sentinel(pdf, N);
     const long calls = model_lobe.samples + model_lobe.pdfs;
@@ -270,11 +259,8 @@ static void test_u_clamped(void **state)
 {
     (void)state;
     for (int p = 0; p < 4; ++p) {
-        nf_model *m = create_on(config_for(NF_PRESET_SMALL, all_priors[p]), NF_ISA_AUTO);
-        assert_non_null(m);
-        perturb(m, 20u + (uint64_t)p);
         nf_context ctx[6];
-        make_contexts(21u, ctx, 6);
+        nf_model *m = perturbed_model(all_priors[p], 20u + (uint64_t)p, 21u, ctx);
         nf_shading_point sp;
         assert_int_equal(nf_point_prepare(m, &ctx[5], NULL, &sp), NF_OK);
         const float one_below = 0x1.fffffep-1f;

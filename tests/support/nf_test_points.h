@@ -247,6 +247,18 @@ static inline void make_contexts(uint64_t seed, nf_context *ctx, int count)
     }
 }
 
+/* A small model with `prior`, perturbed (seed), and six contexts of make_contexts (ctx_seed):
+ * the points most tests here prepare. */
+static inline nf_model *perturbed_model(nf_prior_kind prior, uint64_t seed, uint64_t ctx_seed,
+                                        nf_context ctx[6])
+{
+    nf_model *m = create_on(config_for(NF_PRESET_SMALL, prior), NF_ISA_AUTO);
+    assert_non_null(m);
+    perturb(m, seed);
+    make_contexts(ctx_seed, ctx, 6);
+    return m;
+}
+
 /* Every function refuses the point on `m` with `expected` and writes nothing. */
 static inline void assert_point_refused(const nf_model *m, const nf_shading_point *sp,
                                  nf_status expected)

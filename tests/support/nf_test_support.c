@@ -79,14 +79,33 @@ void nft_random_queries(nft_rng *r, size_t n, nf_context *ctx, float *u)
     }
 }
 
-void nft_random_samples(nft_rng *r, size_t n, nf_context *ctx, float *dir, float *weight,
-                        float weight_min)
+void nft_random_batch(nft_rng *r, size_t n, nf_context *ctx, float *u, float *dir, float *weight,
+                      float weight_min)
 {
     for (size_t i = 0; i < n; ++i) {
         nft_random_context(r, &ctx[i]);
+        if (u) {
+            u[2 * i] = nft_rng_float(r);
+            u[2 * i + 1] = nft_rng_float(r);
+        }
         nft_random_unit_vector(r, dir + 3 * i);
         weight[i] = weight_min + nft_rng_float(r);
     }
+}
+
+void nft_random_u_dir(nft_rng *r, size_t n, float *u, float *dir)
+{
+    for (size_t i = 0; i < n; ++i) {
+        u[2 * i] = nft_rng_float(r);
+        u[2 * i + 1] = nft_rng_float(r);
+        nft_random_unit_vector(r, dir + 3 * i);
+    }
+}
+
+void nft_random_samples(nft_rng *r, size_t n, nf_context *ctx, float *dir, float *weight,
+                        float weight_min)
+{
+    nft_random_batch(r, n, ctx, NULL, dir, weight, weight_min);
 }
 
 nf_context nft_context(float px, float py, float pz, float nx, float ny, float nz, float wx,

@@ -51,6 +51,13 @@ void nft_random_queries(nft_rng *r, size_t n, nf_context *ctx, float *u);
  * dir[3i..3i+2] and a weight weight_min + uniform [0, 1). */
 void nft_random_samples(nft_rng *r, size_t n, nf_context *ctx, float *dir, float *weight,
                         float weight_min);
+/* Both in one: per sample in turn, a random context, its two uniforms u[2i], u[2i+1], a random
+ * unit direction and a weight weight_min + uniform [0, 1). */
+void nft_random_batch(nft_rng *r, size_t n, nf_context *ctx, float *u, float *dir, float *weight,
+                      float weight_min);
+/* n pairs of uniforms u[2i], u[2i+1] and a random unit direction dir[3i..3i+2] each, in turn:
+ * what a sample call and a pdf call at the same points take. */
+void nft_random_u_dir(nft_rng *r, size_t n, float *u, float *dir);
 /* A context from explicit vectors (normalized here in double). */
 nf_context nft_context(float px, float py, float pz, float nx, float ny, float nz, float wx,
                        float wy, float wz);
