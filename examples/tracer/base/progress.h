@@ -20,7 +20,6 @@ typedef struct progress {
  * on a shared machine the second shows the work done even when other jobs slow the first. */
 double now_seconds(void);
 double cpu_seconds(void);
-double thread_cpu_seconds(void); /* the calling thread only */
 
 /* label NULL disables the bar. */
 void progress_start(progress *p, const char *label, size_t total);

@@ -5,7 +5,6 @@
  */
 #include "ranks.h"
 
-#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -63,19 +62,6 @@ int ranks_all_equal(uint64_t value, const char *what, tr_error *err)
         return 1;
     return tr_fail(err, "%s: rank%s %s differ%s from rank 0", what, count > 1 ? "s" : "", differ,
                    count > 1 ? "" : "s");
-}
-
-/* ranks_gather_bytes with one rank: a copy. */
-static int gather_alone(const void *mine, size_t bytes, void **all, size_t *all_bytes,
-                        tr_error *err)
-{
-    *all_bytes = 0;
-    if (!(*all = malloc(bytes ? bytes : 1)))
-        return tr_fail(err, "out of memory");
-    if (bytes)
-        memcpy(*all, mine, bytes);
-    *all_bytes = bytes;
-    return 1;
 }
 
 int ranks_rank(void) { return g_rank; }
@@ -185,63 +171,6 @@ int ranks_gather_u64(uint64_t value, uint64_t *all, tr_error *err)
     return code == MPI_SUCCESS || mpi_fail(err, "MPI_Allgather", code);
 }
 
-int ranks_gather_bytes(const void *mine, size_t bytes, void **all, size_t *all_bytes,
-                       tr_error *err)
-{
-    if (!g_active)
-        return gather_alone(mine, bytes, all, all_bytes, err);
-    *all = NULL;
-    *all_bytes = 0;
-    int n = g_size, ok = bytes <= INT_MAX || tr_fail(err, "%zu bytes are too many to gather",
-                                                      bytes);
-    int *counts = malloc((size_t)n * sizeof *counts), *offsets = malloc((size_t)n * sizeof *offsets);
-    ok = ok && ((counts && offsets) || tr_fail(err, "out of memory"));
-    if (!ranks_agree(ok, err))
-        goto fail;
-    int count = (int)bytes, code = MPI_Allgather(&count, 1, MPI_INT, counts, 1, MPI_INT,
-                                                 MPI_COMM_WORLD);
-    if (code != MPI_SUCCESS) {
-        mpi_fail(err, "MPI_Allgather (sizes)", code);
-        goto fail;
-    }
-    size_t total = 0;
-    for (int r = 0; r < n; ++r) {
-        offsets[r] = (int)total;
-        total += (size_t)counts[r];
-    }
-    ok = total <= INT_MAX || tr_fail(err, "%zu bytes are too many to gather", total);
-    ok = ok && ((*all = malloc(total ? total : 1)) != NULL || tr_fail(err, "out of memory"));
-    if (!ranks_agree(ok, err))
-        goto fail;
-    code = MPI_Allgatherv(mine, count, MPI_BYTE, *all, counts, offsets, MPI_BYTE, MPI_COMM_WORLD);
-    if (code != MPI_SUCCESS) {
-        mpi_fail(err, "MPI_Allgatherv", code);
-        goto fail;
-    }
-    *all_bytes = total;
-    free(counts);
-    free(offsets);
-    return 1;
-fail:
-    free(*all);
-    *all = NULL;
-    free(counts);
-    free(offsets);
-    return 0;
-}
-
-int ranks_sum_doubles_to_root(double *data, size_t n, tr_error *err)
-{
-    for (size_t at = 0; g_active && at < n; at += SLICE) {
-        int count = (int)(n - at < SLICE ? n - at : SLICE);
-        void *send = g_rank == 0 ? MPI_IN_PLACE : (void *)(data + at);
-        int code = MPI_Reduce(send, data + at, count, MPI_DOUBLE, MPI_SUM, 0, MPI_COMM_WORLD);
-        if (code != MPI_SUCCESS)
-            return mpi_fail(err, "MPI_Reduce (image sums)", code);
-    }
-    return 1;
-}
-
 int ranks_sum_floats_to_root(float *data, size_t n, tr_error *err)
 {
     for (size_t at = 0; g_active && at < n; at += SLICE) {
@@ -250,17 +179,6 @@ int ranks_sum_floats_to_root(float *data, size_t n, tr_error *err)
         int code = MPI_Reduce(send, data + at, count, MPI_FLOAT, MPI_SUM, 0, MPI_COMM_WORLD);
         if (code != MPI_SUCCESS)
             return mpi_fail(err, "MPI_Reduce (the image)", code);
-    }
-    return 1;
-}
-
-int ranks_broadcast(void *data, size_t bytes, tr_error *err)
-{
-    for (size_t at = 0; g_active && at < bytes; at += SLICE) {
-        int count = (int)(bytes - at < SLICE ? bytes - at : SLICE);
-        int code = MPI_Bcast((char *)data + at, count, MPI_BYTE, 0, MPI_COMM_WORLD);
-        if (code != MPI_SUCCESS)
-            return mpi_fail(err, "MPI_Bcast", code);
     }
     return 1;
 }
@@ -327,32 +245,10 @@ int ranks_gather_u64(uint64_t value, uint64_t *all, tr_error *err)
     return 1;
 }
 
-int ranks_gather_bytes(const void *mine, size_t bytes, void **all, size_t *all_bytes,
-                       tr_error *err)
-{
-    return gather_alone(mine, bytes, all, all_bytes, err);
-}
-
-int ranks_sum_doubles_to_root(double *data, size_t n, tr_error *err)
-{
-    (void)data;
-    (void)n;
-    (void)err;
-    return 1;
-}
-
 int ranks_sum_floats_to_root(float *data, size_t n, tr_error *err)
 {
     (void)data;
     (void)n;
-    (void)err;
-    return 1;
-}
-
-int ranks_broadcast(void *data, size_t bytes, tr_error *err)
-{
-    (void)data;
-    (void)bytes;
     (void)err;
     return 1;
 }

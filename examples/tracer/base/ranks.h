@@ -63,21 +63,9 @@ uint64_t ranks_hash(uint64_t h, const void *data, size_t n);
  * err = "<what>: rank(s) R, S differ from rank 0". */
 int ranks_all_equal(uint64_t value, const char *what, tr_error *err);
 
-/* All ranks receive every rank's bytes, concatenated in rank order, in *all (allocated here,
- * free() it; *all_bytes its size). */
-int ranks_gather_bytes(const void *mine, size_t bytes, void **all, size_t *all_bytes,
-                       tr_error *err);
-
-/* Rank 0 receives the sum over ranks of data[i]; the other ranks' data is left as it was.
- * As ranks_sum_floats_to_root, for doubles. */
-int ranks_sum_doubles_to_root(double *data, size_t n, tr_error *err);
-
 /* Rank 0 receives the sum over ranks of data[i]; the other ranks' data is left as it was.
  * Used for images whose pixels each rank renders alone (the others hold 0): then the sum is
  * exact whatever order MPI adds in. */
 int ranks_sum_floats_to_root(float *data, size_t n, tr_error *err);
-
-/* All ranks receive rank 0's `bytes` bytes of data. */
-int ranks_broadcast(void *data, size_t bytes, tr_error *err);
 
 #endif /* TRACER_RANKS_H */

@@ -50,7 +50,6 @@ static inline vec3 v3_reflect(vec3 d, vec3 n) { return v3_sub(v3_scale(n, 2.0f *
 static inline rgb rgb_make(float r, float g, float b) { rgb c = {r, g, b}; return c; }
 static inline rgb rgb_gray(float v) { return rgb_make(v, v, v); }
 static inline rgb rgb_add(rgb a, rgb b) { return rgb_make(a.r + b.r, a.g + b.g, a.b + b.b); }
-static inline rgb rgb_sub(rgb a, rgb b) { return rgb_make(a.r - b.r, a.g - b.g, a.b - b.b); }
 static inline rgb rgb_mul(rgb a, rgb b) { return rgb_make(a.r * b.r, a.g * b.g, a.b * b.b); }
 static inline rgb rgb_scale(rgb a, float s) { return rgb_make(a.r * s, a.g * s, a.b * s); }
 static inline float rgb_max(rgb a) { return fmaxf(a.r, fmaxf(a.g, a.b)); }
@@ -103,6 +102,5 @@ static inline vec3 sample_uniform_sphere(float u0, float u1)
 }
 
 static inline float clampf(float v, float lo, float hi) { return v < lo ? lo : (v > hi ? hi : v); }
-static inline float sqr(float v) { return v * v; }
 
 #endif /* TRACER_VECMATH_H */

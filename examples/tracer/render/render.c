@@ -30,15 +30,6 @@ static size_t rank_tile_count(const tracer *t, size_t tiles)
     return tiles > r ? (tiles - r + n - 1) / n : 0;
 }
 
-int render_pixel_mine(const tracer *t, int x, int y)
-{
-    if (t->ranks <= 1)
-        return 1;
-    size_t tiles_x = (size_t)((t->s->width + TILE - 1) / TILE);
-    size_t item = (size_t)(y / TILE) * tiles_x + (size_t)(x / TILE);
-    return item % (size_t)t->ranks == (size_t)t->rank; /* rank_tile's dealing, inverted */
-}
-
 /* With several ranks an image holds only this rank's tiles, and the ranks' images are summed:
  * the other tiles must be black, whatever an earlier pass left in them. */
 static void clear_for_ranks(const tracer *t, image *img)

@@ -33,10 +33,6 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
                 float *moment, record_buffer *records, path_stats *stats, tr_error *err);
 
-/* Whether this rank renders pixel (x, y) in render_image and render_pass: always with one
- * rank; with t->ranks > 1, the pixels of the rank's tiles. */
-int render_pixel_mine(const tracer *t, int x, int y);
-
 /* Traces the training paths first .. first + paths - 1 of iteration `iteration`, each through
  * a uniformly random film position (path j's random stream depends on j alone, so a rank that
  * traces part of a batch gets the records one process would get for those paths), and

@@ -36,11 +36,6 @@ int bsdf_has_smooth_part(const bsdf *b)
     return b->type != BSDF_CONDUCTOR && b->type != BSDF_DIELECTRIC && b->type != BSDF_NULL;
 }
 
-int bsdf_has_delta_part(const bsdf *b)
-{
-    return b->type == BSDF_CONDUCTOR || b->type == BSDF_DIELECTRIC || b->type == BSDF_PLASTIC;
-}
-
 int bsdf_transmits(const bsdf *b) { return b->type == BSDF_DIELECTRIC; }
 
 /* ---- Pieces shared by several materials ----------------------------------------------- */

@@ -60,10 +60,8 @@ typedef struct bsdf_point {
 
 void bsdf_point_init(bsdf_point *bp, const bsdf *b, float u, float v);
 
-/* Whether the material has a non-delta part (what light sampling and guiding can use), and
- * whether it has a delta part. */
+/* Whether the material has a non-delta part (what light sampling and guiding can use). */
 int bsdf_has_smooth_part(const bsdf *b);
-int bsdf_has_delta_part(const bsdf *b);
 /* Whether light may pass through (then wi may lie below the surface). */
 int bsdf_transmits(const bsdf *b);
 
