@@ -13,7 +13,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "guide.h"
+#include "model_setup.h"
 #include "metrics.h"
 #include "progress.h"
 #include "ranks.h"
@@ -153,10 +153,10 @@ static int write_results(const options *o, const char *program, const char *pref
                            nf_last_error_message());
         printf("wrote      %s\n", o->save_model);
     }
-    if (guide_lookup_failures(model))
+    if (prior_lookup_failures(model))
         fprintf(stderr, "%s: warning: the BSDF prior fell back to a cosine lobe %llu times "
                 "(a shading point was not published; please report this)\n",
-                program, guide_lookup_failures(model));
+                program, prior_lookup_failures(model));
     return 1;
 }
 
@@ -257,22 +257,22 @@ static int load_scene(job *j, tr_error *err)
 static int make_model(job *j, tr_error *err)
 {
     const options *o = &j->o;
-    guide_settings gs = guide_default_settings(o->prior);
+    model_settings gs = model_default_settings(o->prior);
     gs.large = o->large_model;
     gs.phi_interval = o->phi_interval;
     gs.learning_rate = o->learning_rate;
     gs.prior_epsilon = o->prior_epsilon;
     gs.sh_bands = o->sh_bands;
     gs.seed = o->seed;
-    int ok = o->load_model ? guide_load(o->load_model, &j->lookup, &j->model, err)
-                           : guide_create(&j->s, &gs, &j->lookup, &j->model, err);
+    int ok = o->load_model ? model_load_file(o->load_model, &j->lookup, &j->model, err)
+                           : model_create_for_scene(&j->s, &gs, &j->lookup, &j->model, err);
     if (ok && o->load_model && o->learning_rate_given &&
         nf_model_set_learning_rate(j->model, o->learning_rate) != NF_OK)
         ok = tr_fail(err, "--lr: %s", nf_last_error_message());
     if (ok && o->isa != NF_ISA_AUTO && nf_model_set_isa(j->model, o->isa) != NF_OK)
         ok = tr_fail(err, "--isa: %s", nf_last_error_message());
     /* Every rank starts from the same model, or the steps would differ. */
-    if (!ranks_agree(ok, err) || !guide_models_agree(j->model, 0, err))
+    if (!ranks_agree(ok, err) || !models_agree_across_ranks(j->model, 0, err))
         return 0;
     nf_config cfg;
     nf_model_get_config(j->model, &cfg);
@@ -280,7 +280,7 @@ static int make_model(job *j, tr_error *err)
     const char *name = options_program_name(o->program);
     char mismatch[512];
     if (o->load_model && ranks_rank() == 0 &&
-        !guide_bounds_match(&j->s, j->model, mismatch, sizeof mismatch))
+        !model_bounds_match(&j->s, j->model, mismatch, sizeof mismatch))
         fprintf(stderr, "%s: warning: --load-model %s: %s\n", name, o->load_model, mismatch);
     if (o->load_model) {
         static const char *const kinds[] = {"uniform-direction", "uniform-angle", "cosine",
@@ -289,11 +289,11 @@ static int make_model(job *j, tr_error *err)
                (unsigned long long)nf_model_step_count(j->model));
         if (o->prior_given && (int)cfg.prior != (int)o->prior && ranks_rank() == 0)
             fprintf(stderr, "%s: note: the loaded model's prior (%s) replaces --prior %s\n",
-                    name, kinds[cfg.prior], guide_prior_name(o->prior));
+                    name, kinds[cfg.prior], model_prior_name(o->prior));
     }
     printf("guiding    prior %s, %s model (%zu parameters), %s kernels, lr %g, guide "
            "probability %g%s%s\n",
-           j->t.bsdf_prior ? "bsdf" : guide_prior_name((guide_prior)cfg.prior),
+           j->t.bsdf_prior ? "bsdf" : model_prior_name((model_prior)cfg.prior),
            cfg.coupling_layers > 2 ? "large" : "small", nf_model_param_count(j->model),
            nf_model_isa_name(j->model), (double)cfg.learning_rate,
            (double)j->t.policy.mixture_prob, o->variants ? ", variant " : "",
@@ -326,7 +326,7 @@ static void set_up_tracer(job *j)
 static int job_start(int argc, char **argv, options_program program, job *j, int *exit_code)
 {
     memset(j, 0, sizeof *j);
-    guide_lookup_init(&j->lookup);
+    prior_lookup_init(&j->lookup);
     options *o = &j->o;
     tr_error err;
     const char *name = options_program_name(program);

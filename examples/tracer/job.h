@@ -11,7 +11,7 @@
 #include <nisflow/nisflow.h>
 
 #include "error.h"
-#include "guide.h"
+#include "model_setup.h"
 #include "image.h"
 #include "integrator.h"
 #include "options.h"
@@ -26,7 +26,7 @@ typedef struct job {
     tracer t;           /* its model is NULL: the programs set the one they render with */
     nf_model *model;    /* the model guiding starts from (NULL without guiding); the
                          * programs replace it by the trained one, which job_finish saves */
-    guide_lookup lookup; /* what the BSDF prior's callbacks of every model here read */
+    prior_lookup lookup; /* what the BSDF prior's callbacks of every model here read */
     double t_start;     /* before the scene was loaded (now_seconds)                  */
     double t_job;       /* after it: a time budget counts from here                   */
 } job;

@@ -14,7 +14,7 @@
 #include <nisflow/nisflow.h>
 
 #include "budget.h"
-#include "guide.h"
+#include "model_setup.h"
 #include "job.h"
 #include "ranks.h"
 
@@ -95,12 +95,12 @@ static int render_in_budget(const options *o, tracer *t, nf_model **model, doubl
     uint32_t ranks = (uint32_t)ranks_size();
     gc.step_samples = (gc.step_samples + ranks - 1) / ranks;
     if (t->bsdf_prior) /* each sample's material, for the prior's callbacks */
-        gc.payload_bytes = sizeof(guide_point);
+        gc.payload_bytes = sizeof(prior_point);
     if (*model && nf_guide_create(*model, &gc, &guide) != NF_OK)
         return tr_fail(err, "%s", nf_last_error_message());
     int ok = render_with_budget(t, guide, &bs, img, &br, err);
     if (ok && guide) /* the trained model replaces the starting one */
-        ok = guide_take_trained(guide, model, err);
+        ok = model_take_trained(guide, model, err);
     nf_guide_destroy(guide);
     if (!ok)
         return 0;

@@ -297,14 +297,14 @@ static int other_program_flag(options_program program, const char *flag, tr_erro
     return 0;
 }
 
-/* The defaults: the library's guide, guide_default_settings' model, the paper's protocol. */
+/* The defaults: the library's guide, model_default_settings' model, the paper's protocol. */
 static void set_defaults(options_program program, options *o)
 {
     memset(o, 0, sizeof *o);
     o->program = program;
     nf_guide_config_init(&o->guide);
-    /* The model's defaults have one home: guide_default_settings. */
-    guide_settings model = guide_default_settings(GUIDE_PRIOR_COSINE);
+    /* The model's defaults have one home: model_default_settings. */
+    model_settings model = model_default_settings(MODEL_PRIOR_COSINE);
     o->prior = model.prior;
     o->learning_rate = o->guide.learning_rate;
     o->prior_epsilon = model.prior_epsilon;
@@ -365,7 +365,7 @@ static int parse_valued(options *o, const char *a, const char *v, tr_error *err)
         if ((k = parse_name(a, v, priors, 4, "uniform-direction, uniform-angle, cosine, bsdf",
                             err)) < 0)
             return 0;
-        o->prior = (guide_prior)k;
+        o->prior = (model_prior)k;
         o->prior_given = 1;
     } else if (!strcmp(a, "--model")) {
         if (strcmp(v, "small") && strcmp(v, "large"))

@@ -9,7 +9,7 @@
 #include <stdint.h>
 
 #include "error.h"
-#include "guide.h"
+#include "model_setup.h"
 
 /* Which program parses: each refuses the other's protocol options, naming the program that
  * takes them. */
@@ -21,7 +21,7 @@ typedef struct options {
     const char *out;          /* as given; NULL: out/<scene name>                             */
     const char *reference;
     const char *save_model, *load_model;
-    guide_prior prior;
+    model_prior prior;
     int prior_given;
     int large_model;
     float learning_rate;

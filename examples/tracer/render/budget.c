@@ -11,7 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "guide.h"
+#include "model_setup.h"
 #include "parallel.h"
 #include "path_record.h"
 #include "progress.h"
@@ -39,8 +39,8 @@ static int train_on_pass(nf_guide *g, record_arrays *a, const record_buffer *rec
                      err))
         return 0;
     nf_guide_pass_report pr;
-    guide_hooks hooks;
-    guide_hooks_init(&hooks, threads);
+    training_hooks hooks;
+    training_hooks_init(&hooks, threads);
     st = guide_train_pass(g, &hooks, &pr);
     if (st != NF_OK) /* the hooks failed (MPI): the same on every rank */
         return tr_fail(err, "training pass %u: %s", pass, nf_last_error_message());
@@ -65,7 +65,7 @@ typedef struct budget_job {
     record_buffer records;
     image pass;
     float *moment;
-    guide_hooks hooks; /* the ranks' reduce for the schedule */
+    training_hooks hooks; /* the ranks' reduce for the schedule */
 } budget_job;
 
 static void job_free(budget_job *j)
@@ -88,7 +88,7 @@ static int job_start(budget_job *j, tracer *t, nf_guide *guide, const budget_set
     sc.height = (uint32_t)s->height;
     sc.budget = bs->seconds;
     sc.guide_depth = (uint32_t)t->guide_depth; /* --variant guide-depth: every guided pass */
-    guide_hooks_init(&j->hooks, bs->threads);
+    training_hooks_init(&j->hooks, bs->threads);
     int ready = image_alloc(img, s->width, s->height, err) &&
                 image_alloc(&j->pass, s->width, s->height, err);
     j->moment = calloc(PATH_MOMENTS * (size_t)s->width * (size_t)s->height, sizeof *j->moment);
@@ -97,10 +97,10 @@ static int job_start(budget_job *j, tracer *t, nf_guide *guide, const budget_set
                       tr_fail(err, "%s", nf_last_error_message()));
     /* The BSDF prior's callbacks find each training sample's material in its payload. */
     if (ready && guide && t->bsdf_prior &&
-        nf_guide_get_config(guide)->payload_bytes < sizeof(guide_point))
+        nf_guide_get_config(guide)->payload_bytes < sizeof(prior_point))
         ready = tr_fail(err, "the guide keeps %zu payload bytes per sample; the BSDF prior needs "
                         "%zu (nf_guide_config.payload_bytes)",
-                        nf_guide_get_config(guide)->payload_bytes, sizeof(guide_point));
+                        nf_guide_get_config(guide)->payload_bytes, sizeof(prior_point));
     return ranks_agree(ready, err);
 }
 
@@ -155,7 +155,7 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
             continue;
         ok = train_on_pass(guide, &j.arrays, &j.records, bs->threads, plan.pass, rep, err) &&
              (ranks_size() == 1 ||
-              guide_models_agree(nf_guide_training_model(guide), (int)plan.pass + 1, err));
+              models_agree_across_ranks(nf_guide_training_model(guide), (int)plan.pass + 1, err));
         rep->train_seconds += now_seconds() - t0;
         rep->step_seconds += now_seconds() - t1;
     }

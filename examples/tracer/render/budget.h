@@ -43,7 +43,7 @@ typedef struct budget_report {
 /* Runs the job into img (allocated here at the scene's resolution; the caller frees it).
  * With guide != NULL its training model is trained in place and t->model is set to its
  * published model for each pass (NULL on return); guide NULL: plain path tracing. With the
- * BSDF prior (t->bsdf_prior) the guide must keep sizeof(guide_point) payload bytes per
+ * BSDF prior (t->bsdf_prior) the guide must keep sizeof(prior_point) payload bytes per
  * sample, each sample's material, or the job is refused. */
 int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, image *img,
                        budget_report *rep, tr_error *err);

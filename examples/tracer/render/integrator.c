@@ -100,7 +100,7 @@ static void answer_batch(const tracer *t, vertex_plan *const *vps, size_t n, pat
 int trace_paths_pay(const tracer *t)
 {
     /* Models with the BSDF prior answer at shading points: the batch calls would hand its
-     * callbacks contexts they cannot find the material of (guide.h). */
+     * callbacks contexts they cannot find the material of (bsdf_prior.h). */
     return t->model && t->policy.mixture_prob > 0.0f && !t->bsdf_prior && !t->no_batching;
 }
 

@@ -106,7 +106,7 @@ static int record_arrays_reserve(record_arrays *a, size_t n)
     float *weight = realloc(a->weight, cap * sizeof *weight);
     if (weight)
         a->weight = weight;
-    guide_point *points = realloc(a->points, cap * sizeof *points);
+    prior_point *points = realloc(a->points, cap * sizeof *points);
     if (points)
         a->points = points;
     if (!key || !ctx || !dir || !weight || !points)

@@ -11,7 +11,7 @@
 
 #include <nisflow/nisflow.h>
 
-#include "guide.h"
+#include "model_setup.h"
 #include "integrator.h"
 
 #define MAX_RECORDED_VERTICES 256
@@ -66,7 +66,7 @@ typedef struct record_arrays {
     uint64_t *key;
     nf_context *ctx;
     float *dir, *weight;
-    guide_point *points;
+    prior_point *points;
     size_t capacity;
 } record_arrays;
 

@@ -14,7 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "guide.h"
+#include "model_setup.h"
 #include "metrics.h"
 #include "path_record.h"
 #include "progress.h"
@@ -78,8 +78,8 @@ static int step_on_batch(nf_guide *guide, const record_arrays *batch, size_t n,
                          const size_t *group_end, size_t groups, int threads, int it,
                          training_report *rep, float *loss, tr_error *err)
 {
-    guide_hooks hooks;
-    guide_hooks_init(&hooks, threads);
+    training_hooks hooks;
+    training_hooks_init(&hooks, threads);
     nf_status st = guide_train_batch(guide, &hooks, n, batch->ctx, batch->points, batch->dir,
                                      batch->weight, groups ? group_end : NULL, groups, loss);
     if (st == NF_ERROR_NUMERIC) {
@@ -181,7 +181,7 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
         if (!ok)
             break;
         if (ranks_size() > 1 &&
-            !(ok = guide_models_agree(nf_guide_training_model(guide), it, err)))
+            !(ok = models_agree_across_ranks(nf_guide_training_model(guide), it, err)))
             break;
         rep->samples += n;
         rep->paths += (uint64_t)paths;
@@ -204,7 +204,7 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
     if (ok)
         ok = ranks_sum_u64(&rep->samples, 1, err);
     if (ok) /* the trained model replaces the starting one */
-        ok = guide_take_trained(guide, model, err);
+        ok = model_take_trained(guide, model, err);
     nf_guide_destroy(guide);
     record_buffer_free(&records);
     record_arrays_free(&batch);

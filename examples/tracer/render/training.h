@@ -2,7 +2,7 @@
  * training.h - the online training loop (the paper's protocol): each iteration traces a
  * batch of paths with the current model, collects the training samples of their guided
  * vertices and takes one optimizer step (its gradient summed over threads and ranks by the
- * library's nf_guide_train_batch, guide.h); every eval_every iterations a whole image is
+ * library's nf_guide_train_batch, model_setup.h); every eval_every iterations a whole image is
  * rendered at eval_spp and its MAPE appended to a CSV file.
  */
 #ifndef TRACER_TRAINING_H

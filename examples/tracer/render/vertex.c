@@ -37,7 +37,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "guide.h"
+#include "model_setup.h"
 
 static float power_heuristic(float a, float b)
 {
@@ -472,7 +472,7 @@ void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st)
     if (!flow_asks(q))
         return;
     nf_shading_point sp;
-    nf_prior_callbacks bsdf_prior = guide_point_callbacks(&vp->gp);
+    nf_prior_callbacks bsdf_prior = bsdf_prior_at_point(&vp->gp);
     int ok = nf_point_prepare(t->model, &q->ctx, t->bsdf_prior ? &bsdf_prior : NULL, &sp) == NF_OK;
     /* Two questions go in one call, whose walks through the flow interleave. */
     float d[3], dirs[6], p[2];

@@ -10,7 +10,7 @@
 #include <nisflow/nisflow.h>
 
 #include "bsdf.h"
-#include "guide.h"
+#include "model_setup.h"
 #include "integrator.h"
 #include "path_record.h"
 
@@ -52,7 +52,7 @@ typedef struct vertex_plan {
      * medium a transmitted direction enters (scene_medium_after). */
     int shape;
     vec3 ng_geom;
-    guide_point gp; /* the BSDF prior's material, read by the point's callbacks */
+    prior_point gp; /* the BSDF prior's material, read by the point's callbacks */
     float g;        /* the vertex's guiding probability; 0: not guided          */
     /* next-event estimation: an unoccluded light sample waiting for its MIS weight */
     int nee;

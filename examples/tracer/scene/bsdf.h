@@ -79,7 +79,7 @@ int bsdf_sample_dir(const bsdf_point *bp, vec3 wo, float u_lobe, float u0, float
                     bsdf_sample *s);
 
 /* The material's non-delta lobes as a proper density over the whole sphere that never
- * fails to produce a direction: the prior of the flow for --prior bsdf (see guide.c).
+ * fails to produce a direction: the prior of the flow for --prior bsdf (see bsdf_prior.c).
  * Where the microfacet lobe yields no direction (a back-facing microfacet, a reflection
  * below the surface), the same random numbers drive a cosine lobe, and the density includes
  * that fallback exactly. Pure delta materials get a cosine lobe. wo.z should be > 0 (it is

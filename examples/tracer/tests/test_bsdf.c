@@ -210,7 +210,7 @@ static void make_material(material *m, bsdf_type type, mf_type dist, float alpha
     bsdf_point_init(&m->bp, &m->b, 0.5f, 0.5f);
 }
 
-/* The fits checked: the BSDFs' own sampling, then the BSDF prior's lobe (guide.c). The coating
+/* The fits checked: the BSDFs' own sampling, then the BSDF prior's lobe (bsdf_prior.c). The coating
  * of plastic is a delta lobe: its samples land in the "other" cell with the mass the density
  * of the diffuse base leaves out. Case i draws from seed i + 1. */
 static const struct fit_case {

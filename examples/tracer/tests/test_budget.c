@@ -25,7 +25,7 @@
 #include "nf_test_main.h"
 
 #include "budget.h"
-#include "guide.h"
+#include "model_setup.h"
 #include "integrator.h"
 #include "progress.h"
 #include "render.h"
@@ -53,9 +53,9 @@ static scene load_mixed(void)
     return s;
 }
 
-/* What the BSDF prior's callbacks of the models made here read (guide.h); static, so zero
+/* What the BSDF prior's callbacks of the models made here read (bsdf_prior.h); static, so zero
  * is a valid empty lookup. */
-static guide_lookup test_lookup;
+static prior_lookup test_lookup;
 
 /* A model trained for a few iterations with the tracer's policy (t->policy), so that the
  * flow is no longer its prior: the estimator must stay unbiased for any model. t->model is
@@ -64,9 +64,9 @@ static nf_model *trained_model(tracer *t)
 {
     tr_error err;
     nf_model *model = NULL;
-    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+    model_settings gs = model_default_settings(MODEL_PRIOR_COSINE);
     gs.seed = 7;
-    if (!guide_create(t->s, &gs, &test_lookup, &model, &err))
+    if (!model_create_for_scene(t->s, &gs, &test_lookup, &model, &err))
         fail_msg("%s", err.msg);
     nf_guide_config gc;
     nf_guide_config_init(&gc);
@@ -185,13 +185,13 @@ static void test_levers_match_unguided(void **state)
 
 /* A guide for the budget job: the library's defaults, with smaller steps for a tiny film;
  * with the BSDF prior, each sample keeps its material. */
-static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_prior prior,
+static nf_guide *budget_guide_with(const scene *s, float train_fraction, model_prior prior,
                                    uint32_t pass_choice)
 {
     tr_error err;
     nf_model *model = NULL;
-    guide_settings gs = guide_default_settings(prior);
-    if (!guide_create(s, &gs, &test_lookup, &model, &err))
+    model_settings gs = model_default_settings(prior);
+    if (!model_create_for_scene(s, &gs, &test_lookup, &model, &err))
         fail_msg("%s", err.msg);
     nf_guide_config gc;
     nf_guide_config_init(&gc);
@@ -200,8 +200,8 @@ static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_p
     gc.steps_per_pass = 4;
     gc.store_capacity = 16384;
     gc.pass_choice = pass_choice;
-    if (prior == GUIDE_PRIOR_BSDF)
-        gc.payload_bytes = sizeof(guide_point);
+    if (prior == MODEL_PRIOR_BSDF)
+        gc.payload_bytes = sizeof(prior_point);
     nf_guide *g = NULL;
     assert_int_equal(nf_guide_create(model, &gc, &g), NF_OK);
     nf_model_destroy(model); /* the guide holds copies */
@@ -210,7 +210,7 @@ static nf_guide *budget_guide_with(const scene *s, float train_fraction, guide_p
 
 static nf_guide *budget_guide(const scene *s, float train_fraction)
 {
-    return budget_guide_with(s, train_fraction, GUIDE_PRIOR_COSINE, 1);
+    return budget_guide_with(s, train_fraction, MODEL_PRIOR_COSINE, 1);
 }
 
 /* With the BSDF prior the guide's training finds every sample's material in its payload:
@@ -222,7 +222,7 @@ static void test_budget_job_bsdf_prior(void **state)
     tr_error err;
     tracer t = {.s = &s, .bsdf_prior = 1};
     nf_guide_policy_init(&t.policy);
-    nf_guide *guide = budget_guide_with(&s, 0.5f, GUIDE_PRIOR_BSDF, 1);
+    nf_guide *guide = budget_guide_with(&s, 0.5f, MODEL_PRIOR_BSDF, 1);
     unsigned long long misses = atomic_load(&test_lookup.failures);
     budget_settings bs = {0.5, now_seconds(), 2, 4};
     image img;
@@ -258,7 +258,7 @@ static void check_budget_job(uint32_t pass_choice, double seconds, uint64_t seed
     tracer t = {.s = &s};
     nf_guide_policy_init(&t.policy);
     t.mis_training = 1;
-    nf_guide *guide = budget_guide_with(&s, 0.5f, GUIDE_PRIOR_COSINE, pass_choice);
+    nf_guide *guide = budget_guide_with(&s, 0.5f, MODEL_PRIOR_COSINE, pass_choice);
     budget_settings bs = {seconds, now_seconds(), 2, seed};
     image img;
     budget_report rep;
@@ -339,8 +339,9 @@ static uint64_t guided_vertices_with_cap(float max_boost)
 static void test_boost_cap_lowers_guiding(void **state)
 {
     (void)state;
-    /* Wired into the integrator (the rule itself: test_guide.c): g = 0.5 lets the first vertex
-     * alone raise a path 2-fold, so a cap of 1.02 leaves it g = 0.02 and no vertex is guided. */
+    /* Wired into the integrator (the rule itself: the library's tests/correctness/test_guide.c):
+     * g = 0.5 lets the first vertex alone raise a path 2-fold, so a cap of 1.02 leaves it
+     * g = 0.02 and no vertex is guided. */
     uint64_t none = guided_vertices_with_cap(0.0f);
     uint64_t first = guided_vertices_with_cap(1.02f);
     printf("  guided vertices: no cap %llu, cap 1.02 %llu\n", (unsigned long long)none,

@@ -18,7 +18,7 @@
 
 #include "nf_test_main.h"
 
-#include "guide.h"
+#include "model_setup.h"
 #include "render.h"
 #include "scene.h"
 #include "training.h"
@@ -37,19 +37,19 @@ static void load_scene(scene *s, const char *name)
 
 static void load_cornell(scene *s) { load_scene(s, "cornell-box"); }
 
-/* What the BSDF prior's callbacks of the models made here read (guide.h); static, so zero
+/* What the BSDF prior's callbacks of the models made here read (bsdf_prior.h); static, so zero
  * is a valid empty lookup. */
-static guide_lookup test_lookup;
+static prior_lookup test_lookup;
 
 /* Trains a fresh model for 3 iterations and renders 2 spp with it. */
-static void train_and_render(const scene *s, guide_prior prior, int threads, uint64_t seed,
+static void train_and_render(const scene *s, model_prior prior, int threads, uint64_t seed,
                              nf_model **model, image *img)
 {
     tr_error err;
-    guide_settings gs = guide_default_settings(prior);
-    if (!guide_create(s, &gs, &test_lookup, model, &err))
+    model_settings gs = model_default_settings(prior);
+    if (!model_create_for_scene(s, &gs, &test_lookup, model, &err))
         fail_msg("%s", err.msg);
-    tracer t = {.s = s, .policy = test_policy(0.5f), .bsdf_prior = prior == GUIDE_PRIOR_BSDF};
+    tracer t = {.s = s, .policy = test_policy(0.5f), .bsdf_prior = prior == MODEL_PRIOR_BSDF};
     training_settings ts = {.iterations = 3, .batch = 200, .eval_spp = 1, .threads = threads,
                             .seed = seed};
     training_report rep;
@@ -77,7 +77,7 @@ static void compare_params(const nf_model *a, const nf_model *b, int expect_equa
     free(pb);
 }
 
-static void check_prior(guide_prior prior)
+static void check_prior(model_prior prior)
 {
     scene s;
     load_cornell(&s);
@@ -105,13 +105,13 @@ static void check_prior(guide_prior prior)
 static void test_threads_do_not_change_results_cosine(void **state)
 {
     (void)state;
-    check_prior(GUIDE_PRIOR_COSINE);
+    check_prior(MODEL_PRIOR_COSINE);
 }
 
 static void test_threads_do_not_change_results_bsdf_prior(void **state)
 {
     (void)state;
-    check_prior(GUIDE_PRIOR_BSDF);
+    check_prior(MODEL_PRIOR_BSDF);
 }
 
 static void test_saved_model_renders_identically(void **state)
@@ -122,11 +122,11 @@ static void test_saved_model_renders_identically(void **state)
     load_cornell(&s);
     nf_model *m, *loaded;
     image a, b;
-    train_and_render(&s, GUIDE_PRIOR_BSDF, 2, 5, &m, &a);
+    train_and_render(&s, MODEL_PRIOR_BSDF, 2, 5, &m, &a);
     char path[1024];
     snprintf(path, sizeof path, "%s/saved.nf", TRACER_TEST_TMP_DIR);
     assert_int_equal(nf_model_save(m, path), NF_OK);
-    if (!guide_load(path, &test_lookup, &loaded, &err))
+    if (!model_load_file(path, &test_lookup, &loaded, &err))
         fail_msg("%s", err.msg);
     compare_params(m, loaded, 1);
     tracer t = {.s = &s, .model = loaded, .policy = test_policy(0.5f), .bsdf_prior = 1};
@@ -157,7 +157,7 @@ static void assert_same_records(const record_buffer *a, const record_buffer *b)
  * (no_batching), and with the questions of TRACE_BATCH paths batched (trace_paths), with
  * records (a training pass) and without. 37 x 23 pixels leave partial tiles and partial
  * batches. */
-static void check_batched_pass_in(const char *scene_name, guide_prior prior,
+static void check_batched_pass_in(const char *scene_name, model_prior prior,
                                   uint32_t light_mis_depth, int light_mis_bsdf)
 {
     scene s;
@@ -172,7 +172,7 @@ static void check_batched_pass_in(const char *scene_name, guide_prior prior,
      * a bound: the tracer's two ways of asking are compared where the bits must agree. */
     assert_int_equal(nf_model_set_isa(m, NF_ISA_GENERIC), NF_OK);
     tracer t = {.s = &s, .model = m, .policy = test_policy(0.5f),
-                .bsdf_prior = prior == GUIDE_PRIOR_BSDF, .light_mis_bsdf = light_mis_bsdf};
+                .bsdf_prior = prior == MODEL_PRIOR_BSDF, .light_mis_bsdf = light_mis_bsdf};
     t.policy.light_mis_depth = light_mis_depth;
     tracer one_by_one = t;
     one_by_one.no_batching = 1;
@@ -221,7 +221,7 @@ static void check_batched_pass_in(const char *scene_name, guide_prior prior,
     scene_free(&s);
 }
 
-static void check_batched_pass(guide_prior prior, uint32_t light_mis_depth, int light_mis_bsdf)
+static void check_batched_pass(model_prior prior, uint32_t light_mis_depth, int light_mis_bsdf)
 {
     check_batched_pass_in("cornell-box", prior, light_mis_depth, light_mis_bsdf);
 }
@@ -229,13 +229,13 @@ static void check_batched_pass(guide_prior prior, uint32_t light_mis_depth, int 
 static void test_batched_pass_equals_one_path_at_a_time(void **state)
 {
     (void)state;
-    check_batched_pass(GUIDE_PRIOR_COSINE, 0, 0);
-    check_batched_pass(GUIDE_PRIOR_COSINE, 1, 0); /* deeper light samples ask nothing */
-    check_batched_pass(GUIDE_PRIOR_COSINE, 0, 1); /* light samples ask nothing */
-    check_batched_pass(GUIDE_PRIOR_BSDF, 0, 0); /* asked at shading points in both passes */
+    check_batched_pass(MODEL_PRIOR_COSINE, 0, 0);
+    check_batched_pass(MODEL_PRIOR_COSINE, 1, 0); /* deeper light samples ask nothing */
+    check_batched_pass(MODEL_PRIOR_COSINE, 0, 1); /* light samples ask nothing */
+    check_batched_pass(MODEL_PRIOR_BSDF, 0, 0); /* asked at shading points in both passes */
     /* a dense medium: volume vertices, free flight, null boundaries */
-    check_batched_pass_in("cornell-box-smoke", GUIDE_PRIOR_COSINE, 0, 0);
-    check_batched_pass_in("cornell-box-smoke", GUIDE_PRIOR_BSDF, 0, 0);
+    check_batched_pass_in("cornell-box-smoke", MODEL_PRIOR_COSINE, 0, 0);
+    check_batched_pass_in("cornell-box-smoke", MODEL_PRIOR_BSDF, 0, 0);
 }
 
 NFT_TEST_MAIN(

@@ -25,7 +25,7 @@
 
 #include "nf_test_main.h"
 
-#include "guide.h"
+#include "model_setup.h"
 #include "integrator.h"
 #include "render.h"
 #include "scene.h"
@@ -72,7 +72,7 @@ static int consistent_with_one(double mean, double se)
     return fabs(mean - 1.0) < 4.0 * se;
 }
 
-static void furnace(const char *environment, int guided, guide_prior prior, int spp,
+static void furnace(const char *environment, int guided, model_prior prior, int spp,
                     double *mean, double *se)
 {
     scene s;
@@ -92,7 +92,7 @@ static void furnace(const char *environment, int guided, guide_prior prior, int 
 
 /* spp_factor: the uniform priors start far from the integrand (half their directions are
  * below the surface) and need more samples for the same standard error. */
-static void run(const char *label, const char *env, int guided, guide_prior prior,
+static void run(const char *label, const char *env, int guided, model_prior prior,
                 int spp_factor)
 {
     double mean, se;
@@ -107,31 +107,31 @@ static void run(const char *label, const char *env, int guided, guide_prior prio
 static void test_furnace_unguided(void **state)
 {
     (void)state;
-    run("unguided", CONSTANT_ENV, 0, GUIDE_PRIOR_COSINE, 1);
+    run("unguided", CONSTANT_ENV, 0, MODEL_PRIOR_COSINE, 1);
 }
 
 static void test_furnace_guided_cosine(void **state)
 {
     (void)state;
-    run("guided, cosine prior", CONSTANT_ENV, 1, GUIDE_PRIOR_COSINE, 1);
+    run("guided, cosine prior", CONSTANT_ENV, 1, MODEL_PRIOR_COSINE, 1);
 }
 
 static void test_furnace_guided_uniform_direction(void **state)
 {
     (void)state;
-    run("guided, uniform-direction", CONSTANT_ENV, 1, GUIDE_PRIOR_UNIFORM_DIRECTION, 8);
+    run("guided, uniform-direction", CONSTANT_ENV, 1, MODEL_PRIOR_UNIFORM_DIRECTION, 8);
 }
 
 static void test_furnace_guided_uniform_angle(void **state)
 {
     (void)state;
-    run("guided, uniform-angle", CONSTANT_ENV, 1, GUIDE_PRIOR_UNIFORM_ANGLE, 8);
+    run("guided, uniform-angle", CONSTANT_ENV, 1, MODEL_PRIOR_UNIFORM_ANGLE, 8);
 }
 
 static void test_furnace_guided_bsdf_prior(void **state)
 {
     (void)state;
-    run("guided, bsdf prior", CONSTANT_ENV, 1, GUIDE_PRIOR_BSDF, 1);
+    run("guided, bsdf prior", CONSTANT_ENV, 1, MODEL_PRIOR_BSDF, 1);
 }
 
 /* A lat-long map of constant radiance 1 is a furnace too; it takes the envmap code paths
@@ -162,7 +162,7 @@ static void test_furnace_envmap_guided(void **state)
     write_envmap("white.exr", 32, 16, 1);
     run("guided, cosine, envmap", "<emitter type=\"envmap\"><string name=\"filename\" value=\"white.exr\"/>"
         "<transform name=\"to_world\"><rotate x=\"1\" angle=\"30\"/></transform></emitter>",
-        1, GUIDE_PRIOR_COSINE, 1);
+        1, MODEL_PRIOR_COSINE, 1);
 }
 
 static void test_envmap_sampling_density(void **state)
@@ -227,7 +227,7 @@ static void test_guided_matches_unguided(void **state)
         fail_msg("%s", err.msg);
     image img[2];
     for (int guided = 0; guided < 2; ++guided) {
-        tracer t = test_tracer(&s, guided, GUIDE_PRIOR_COSINE, 4);
+        tracer t = test_tracer(&s, guided, MODEL_PRIOR_COSINE, 4);
         test_render(&t, 4 * SPP, 100 + (uint64_t)guided, &img[guided], NULL);
         nf_model_destroy((nf_model *)t.model);
     }

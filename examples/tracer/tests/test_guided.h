@@ -9,7 +9,7 @@
 
 #include <nisflow/nisflow.h>
 
-#include "guide.h"
+#include "model_setup.h"
 #include "image.h"
 #include "integrator.h"
 #include "render.h"
@@ -17,27 +17,27 @@
 #include "test_policy.h"
 #include "training.h"
 
-/* What the BSDF prior's callbacks of the models made here read (guide.h); static, so zero
+/* What the BSDF prior's callbacks of the models made here read (bsdf_prior.h); static, so zero
  * is a valid empty lookup. */
-static guide_lookup test_lookup;
+static prior_lookup test_lookup;
 
 /* A tracer of `s`: plain when `guided` is 0; otherwise guided by a model with `prior` (model
  * seed 7) trained `iterations` iterations of 256 paths on 2 threads (seed 3), none refused,
  * through the paper's protocol (render/training.c). The caller destroys its model with
  * nf_model_destroy((nf_model *)t.model). */
-static inline tracer test_tracer(const scene *s, int guided, guide_prior prior, int iterations)
+static inline tracer test_tracer(const scene *s, int guided, model_prior prior, int iterations)
 {
     tracer t = {.s = s};
     if (!guided)
         return t;
     tr_error err;
     nf_model *model = NULL;
-    guide_settings gs = guide_default_settings(prior);
+    model_settings gs = model_default_settings(prior);
     gs.seed = 7;
-    if (!guide_create(s, &gs, &test_lookup, &model, &err))
+    if (!model_create_for_scene(s, &gs, &test_lookup, &model, &err))
         fail_msg("%s", err.msg);
     t.policy = test_policy(0.5f);
-    t.bsdf_prior = prior == GUIDE_PRIOR_BSDF;
+    t.bsdf_prior = prior == MODEL_PRIOR_BSDF;
     if (iterations > 0) {
         training_settings ts = {.iterations = iterations, .batch = 256, .eval_spp = 1,
                                 .threads = 2, .seed = 3};

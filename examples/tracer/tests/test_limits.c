@@ -27,7 +27,7 @@
 
 #include "nf_test_main.h"
 
-#include "guide.h"
+#include "model_setup.h"
 #include "integrator.h"
 #include "render.h"
 #include "rng.h"
@@ -450,7 +450,7 @@ static void render_edge(int guided)
     assert_true(scene_ray_valid(&c));
     assert_true(scene_intersect(&s, &c, &h));
 
-    tracer t = test_tracer(&s, guided, GUIDE_PRIOR_COSINE, 0);
+    tracer t = test_tracer(&s, guided, MODEL_PRIOR_COSINE, 0);
     image img;
     path_stats st;
     test_render(&t, 8, 17, &img, &st);

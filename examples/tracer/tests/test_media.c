@@ -27,7 +27,7 @@
 
 #include "nf_test_main.h"
 
-#include "guide.h"
+#include "model_setup.h"
 #include "integrator.h"
 #include "medium.h"
 #include "render.h"
@@ -111,7 +111,7 @@ static void channel_stats(const image *img, int c, double *mean, double *se)
     *se = sqrt(fmax(s2 / (double)n - *mean * *mean, 0.0) / (double)(n - 1));
 }
 
-static void furnace(const char *label, int camera_inside, int guided, guide_prior prior,
+static void furnace(const char *label, int camera_inside, int guided, model_prior prior,
                     int spp, const char *boundary, int heterogeneous)
 {
     scene s;
@@ -150,25 +150,25 @@ static void furnace(const char *label, int camera_inside, int guided, guide_prio
 static void test_furnace_plain_inside(void **state)
 {
     (void)state;
-    furnace("plain, camera in the medium", 1, 0, GUIDE_PRIOR_COSINE, SPP, "null", 0);
+    furnace("plain, camera in the medium", 1, 0, MODEL_PRIOR_COSINE, SPP, "null", 0);
 }
 
 static void test_furnace_plain_outside(void **state)
 {
     (void)state;
-    furnace("plain, camera outside", 0, 0, GUIDE_PRIOR_COSINE, SPP, "null", 0);
+    furnace("plain, camera outside", 0, 0, MODEL_PRIOR_COSINE, SPP, "null", 0);
 }
 
 static void test_furnace_plain_glass(void **state)
 {
     (void)state;
-    furnace("plain, medium in glass", 0, 0, GUIDE_PRIOR_COSINE, 4 * SPP, "dielectric", 0);
+    furnace("plain, medium in glass", 0, 0, MODEL_PRIOR_COSINE, 4 * SPP, "dielectric", 0);
 }
 
 static void test_furnace_guided_cosine(void **state)
 {
     (void)state;
-    furnace("guided, cosine (HG in media)", 1, 1, GUIDE_PRIOR_COSINE, SPP, "null", 0);
+    furnace("guided, cosine (HG in media)", 1, 1, MODEL_PRIOR_COSINE, SPP, "null", 0);
 }
 
 /* The uniform priors start far from the phase function (g = 0.6) and the black walls' cosine:
@@ -176,26 +176,26 @@ static void test_furnace_guided_cosine(void **state)
 static void test_furnace_guided_uniform_direction(void **state)
 {
     (void)state;
-    furnace("guided, uniform-direction", 1, 1, GUIDE_PRIOR_UNIFORM_DIRECTION, 6 * SPP, "null", 0);
+    furnace("guided, uniform-direction", 1, 1, MODEL_PRIOR_UNIFORM_DIRECTION, 6 * SPP, "null", 0);
 }
 
 static void test_furnace_guided_uniform_angle(void **state)
 {
     (void)state;
-    furnace("guided, uniform-angle", 1, 1, GUIDE_PRIOR_UNIFORM_ANGLE, 6 * SPP, "null", 0);
+    furnace("guided, uniform-angle", 1, 1, MODEL_PRIOR_UNIFORM_ANGLE, 6 * SPP, "null", 0);
 }
 
 static void test_furnace_guided_bsdf(void **state)
 {
     (void)state;
-    furnace("guided, bsdf (HG in media)", 0, 1, GUIDE_PRIOR_BSDF, SPP, "null", 0);
+    furnace("guided, bsdf (HG in media)", 0, 1, MODEL_PRIOR_BSDF, SPP, "null", 0);
 }
 
 /* A grid medium (delta tracking, ratio tracking for light samples): the same furnace. */
 static void test_furnace_grid_plain_inside(void **state)
 {
     (void)state;
-    furnace("grid, plain, camera in the medium", 1, 0, GUIDE_PRIOR_COSINE, SPP, "null", 1);
+    furnace("grid, plain, camera in the medium", 1, 0, MODEL_PRIOR_COSINE, SPP, "null", 1);
 }
 
 /* 4x the samples: at SPP this seed's mean lay 2.9 standard errors below 1 (1.0001 +- 0.0002
@@ -203,13 +203,13 @@ static void test_furnace_grid_plain_inside(void **state)
 static void test_furnace_grid_plain_outside(void **state)
 {
     (void)state;
-    furnace("grid, plain, camera outside", 0, 0, GUIDE_PRIOR_COSINE, 4 * SPP, "null", 1);
+    furnace("grid, plain, camera outside", 0, 0, MODEL_PRIOR_COSINE, 4 * SPP, "null", 1);
 }
 
 static void test_furnace_grid_guided_cosine(void **state)
 {
     (void)state;
-    furnace("grid, guided, cosine", 1, 1, GUIDE_PRIOR_COSINE, SPP, "null", 1);
+    furnace("grid, guided, cosine", 1, 1, MODEL_PRIOR_COSINE, SPP, "null", 1);
 }
 
 /* The HG sampler draws from its own density: E[cos] = g for HG, and the density it reports

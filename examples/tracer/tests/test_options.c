@@ -17,7 +17,7 @@
 
 #include "nf_test_main.h"
 
-#include "guide.h"
+#include "model_setup.h"
 #include "options.h"
 #include "scene.h"
 
@@ -56,13 +56,13 @@ static void load_cornell(scene *s)
         fail_msg("%s", err.msg);
 }
 
-/* The config of the model guide_create makes from gs (the model itself in *keep when asked
- * for, else destroyed). */
-static nf_config created_config(const scene *s, const guide_settings *gs, nf_model **keep)
+/* The config of the model model_create_for_scene makes from gs (the model itself in *keep
+ * when asked for, else destroyed). */
+static nf_config created_config(const scene *s, const model_settings *gs, nf_model **keep)
 {
     tr_error err;
     nf_model *model = NULL;
-    if (!guide_create(s, gs, NULL, &model, &err))
+    if (!model_create_for_scene(s, gs, NULL, &model, &err))
         fail_msg("%s", err.msg);
     nf_config cfg;
     nf_model_get_config(model, &cfg);
@@ -207,7 +207,7 @@ static void test_phi_map_reaches_the_model(void **state)
     scene s;
     load_cornell(&s);
     for (int interval = 0; interval < 2; ++interval) {
-        guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+        model_settings gs = model_default_settings(MODEL_PRIOR_COSINE);
         gs.phi_interval = interval;
         nf_config cfg = created_config(&s, &gs, NULL);
         assert_int_equal(cfg.phi_map, interval ? NF_PHI_INTERVAL : NF_PHI_CIRCULAR);
@@ -224,7 +224,7 @@ static void test_created_model_carries_the_epsilon(void **state)
     nf_config_init(&defaults, NF_PRESET_SMALL);
     const float wanted[] = {-1.0f, 0.001f, 0.25f};
     for (size_t i = 0; i < 3; ++i) {
-        guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+        model_settings gs = model_default_settings(MODEL_PRIOR_COSINE);
         gs.prior_epsilon = wanted[i];
         nf_config cfg = created_config(&s, &gs, NULL);
         assert_true(cfg.prior_epsilon == (wanted[i] < 0.0f ? defaults.prior_epsilon : wanted[i]));
@@ -241,7 +241,7 @@ static void test_sh_bands_reach_the_model(void **state)
     nf_config_init(&defaults, NF_PRESET_SMALL);
     const int wanted[] = {-1, 0, 2};
     for (size_t i = 0; i < 3; ++i) {
-        guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+        model_settings gs = model_default_settings(MODEL_PRIOR_COSINE);
         gs.sh_bands = wanted[i];
         nf_model *model = NULL;
         nf_config cfg = created_config(&s, &gs, &model);

@@ -1,52 +1,14 @@
 /*
- * guide.c - model creation and the BSDF prior for libnisflow (see guide.h for the design).
+ * model_setup.c - the tracer's models and their training calls (see model_setup.h).
  */
-#include "guide.h"
+#include "model_setup.h"
 
 #include <math.h>
-#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
-#include "medium.h"
 #include "parallel.h"
 #include "ranks.h"
-
-void guide_lookup_init(guide_lookup *l)
-{
-    l->guide = NULL;
-    l->batch_ctx = NULL;
-    l->batch_points = NULL;
-    l->batch_count = 0;
-    atomic_init(&l->failures, 0);
-}
-
-/* The lookup of a model with the BSDF prior (its callbacks' user), else NULL. */
-static guide_lookup *lookup_of(const nf_model *m)
-{
-    nf_config cfg;
-    if (!m || nf_model_get_config(m, &cfg) != NF_OK || cfg.prior != NF_PRIOR_CUSTOM ||
-        cfg.custom_prior.sample != guide_bsdf_callbacks(NULL).sample)
-        return NULL;
-    return cfg.custom_prior.user;
-}
-
-static const guide_point *find_point(guide_lookup *l, const nf_context *ctx)
-{
-    const guide_point *stored = l ? nf_guide_payload(l->guide, ctx) : NULL;
-    if (stored)
-        return stored;
-    /* Compare addresses as integers: relational operators between pointers into different
-     * objects are undefined. */
-    uintptr_t p = (uintptr_t)ctx, base = l ? (uintptr_t)l->batch_ctx : 0;
-    if (base && p >= base && (p - base) % sizeof *ctx == 0 &&
-        (p - base) / sizeof *ctx < l->batch_count)
-        return &l->batch_points[(p - base) / sizeof *ctx];
-    if (l)
-        atomic_fetch_add(&l->failures, 1);
-    return NULL;
-}
 
 /* ---- The library's hooks -------------------------------------------------------------------- */
 
@@ -64,7 +26,7 @@ static void run_task(void *user, size_t item, int thread)
 
 static void run_parallel(void *user, size_t count, nf_task_fn task, void *data)
 {
-    const guide_hooks *h = user;
+    const training_hooks *h = user;
     task_call c = {task, data};
     tr_error err;
     /* parallel_for fails only before any item ran (no memory for its threads): then the
@@ -88,7 +50,7 @@ static nf_status reduce_sum(void *user, int64_t *v, size_t n)
     return ranks_sum_i64(v, n, &err) ? NF_OK : NF_ERROR_IO;
 }
 
-void guide_hooks_init(guide_hooks *h, int threads)
+void training_hooks_init(training_hooks *h, int threads)
 {
     h->threads = threads < 1 ? 1 : threads;
     h->parallel.run = run_parallel;
@@ -99,9 +61,9 @@ void guide_hooks_init(guide_hooks *h, int threads)
     h->reduce = ranks_size() > 1 ? &h->reduce_storage : NULL;
 }
 
-nf_status guide_train_pass(nf_guide *g, const guide_hooks *h, nf_guide_pass_report *report)
+nf_status guide_train_pass(nf_guide *g, const training_hooks *h, nf_guide_pass_report *report)
 {
-    guide_lookup *l = lookup_of(nf_guide_training_model(g));
+    prior_lookup *l = prior_lookup_of(nf_guide_training_model(g));
     if (l)
         l->guide = g;
     nf_status st = nf_guide_train_pass(g, &h->parallel, h->reduce, report);
@@ -110,11 +72,11 @@ nf_status guide_train_pass(nf_guide *g, const guide_hooks *h, nf_guide_pass_repo
     return st;
 }
 
-nf_status guide_train_batch(nf_guide *g, const guide_hooks *h, size_t n, const nf_context *ctx,
-                            const guide_point *points, const float *dir, const float *weight,
+nf_status guide_train_batch(nf_guide *g, const training_hooks *h, size_t n, const nf_context *ctx,
+                            const prior_point *points, const float *dir, const float *weight,
                             const size_t *group_end, size_t groups, float *loss)
 {
-    guide_lookup *l = lookup_of(nf_guide_training_model(g));
+    prior_lookup *l = prior_lookup_of(nf_guide_training_model(g));
     if (l) {
         l->batch_ctx = ctx;
         l->batch_points = points;
@@ -130,13 +92,7 @@ nf_status guide_train_batch(nf_guide *g, const guide_hooks *h, size_t n, const n
     return st;
 }
 
-unsigned long long guide_lookup_failures(const nf_model *m)
-{
-    guide_lookup *l = lookup_of(m);
-    return l ? atomic_load(&l->failures) : 0;
-}
-
-int guide_take_trained(nf_guide *g, nf_model **model, tr_error *err)
+int model_take_trained(nf_guide *g, nf_model **model, tr_error *err)
 {
     nf_model *trained = NULL;
     if (nf_model_clone(nf_guide_training_model(g), &trained) != NF_OK)
@@ -146,116 +102,17 @@ int guide_take_trained(nf_guide *g, nf_model **model, tr_error *err)
     return 1;
 }
 
-/* ---- The BSDF prior ------------------------------------------------------------------------ */
-
-/* A context in a medium (normal exactly zero, nisflow/model.h): the BSDF prior is then the
- * medium's phase function, Henyey-Greenstein with the context's g around the propagation
- * direction -wo, as the library's cosine prior is there. */
-static int in_medium(const nf_context *ctx)
-{
-    return ctx->normal[0] == 0.0f && ctx->normal[1] == 0.0f && ctx->normal[2] == 0.0f;
-}
-
-static vec3 propagation(const nf_context *ctx)
-{
-    return v3_normalize(v3(-ctx->wo[0], -ctx->wo[1], -ctx->wo[2]));
-}
-
-/* The BSDF prior at ctx with p's material (NULL: none known, a cosine lobe). */
-static float prior_sample(const guide_point *p, const nf_context *ctx, float u0, float u1,
-                          float dir[3])
-{
-    if (in_medium(ctx)) {
-        float pdf;
-        vec3 w = phase_hg_sample(ctx->phase_g, propagation(ctx), u0, u1, &pdf);
-        dir[0] = w.x;
-        dir[1] = w.y;
-        dir[2] = w.z;
-        return pdf;
-    }
-    vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
-    frame f = frame_from_normal(n);
-    vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
-    vec3 wi;
-    float pdf;
-    if (p) {
-        wi = bsdf_lobe_sample(&p->bp, wo, u0, u1, &pdf);
-    } else { /* not published: a cosine lobe keeps the callbacks total */
-        wi = sample_cosine_hemisphere(u0, u1);
-        pdf = pdf_cosine_hemisphere(wi);
-    }
-    vec3 w = frame_to_world(&f, wi);
-    dir[0] = w.x;
-    dir[1] = w.y;
-    dir[2] = w.z;
-    return pdf;
-}
-
-static float prior_pdf(const guide_point *p, const nf_context *ctx, const float dir[3])
-{
-    if (in_medium(ctx))
-        return phase_hg(ctx->phase_g,
-                        v3_dot(propagation(ctx), v3_normalize(v3(dir[0], dir[1], dir[2]))));
-    vec3 n = v3(ctx->normal[0], ctx->normal[1], ctx->normal[2]);
-    frame f = frame_from_normal(n);
-    vec3 wo = frame_to_local(&f, v3(ctx->wo[0], ctx->wo[1], ctx->wo[2]));
-    vec3 wi = v3_normalize(frame_to_local(&f, v3(dir[0], dir[1], dir[2])));
-    return p ? bsdf_lobe_pdf(&p->bp, wo, wi) : pdf_cosine_hemisphere(wi);
-}
-
-/* The two kinds of callbacks: bound to one shading point (user, from guide_point_callbacks),
- * or model-wide (user a guide_lookup, for training). */
-static float point_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
-                                float dir[3])
-{
-    return prior_sample(user, ctx, u0, u1, dir);
-}
-
-static float point_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
-{
-    return prior_pdf(user, ctx, dir);
-}
-
-static float bsdf_prior_sample(void *user, const nf_context *ctx, float u0, float u1,
-                               float dir[3])
-{
-    return prior_sample(in_medium(ctx) ? NULL : find_point(user, ctx), ctx, u0, u1, dir);
-}
-
-static float bsdf_prior_pdf(void *user, const nf_context *ctx, const float dir[3])
-{
-    return prior_pdf(in_medium(ctx) ? NULL : find_point(user, ctx), ctx, dir);
-}
-
-nf_prior_callbacks guide_bsdf_callbacks(guide_lookup *l)
-{
-    nf_prior_callbacks cb;
-    cb.sample = bsdf_prior_sample;
-    cb.pdf = bsdf_prior_pdf;
-    cb.user = l;
-    return cb;
-}
-
-nf_prior_callbacks guide_point_callbacks(const guide_point *p)
-{
-    nf_prior_callbacks cb;
-    cb.sample = point_prior_sample;
-    cb.pdf = point_prior_pdf;
-    cb.user = (void *)(uintptr_t)p; /* read only: the callbacks take it back as const */
-    return cb;
-}
-
 /* ---- Models ---------------------------------------------------------------------------------- */
 
-const char *guide_prior_name(guide_prior p)
+const char *model_prior_name(model_prior p)
 {
     static const char *const names[] = {"uniform-direction", "uniform-angle", "cosine", "bsdf"};
     return names[p];
 }
 
-guide_settings guide_default_settings(guide_prior prior)
+model_settings model_default_settings(model_prior prior)
 {
-    guide_settings g;
+    model_settings g;
     g.prior = prior;
     g.large = 0;
     g.phi_interval = 0;
@@ -279,7 +136,7 @@ static void model_bounds(const scene *s, float lo_out[3], float hi_out[3])
     }
 }
 
-int guide_bounds_match(const scene *s, const nf_model *m, char *msg, size_t size)
+int model_bounds_match(const scene *s, const nf_model *m, char *msg, size_t size)
 {
     float lo[3], hi[3];
     nf_config cfg;
@@ -307,7 +164,7 @@ int guide_bounds_match(const scene *s, const nf_model *m, char *msg, size_t size
     return match;
 }
 
-int guide_create(const scene *s, const guide_settings *settings, guide_lookup *lookup,
+int model_create_for_scene(const scene *s, const model_settings *settings, prior_lookup *lookup,
                  nf_model **out, tr_error *err)
 {
     nf_config cfg;
@@ -317,8 +174,8 @@ int guide_create(const scene *s, const guide_settings *settings, guide_lookup *l
     cfg.prior = kinds[settings->prior];
     if (settings->phi_interval)
         cfg.phi_map = NF_PHI_INTERVAL;
-    if (settings->prior == GUIDE_PRIOR_BSDF)
-        cfg.custom_prior = guide_bsdf_callbacks(lookup);
+    if (settings->prior == MODEL_PRIOR_BSDF)
+        cfg.custom_prior = bsdf_prior_callbacks(lookup);
     if (settings->prior_epsilon >= 0.0f)
         cfg.prior_epsilon = settings->prior_epsilon;
     if (settings->sh_bands >= 0)
@@ -333,9 +190,9 @@ int guide_create(const scene *s, const guide_settings *settings, guide_lookup *l
     return 1;
 }
 
-int guide_load(const char *path, guide_lookup *lookup, nf_model **out, tr_error *err)
+int model_load_file(const char *path, prior_lookup *lookup, nf_model **out, tr_error *err)
 {
-    nf_prior_callbacks cb = guide_bsdf_callbacks(lookup);
+    nf_prior_callbacks cb = bsdf_prior_callbacks(lookup);
     nf_status st = nf_model_load(path, &cb, out);
     if (st != NF_OK)
         return tr_fail(err, "%s: nf_model_load: %s: %s", path, nf_status_string(st),
@@ -343,7 +200,7 @@ int guide_load(const char *path, guide_lookup *lookup, nf_model **out, tr_error 
     return 1;
 }
 
-int guide_models_agree(const nf_model *m, int iteration, tr_error *err)
+int models_agree_across_ranks(const nf_model *m, int iteration, tr_error *err)
 {
     size_t n = nf_model_param_count(m);
     uint64_t steps = nf_model_step_count(m), hash = RANKS_HASH_START;

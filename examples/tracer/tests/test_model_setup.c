@@ -1,5 +1,5 @@
 /*
- * test_guide.c - the tracer's checks on a loaded model: a model made for a scene matches it
+ * test_model_setup.c - the tracer's checks on a loaded model: a model made for a scene matches it
  * (also after a save and load), a model made for another scene is reported with both boxes.
  */
 #include <setjmp.h>
@@ -13,7 +13,7 @@
 
 #include "nf_test_main.h"
 
-#include "guide.h"
+#include "model_setup.h"
 #include "scene.h"
 
 #include "mixed_scene.h"
@@ -39,23 +39,23 @@ static void test_bounds_match(void **state)
     if (!scene_load_string(MIXED_SCENE_XML, TRACER_TEST_TMP_DIR, &mixed, &err) ||
         !scene_load_string(moved_xml, TRACER_TEST_TMP_DIR, &moved, &err))
         fail_msg("%s", err.msg);
-    guide_settings gs = guide_default_settings(GUIDE_PRIOR_COSINE);
+    model_settings gs = model_default_settings(MODEL_PRIOR_COSINE);
     nf_model *model = NULL, *loaded = NULL;
-    if (!guide_create(&mixed, &gs, NULL, &model, &err))
+    if (!model_create_for_scene(&mixed, &gs, NULL, &model, &err))
         fail_msg("%s", err.msg);
     char msg[512] = "";
-    assert_true(guide_bounds_match(&mixed, model, msg, sizeof msg));
+    assert_true(model_bounds_match(&mixed, model, msg, sizeof msg));
     assert_string_equal(msg, "");
 
     /* What --save-model and --load-model do. */
     char path[4096];
     snprintf(path, sizeof path, "%s/test_guide.nf", TRACER_TEST_TMP_DIR);
     assert_int_equal(nf_model_save(model, path), NF_OK);
-    if (!guide_load(path, NULL, &loaded, &err))
+    if (!model_load_file(path, NULL, &loaded, &err))
         fail_msg("%s", err.msg);
-    assert_true(guide_bounds_match(&mixed, loaded, msg, sizeof msg));
+    assert_true(model_bounds_match(&mixed, loaded, msg, sizeof msg));
 
-    assert_false(guide_bounds_match(&moved, loaded, msg, sizeof msg));
+    assert_false(model_bounds_match(&moved, loaded, msg, sizeof msg));
     printf("  %s\n", msg);
     assert_non_null(strstr(msg, "another scene"));
     assert_non_null(strstr(msg, "position bounds"));
