@@ -84,7 +84,7 @@ static float prior_sample(const prior_point *p, const nf_context *ctx, float u0,
     float pdf;
     if (p) {
         wi = bsdf_lobe_sample(&p->bp, wo, u0, u1, &pdf);
-    } else { /* not published: a cosine lobe keeps the callbacks total */
+    } else { /* no material known: a cosine lobe keeps the callbacks total */
         wi = sample_cosine_hemisphere(u0, u1);
         pdf = pdf_cosine_hemisphere(wi);
     }
