@@ -237,11 +237,7 @@ static void test_store_bounds(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.store_capacity = 100;
-    gc.step_samples = 32;
-    gc.steps_per_pass = 2;
+    nf_guide_config gc = nft_guide_config(100, 32, 2);
     gc.clamp_quantile = 0.99f; /* off by default; this test asks for it */
     nf_guide *g = make_guide(m, &gc);
     samples s = make_samples(150, 3);
@@ -316,11 +312,7 @@ static void test_same_bits_any_threads(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.store_capacity = 4096;
-    gc.step_samples = 512;
-    gc.steps_per_pass = 4;
+    nf_guide_config gc = nft_guide_config(4096, 512, 4);
     samples a = make_samples(1500, 11), b = make_samples(1200, 12);
     size_t P = nf_model_param_count(m);
     float *ref = malloc(P * sizeof *ref), *got = malloc(P * sizeof *got);
@@ -498,11 +490,7 @@ static void test_patience(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.store_capacity = 512;
-    gc.step_samples = 256;
-    gc.steps_per_pass = 1;
+    nf_guide_config gc = nft_guide_config(512, 256, 1);
     gc.patience = 3;
     gc.learning_rate = 1e-9f; /* the model cannot improve: only patience ends training */
     nf_guide *g = make_guide(m, &gc);
@@ -533,11 +521,7 @@ static void test_publish(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.store_capacity = 1024;
-    gc.step_samples = 256;
-    gc.steps_per_pass = 2;
+    nf_guide_config gc = nft_guide_config(1024, 256, 2);
     nf_guide *g = make_guide(m, &gc);
     size_t P = nf_model_param_count(m);
     float *a = malloc(P * sizeof *a), *b = malloc(P * sizeof *b);

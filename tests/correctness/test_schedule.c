@@ -24,11 +24,7 @@ static nf_guide *make_guide(void)
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     nf_model *m = NULL;
     assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.store_capacity = 64;
-    gc.step_samples = 16;
-    gc.steps_per_pass = 1;
+    nf_guide_config gc = nft_guide_config(64, 16, 1);
     nf_guide *g = NULL;
     assert_int_equal(nf_guide_create(m, &gc, &g), NF_OK);
     nf_model_destroy(m);

@@ -129,11 +129,7 @@ static void test_guide_train_while_sampling(void **state)
     shared *s = calloc(1, sizeof *s);
     assert_non_null(s);
     fill(s, 9);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.store_capacity = 4096;
-    gc.step_samples = 128;
-    gc.steps_per_pass = 2;
+    nf_guide_config gc = nft_guide_config(4096, 128, 2);
     gc.learning_rate = 2e-2f;
     assert_int_equal(nf_guide_create(m, &gc, &s->g), NF_OK);
 
@@ -224,11 +220,7 @@ static void test_guide_helped_by_render_threads(void **state)
     shared *s = calloc(1, sizeof *s);
     assert_non_null(s);
     fill(s, 4);
-    nf_guide_config gc;
-    nf_guide_config_init(&gc);
-    gc.store_capacity = 4096;
-    gc.step_samples = 256;
-    gc.steps_per_pass = 4;
+    nf_guide_config gc = nft_guide_config(4096, 256, 4);
     nf_guide *alone, *helped;
     assert_int_equal(nf_guide_create(m, &gc, &alone), NF_OK);
     assert_int_equal(nf_guide_create(m, &gc, &helped), NF_OK);

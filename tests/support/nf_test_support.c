@@ -289,6 +289,17 @@ float nft_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3]
     return nf_model_prior_pdf(m, ctx, dir, &q) == NF_OK ? q : -1.0f;
 }
 
+nf_guide_config nft_guide_config(size_t store_capacity, uint32_t step_samples,
+                                 uint32_t steps_per_pass)
+{
+    nf_guide_config gc;
+    nf_guide_config_init(&gc);
+    gc.store_capacity = store_capacity;
+    gc.step_samples = step_samples;
+    gc.steps_per_pass = steps_per_pass;
+    return gc;
+}
+
 void nft_config_largest(nf_config *cfg)
 {
     cfg->coupling_layers = NF_MAX_COUPLING_LAYERS;

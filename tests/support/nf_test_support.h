@@ -256,6 +256,11 @@ void nft_snapshot_free(nft_snapshot *s);
 #define NFT_STACK_CHECK 0
 #endif
 
+/* nf_guide_config_init's defaults with a store of store_capacity samples and passes of
+ * steps_per_pass steps of step_samples: the small guides of the tests. */
+nf_guide_config nft_guide_config(size_t store_capacity, uint32_t step_samples,
+                                 uint32_t steps_per_pass);
+
 /* Sets every size field of cfg to its largest value (NF_MAX_*): the largest model. */
 void nft_config_largest(nf_config *cfg);
 
