@@ -5,7 +5,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "kernels/conditioner.h"
+#include "internal.h"
 #include "kernels/encoding.h"
 
 void nf_encode_oneblob(float v, uint32_t bins, float *out)

@@ -1,8 +1,9 @@
 /*
- * guide_policy.c - the path policy of nisflow/guide.h: how a guided path mixes the flow with
+ * guide_policy.c - the path policy of nisflow/policy.h: how a guided path mixes the flow with
  * the BSDF, when Russian roulette lets it go on, and which vertices ask the flow for a light
- * sample's density. The rules and their measurements are in docs/integration.md and
- * docs/equal-time.md.
+ * sample's density, and the moments of other policies a path keeps for the schedule
+ * (nf_plain_moment, nf_depth_moment). The rules and their measurements are in
+ * docs/integration.md and docs/equal-time.md.
  */
 #include <math.h>
 
@@ -65,7 +66,101 @@ int nf_guide_light_mis_uses_flow(const nf_guide_policy *p, uint32_t depth)
     return p->light_mis_depth == 0 || depth <= p->light_mis_depth;
 }
 
-/* ---- One path's state ------------------------------------------------------------------------ */
+/* ---- The moments a path keeps of plain path tracing and of shallower guiding ----------------- */
+
+/* R below this is taken as this: a path plain path tracing would (almost) never trace
+ * weighs in its second moment as one it traces once in 10^6. */
+#define NF_PLAIN_RATIO_FLOOR 1e-6f
+
+/* The steps, on R and the sums, that both moments share. */
+static float nf_moment_roulette_ratio(float ratio, const nf_guide_policy *p, float throughput_max,
+                                      float boost, float q_used)
+{
+    float r = fmaxf(ratio, NF_PLAIN_RATIO_FLOOR);
+    float q_policy = nf_guide_roulette_survival(p, throughput_max / r, boost);
+    /* q_policy = 0: the policy would never have gone on (R = 0, floored when used). */
+    return q_policy > 0.0f ? r * (q_policy / q_used) : 0.0f;
+}
+
+static void nf_moment_add(float ratio, float *sum, float *moment, float c)
+{
+    float r = fmaxf(ratio, NF_PLAIN_RATIO_FLOOR);
+    /* c_k^2 / R_k + 2 c_k sum_j c_j / R_j, then the sum takes c_k / R_k. */
+    *moment += c * (c / r + 2.0f * *sum);
+    *sum += c / r;
+}
+
+void nf_plain_moment_start(nf_plain_moment *m)
+{
+    if (!m)
+        return;
+    m->ratio = 1.0f;
+    m->sum = 0.0f;
+    m->moment = 0.0f;
+}
+
+void nf_plain_moment_scatter(nf_plain_moment *m, float p_bsdf, float p_mix, float g_used)
+{
+    if (m)
+        m->ratio = nf_guide_boost(m->ratio, p_bsdf, p_mix, g_used);
+}
+
+void nf_plain_moment_roulette(nf_plain_moment *m, const nf_guide_policy *p, float throughput_max,
+                              float q_used)
+{
+    if (m && q_used > 0.0f && isfinite(q_used))
+        m->ratio = nf_moment_roulette_ratio(m->ratio, p, throughput_max, 1.0f, q_used);
+}
+
+void nf_plain_moment_add(nf_plain_moment *m, float c)
+{
+    if (m && c > 0.0f && isfinite(c))
+        nf_moment_add(m->ratio, &m->sum, &m->moment, c);
+}
+
+void nf_depth_moment_start(nf_depth_moment *m, uint32_t depth)
+{
+    if (!m)
+        return;
+    m->ratio = m->boost = 1.0f;
+    m->sum = m->moment = 0.0f;
+    m->depth = depth;
+}
+
+void nf_depth_moment_scatter(nf_depth_moment *m, size_t n, uint32_t vertex_depth, float p_bsdf,
+                             float p_mix, float g_used)
+{
+    for (size_t k = 0; m && k < n; ++k) {
+        /* Up to D the policy guided this vertex as the path did: only its boost moves. */
+        if (vertex_depth <= m[k].depth)
+            m[k].boost = nf_guide_boost(m[k].boost, p_bsdf, p_mix, g_used);
+        else
+            m[k].ratio = nf_guide_boost(m[k].ratio, p_bsdf, p_mix, g_used);
+    }
+}
+
+void nf_depth_moment_roulette(nf_depth_moment *m, size_t n, const nf_guide_policy *p,
+                              uint32_t vertex_depth, float throughput_max, float q_used)
+{
+    if (!m || !(q_used > 0.0f) || !isfinite(q_used))
+        return;
+    for (size_t k = 0; k < n; ++k)
+        if (vertex_depth > m[k].depth)
+            m[k].ratio =
+                nf_moment_roulette_ratio(m[k].ratio, p, throughput_max, m[k].boost, q_used);
+}
+
+void nf_depth_moment_add(nf_depth_moment *m, size_t n, uint32_t vertex_depth, float c,
+                         float c_plain)
+{
+    for (size_t k = 0; m && k < n; ++k) {
+        float v = vertex_depth <= m[k].depth ? c : c_plain;
+        if (v > 0.0f && isfinite(v))
+            nf_moment_add(m[k].ratio, &m[k].sum, &m[k].moment, v);
+    }
+}
+
+/* ---- The per-path state: the boost and the moments together ---------------------------------- */
 
 void nf_path_start(nf_path_state *ps)
 {

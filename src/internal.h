@@ -11,6 +11,7 @@
 #ifndef NISFLOW_INTERNAL_H
 #define NISFLOW_INTERNAL_H
 
+#include <math.h>
 #include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -199,6 +200,17 @@ nf_status nf_validate_batch_size(const char *fn, size_t n);
 static inline float nf_minf(float a, float b) { return a < b ? a : b; }
 static inline float nf_maxf(float a, float b) { return a > b ? a : b; }
 static inline float nf_clampf(float v, float lo, float hi) { return nf_minf(nf_maxf(v, lo), hi); }
+
+/* v / |v| with one rounding per component. Double cannot overflow or underflow on the
+ * squares of finite floats, and inputs are validated non-zero upstream. */
+static inline void nf_normalize3(const float v[3], float out[3])
+{
+    double x = v[0], y = v[1], z = v[2];
+    double inv = 1.0 / sqrt(x * x + y * y + z * z);
+    out[0] = (float)(x * inv);
+    out[1] = (float)(y * inv);
+    out[2] = (float)(z * inv);
+}
 
 /* The non-zero bins of a one-blob encoding: up to 3 (bin, value, d value / dv). */
 typedef struct nf_blob {

@@ -19,17 +19,6 @@
 #include "internal.h"
 #include "lanes.h"
 
-/* v / |v| with one rounding per component. Double cannot overflow or underflow on the
- * squares of finite floats, and inputs are validated non-zero upstream. */
-static inline void nf_normalize3(const float v[3], float out[3])
-{
-    double x = v[0], y = v[1], z = v[2];
-    double inv = 1.0 / sqrt(x * x + y * y + z * z);
-    out[0] = (float)(x * inv);
-    out[1] = (float)(y * inv);
-    out[2] = (float)(z * inv);
-}
-
 /* t of each position axis: where the position lies in the bounds, to be one-blob encoded (and
  * clamped to [0, 1] there). */
 static inline float nf_position_unit(const nf_config *cfg, const nf_context *ctx, uint32_t a)
