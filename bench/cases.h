@@ -8,7 +8,7 @@
 #include <stddef.h>
 
 #include "harness.h"
-#include "nf_bench.h"
+#include "common.h"
 #include "setup.h"
 
 /* The figure of one case. The shading-point ops are stored with batch 1 (n = 1 per call). */

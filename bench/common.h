@@ -1,5 +1,5 @@
 /*
- * nf_bench.h - what every part of the benchmark program shares: the operations it times, the
+ * common.h - what every part of the benchmark program shares: the operations it times, the
  * options the command line sets, and the names the output gives them.
  *
  * The program is split by job, in the style of zstd's programs/:
@@ -15,8 +15,8 @@
  *   report.c    the results table (plain text and Markdown), the targets, the JSON file.
  *   nf_bench.c  the command line and main.
  */
-#ifndef NF_BENCH_H
-#define NF_BENCH_H
+#ifndef NF_BENCH_COMMON_H
+#define NF_BENCH_COMMON_H
 
 #include <stddef.h>
 
@@ -78,4 +78,4 @@ typedef struct options {
     nf_isa isa;   /* kernels to ask for (NF_ISA_AUTO: the library's choice) */
 } options;
 
-#endif /* NF_BENCH_H */
+#endif /* NF_BENCH_COMMON_H */

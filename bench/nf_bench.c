@@ -6,7 +6,7 @@
  *
  * This file is the command line and main: it parses the options, builds each preset's model
  * and checks it (setup.c), runs the preset's cases (cases.c, which says what exactly is
- * timed and how), and prints and writes the results (report.c). nf_bench.h lists the parts.
+ * timed and how), and prints and writes the results (report.c). common.h lists the parts.
  *
  * The benchmark assumes an otherwise idle machine; it measures how busy other processes kept
  * the CPUs, re-measures the cases they disturbed and flags those that stayed disturbed.
@@ -18,7 +18,7 @@
 
 #include "cases.h"
 #include "harness.h"
-#include "nf_bench.h"
+#include "common.h"
 #include "report.h"
 #include "setup.h"
 

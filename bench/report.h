@@ -9,7 +9,7 @@
 #include <stdio.h>
 
 #include "cases.h"
-#include "nf_bench.h"
+#include "common.h"
 #include "setup.h"
 
 /* One target of docs/performance.md: a figure of the run against its limit. */

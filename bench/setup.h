@@ -10,7 +10,7 @@
 #include <stddef.h>
 
 #include "harness.h"
-#include "nf_bench.h"
+#include "common.h"
 
 /* ---- The inputs -------------------------------------------------------------------------- */
 
