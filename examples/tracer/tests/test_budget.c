@@ -26,6 +26,7 @@
 
 #include "budget.h"
 #include "model_setup.h"
+#include "parallel.h"
 #include "integrator.h"
 #include "progress.h"
 #include "render.h"
@@ -185,13 +186,13 @@ static void test_levers_match_unguided(void **state)
 
 /* A guide for the budget job: the library's defaults, with smaller steps for a tiny film;
  * with the BSDF prior, each sample keeps its material. */
-static nf_guide *budget_guide_with(const scene *s, float train_fraction, model_prior prior,
-                                   uint32_t pass_choice)
+static nf_guide *budget_guide_on(const scene *s, float train_fraction, model_prior prior,
+                                 uint32_t pass_choice, prior_lookup *lookup)
 {
     tr_error err;
     nf_model *model = NULL;
     model_settings gs = model_default_settings(prior);
-    if (!model_create_for_scene(s, &gs, &test_lookup, &model, &err))
+    if (!model_create_for_scene(s, &gs, lookup, &model, &err))
         fail_msg("%s", err.msg);
     nf_guide_config gc;
     nf_guide_config_init(&gc);
@@ -206,6 +207,12 @@ static nf_guide *budget_guide_with(const scene *s, float train_fraction, model_p
     assert_int_equal(nf_guide_create(model, &gc, &g), NF_OK);
     nf_model_destroy(model); /* the guide holds copies */
     return g;
+}
+
+static nf_guide *budget_guide_with(const scene *s, float train_fraction, model_prior prior,
+                                   uint32_t pass_choice)
+{
+    return budget_guide_on(s, train_fraction, prior, pass_choice, &test_lookup);
 }
 
 static nf_guide *budget_guide(const scene *s, float train_fraction)
@@ -241,6 +248,51 @@ static void test_budget_job_bsdf_prior(void **state)
     assert_non_null(strstr(err.msg, "payload"));
     image_free(&img); /* allocated before the check: the caller frees it */
     nf_guide_destroy(guide);
+    scene_free(&s);
+}
+
+/* One of two BSDF-prior jobs that run at once in test_two_jobs_train_at_once. */
+typedef struct concurrent_job {
+    const scene *s;
+    prior_lookup lookup;
+    budget_report rep;
+    int ok;
+} concurrent_job;
+
+static void run_concurrent_job(void *user, size_t item, int thread)
+{
+    (void)thread;
+    concurrent_job *j = (concurrent_job *)user + item;
+    tracer t = {.s = j->s, .bsdf_prior = 1};
+    nf_guide_policy_init(&t.policy);
+    nf_guide *guide = budget_guide_on(j->s, 0.5f, MODEL_PRIOR_BSDF, 1, &j->lookup);
+    budget_settings bs = {0.6, now_seconds(), 1, 7 + item};
+    image img;
+    tr_error err;
+    j->ok = render_with_budget(&t, guide, &bs, &img, &j->rep, &err);
+    image_free(&img);
+    nf_guide_destroy(guide);
+}
+
+/* Two jobs in one process, each with the BSDF prior, train at the same time: each finds its
+ * samples' materials through its own lookup, so neither falls back once. A lookup shared by
+ * the process would, while the other job's training call had its guide bound. */
+static void test_two_jobs_train_at_once(void **state)
+{
+    (void)state;
+    scene s = load_mixed();
+    concurrent_job jobs[2];
+    for (int k = 0; k < 2; ++k) {
+        jobs[k].s = &s;
+        prior_lookup_init(&jobs[k].lookup);
+    }
+    tr_error err;
+    assert_true(parallel_for(2, 2, run_concurrent_job, jobs, NULL, &err));
+    for (int k = 0; k < 2; ++k) {
+        assert_true(jobs[k].ok);
+        assert_true(jobs[k].rep.steps > 0);
+        assert_int_equal(atomic_load(&jobs[k].lookup.failures), 0);
+    }
     scene_free(&s);
 }
 
@@ -391,4 +443,5 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_budget_job_guided_passes),
     cmocka_unit_test(test_budget_job_black_scene),
     cmocka_unit_test(test_budget_job_bsdf_prior),
+    cmocka_unit_test(test_two_jobs_train_at_once),
 )
