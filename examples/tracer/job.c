@@ -13,8 +13,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "model_setup.h"
 #include "metrics.h"
+#include "model_setup.h"
 #include "progress.h"
 #include "ranks.h"
 

@@ -11,9 +11,9 @@
 #include <nisflow/nisflow.h>
 
 #include "error.h"
-#include "model_setup.h"
 #include "image.h"
 #include "integrator.h"
+#include "model_setup.h"
 #include "options.h"
 #include "scene.h"
 

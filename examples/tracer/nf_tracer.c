@@ -14,8 +14,8 @@
 #include <nisflow/nisflow.h>
 
 #include "budget.h"
-#include "model_setup.h"
 #include "job.h"
+#include "model_setup.h"
 #include "ranks.h"
 
 /* What the budget bought: the training, the passes of each kind and what the schedule chose

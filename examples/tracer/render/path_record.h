@@ -11,8 +11,8 @@
 
 #include <nisflow/nisflow.h>
 
-#include "model_setup.h"
 #include "integrator.h"
+#include "model_setup.h"
 
 #define MAX_RECORDED_VERTICES 256
 

@@ -14,8 +14,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "model_setup.h"
 #include "metrics.h"
+#include "model_setup.h"
 #include "path_record.h"
 #include "progress.h"
 #include "ranks.h"

@@ -10,8 +10,8 @@
 #include <nisflow/nisflow.h>
 
 #include "bsdf.h"
-#include "model_setup.h"
 #include "integrator.h"
+#include "model_setup.h"
 #include "path_record.h"
 
 /* The shading setup at a hit: material, frame and orientation. */

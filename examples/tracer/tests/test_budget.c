@@ -25,9 +25,9 @@
 #include "nf_test_main.h"
 
 #include "budget.h"
+#include "integrator.h"
 #include "model_setup.h"
 #include "parallel.h"
-#include "integrator.h"
 #include "progress.h"
 #include "render.h"
 #include "scene.h"

@@ -25,8 +25,8 @@
 
 #include "nf_test_main.h"
 
-#include "model_setup.h"
 #include "integrator.h"
+#include "model_setup.h"
 #include "render.h"
 #include "scene.h"
 #include "training.h"

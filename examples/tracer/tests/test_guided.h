@@ -9,9 +9,9 @@
 
 #include <nisflow/nisflow.h>
 
-#include "model_setup.h"
 #include "image.h"
 #include "integrator.h"
+#include "model_setup.h"
 #include "render.h"
 #include "scene.h"
 #include "test_policy.h"

@@ -27,8 +27,8 @@
 
 #include "nf_test_main.h"
 
-#include "model_setup.h"
 #include "integrator.h"
+#include "model_setup.h"
 #include "render.h"
 #include "rng.h"
 #include "scene.h"

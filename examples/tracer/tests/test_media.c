@@ -27,9 +27,9 @@
 
 #include "nf_test_main.h"
 
-#include "model_setup.h"
 #include "integrator.h"
 #include "medium.h"
+#include "model_setup.h"
 #include "render.h"
 #include "scene.h"
 #include "training.h"
