@@ -30,7 +30,6 @@ static void test_model_names(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 0.3f, 5), NF_OK);
     const size_t n = nf_model_param_count(m);
     assert_true(n > 0 && nf_param_count(m) == n);
@@ -65,7 +64,6 @@ static void test_prior_pdf(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     nf_context c = test_context();
     const float dir[3] = {0.1f, 0.5f, 0.8f}, zero[3] = {0.0f, 0.0f, 0.0f};
     float q = 0.0f;
@@ -81,7 +79,6 @@ static void test_point_batches(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 0.3f, 9), NF_OK);
     nf_shading_point p[2];
     nf_context c[2] = {test_context(), test_context()};

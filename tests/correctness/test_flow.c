@@ -38,7 +38,6 @@ static const nf_prior_kind all_priors[4] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR
 static nf_model *random_model(nf_preset preset, nf_prior_kind prior, double sigma, uint64_t seed)
 {
     nf_model *m = nft_make_model(preset, prior);
-    assert_non_null(m);
     assert_int_equal(nft_perturb_params(m, sigma, 1, seed, 77u), NF_OK);
     return m;
 }
@@ -442,7 +441,6 @@ static void test_fresh_parameters_identity(void **state)
     (void)state;
     for (int preset = 0; preset < 2; ++preset) {
         nf_model *fresh = nft_make_model((nf_preset)preset, NF_PRIOR_UNIFORM_ANGLE);
-        assert_non_null(fresh);
         nf_model *m = random_model((nf_preset)preset, NF_PRIOR_UNIFORM_ANGLE, 0.3, 700u);
         size_t count = nf_model_param_count(m);
         float *p = malloc(count * sizeof *p);

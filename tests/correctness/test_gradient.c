@@ -39,7 +39,6 @@ typedef struct batch {
 static nf_model *random_model(nf_preset preset, nf_prior_kind prior, uint64_t seed)
 {
     nf_model *m = nft_make_model(preset, prior);
-    assert_non_null(m);
     assert_int_equal(nft_perturb_params(m, 0.3, 0, seed, 91u), NF_OK);
     return m;
 }

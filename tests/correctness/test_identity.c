@@ -98,7 +98,6 @@ static void check_fresh_model(nf_preset preset, nf_prior_kind prior)
     static float dir[N][3];
     static float pdf[N];
     nf_model *m = nft_make_model(preset, prior);
-    assert_non_null(m);
     nf_config cfg;
     assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
@@ -191,7 +190,6 @@ static void test_fresh_density_at_exact_poles(void **state)
     nf_context ctx = nft_context(0.5f, 0.5f, 0.5f, 0.0f, 0.6f, 0.8f, 0.0f, 0.0f, 1.0f);
     for (int k = 0; k < 4; ++k) {
         nf_model *m = nft_make_model(NF_PRESET_SMALL, all_priors[k]);
-        assert_non_null(m);
         nf_config cfg;
         assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
         for (int p = 0; p < 2; ++p) {
@@ -221,7 +219,6 @@ static void test_scaled_vectors_same_density(void **state)
     (void)state;
     for (int k = 0; k < 4; ++k) {
         nf_model *m = nft_make_model(NF_PRESET_SMALL, all_priors[k]);
-        assert_non_null(m);
         assert_int_equal(nft_randomize_params(m, 0.3f, 8u), NF_OK);
         nft_rng r;
         nft_rng_seed(&r, 17u, (uint64_t)k);
@@ -266,7 +263,6 @@ static void test_fresh_uniform_angle_sample_map(void **state)
     static nf_context ctx[N];
     static float u[2 * N], dir[3 * N], pdf[N];
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_UNIFORM_ANGLE);
-    assert_non_null(m);
     nft_rng r;
     nft_rng_seed(&r, 2718u, 1u);
     nft_random_queries(&r, N, ctx, u);

@@ -62,7 +62,6 @@ static void test_fresh_model_is_the_phase_function(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     nf_config cfg;
     assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
@@ -124,7 +123,6 @@ static void test_sample_matches_pdf_and_phase_function(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     nf_config cfg;
     assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
@@ -208,8 +206,6 @@ static void test_normalization(void **state)
     (void)state;
     nf_model *fresh = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     nf_model *randomized = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(fresh);
-    assert_non_null(randomized);
     assert_int_equal(nft_randomize_params(randomized, RANDOM_SCALE, 31u), NF_OK);
     /* a frame that puts the library's poles and seam inside the quadrature grid */
     const double s = sqrt(0.5), rotated[3][3] = {{s, 0.0, -s}, {0.0, 1.0, 0.0}, {s, 0.0, s}};
@@ -247,7 +243,6 @@ static void test_chi2(void **state)
     (void)state;
     for (int randomized = 0; randomized < 2; ++randomized) {
         nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-        assert_non_null(m);
         if (randomized)
             assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 41u), NF_OK);
         for (size_t k = 0; k < G_COUNT; ++k) {
@@ -392,7 +387,6 @@ static void test_medium_contexts_are_validated(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     nft_rng r;
     nft_rng_seed(&r, 9u, 3u);
     float dir[3] = {0.0f, 0.6f, 0.8f}, pdf = -1.0f;

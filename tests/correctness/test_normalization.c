@@ -103,8 +103,6 @@ static void check_prior(nf_prior_kind prior)
     make_contexts(ctx);
     nf_model *fresh = nft_make_model(NF_PRESET_SMALL, prior);
     nf_model *randomized = nft_make_model(NF_PRESET_SMALL, prior);
-    assert_non_null(fresh);
-    assert_non_null(randomized);
     assert_int_equal(nft_randomize_params(randomized, RANDOM_SCALE, 11u + (uint64_t)prior),
                      NF_OK);
     const int seam = 2 + ((int)prior & 1); /* (1,0,0) or (0.6,0,0.8), alternately */
@@ -153,7 +151,6 @@ static void test_normalization_large_preset(void **state)
     nf_context ctx[CONTEXT_COUNT];
     make_contexts(ctx);
     nf_model *m = nft_make_model(NF_PRESET_LARGE, NF_PRIOR_COSINE);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 5u), NF_OK);
     check_integral(nft_integrate_model(m, &ctx[3], THETA_RES, PHI_RES, NULL), "large randomized",
                    NF_PRIOR_COSINE, 3);
@@ -178,7 +175,6 @@ static void test_normalization_rotated_frame(void **state)
         double frame[3][3];
         nft_frame(axis, frame[0], frame[1], frame[2]);
         nf_model *m = nft_make_model(NF_PRESET_SMALL, priors[k]);
-        assert_non_null(m);
         assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 31u + (uint64_t)k), NF_OK);
         int c = context_of[k];
         double integral =
@@ -201,7 +197,6 @@ static void test_quadrature_convergence(void **state)
     nf_context ctx[CONTEXT_COUNT];
     make_contexts(ctx);
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_CUSTOM);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 11u + (uint64_t)NF_PRIOR_CUSTOM),
                      NF_OK);
     double fine = nft_integrate_model(m, &ctx[5], FINE_THETA_RES, FINE_PHI_RES, NULL);

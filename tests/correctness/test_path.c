@@ -492,7 +492,6 @@ static void test_samples_train(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     nft_rng g;
     nft_rng_seed(&g, 3, 4);
     nf_path_vertex v[MAX_V];

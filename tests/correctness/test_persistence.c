@@ -113,7 +113,6 @@ static void expect_refused(const unsigned char *buf, size_t size,
 static nf_model *trained_model(nf_preset preset, nf_prior_kind prior, int steps, uint64_t seed)
 {
     nf_model *m = nft_make_model(preset, prior);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 0.2f, seed), NF_OK);
     enum { N = 64 };
     nf_context ctx[N];
@@ -304,7 +303,6 @@ static void test_load_missing_file(void **state)
     assert_int_equal(nf_model_load(path, NULL, &out), NF_ERROR_IO);
     assert_null(out);
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     assert_int_equal(nf_model_save(m, "nf_no_such_directory_for_tests/model.nfm"), NF_ERROR_IO);
     nf_model_destroy(m);
 }
@@ -315,7 +313,6 @@ static void test_serialize_capacity(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     size_t need = 0;
     assert_int_equal(nf_model_serialize(m, NULL, 0, &need), NF_OK);
     assert_true(need == HEADER + 12u * nf_model_param_count(m) + TRAILER);
@@ -478,7 +475,6 @@ static void expect_u32_refused(size_t offset, const uint32_t *values, size_t cou
                                const char *word)
 {
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     size_t size;
     unsigned char *buf = serialize(m, &size);
     for (size_t i = 0; i < count; ++i) {
@@ -701,7 +697,6 @@ static void test_custom_prior_callbacks(void **state)
 
     /* A cosine model: callbacks are ignored; edited to custom, they become required. */
     m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     buf = serialize(m, &size);
     back = NULL;
     assert_int_equal(nf_model_deserialize(buf, size, &cb, &back), NF_OK);
@@ -726,7 +721,6 @@ static void test_null_arguments(void **state)
 {
     (void)state;
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(m);
     size_t size;
     unsigned char *buf = serialize(m, &size);
     nf_model *out = (nf_model *)(uintptr_t)0x1;

@@ -45,7 +45,6 @@ static void run_chi2(nf_prior_kind prior)
 {
     for (int randomized = 0; randomized < 2; ++randomized) {
         nf_model *m = nft_make_model(NF_PRESET_SMALL, prior);
-        assert_non_null(m);
         if (randomized)
             assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 100u + (uint64_t)prior),
                              NF_OK);
@@ -187,7 +186,6 @@ static void check_sample_pdf_all(float scale, int sharp)
     for (int k = 0; k < 4; ++k) {
         for (int preset = 0; preset < 2; ++preset) {
             nf_model *m = nft_make_model((nf_preset)preset, priors[k]);
-            assert_non_null(m);
             if (scale > 0.0f)
                 assert_int_equal(nft_randomize_params(m, scale, 600u + 7u * (uint64_t)k +
                                                                     (uint64_t)preset),
@@ -326,7 +324,6 @@ static void test_sample_is_deterministic(void **state)
                                      NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};
     for (int k = 0; k < 4; ++k) {
         nf_model *m = nft_make_model(NF_PRESET_SMALL, priors[k]);
-        assert_non_null(m);
         assert_int_equal(nft_randomize_params(m, RANDOM_SCALE, 42u), NF_OK);
         nft_rng r;
         nft_rng_seed(&r, 77u, (uint64_t)k);
@@ -503,8 +500,6 @@ static void test_chi2_power(void **state)
     (void)state;
     nf_model *a = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     nf_model *b = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_non_null(a);
-    assert_non_null(b);
     assert_int_equal(nft_randomize_params(a, RANDOM_SCALE, 100u + NF_PRIOR_COSINE), NF_OK);
     const size_t pc = nf_model_param_count(a);
     float *p = malloc(pc * sizeof *p);

@@ -148,7 +148,6 @@ static void check_sample_pdf(nf_prior_kind prior, nf_preset preset)
 {
     const size_t total = (size_t)ROUNDS * BATCH;
     nf_model *m = nft_make_model(preset, prior);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 1.0f, 2000u + (uint64_t)prior), NF_OK);
     batch b;
     make_batch(&b, 4000u + (uint64_t)prior);
@@ -211,7 +210,6 @@ static void test_concurrent_sample_pdf(void **state)
 static void check_loss_gradient(nf_prior_kind prior)
 {
     nf_model *m = nft_make_model(NF_PRESET_SMALL, prior);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 1.0f, 3000u + (uint64_t)prior), NF_OK);
     const size_t pc = nf_model_param_count(m);
     assert_true(pc > 0);
@@ -469,7 +467,6 @@ static void test_concurrent_shared_points(void **state)
     (void)state;
     /* The custom prior's callbacks run on the worker threads too. */
     nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_CUSTOM);
-    assert_non_null(m);
     assert_int_equal(nft_randomize_params(m, 1.0f, 2100u), NF_OK);
     check_shared_points(m, "small custom");
     nf_model_destroy(m);

@@ -314,8 +314,10 @@ nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior)
 {
     nf_config cfg = nft_config(preset, prior);
     nf_model *m = NULL;
+    /* Every caller needs the model: fail the running test here, with the library's reason,
+     * rather than at each call site. */
     if (nf_model_create(&cfg, &m) != NF_OK)
-        return NULL;
+        fail_msg("nft_make_model: %s", nf_last_error_message());
     return m;
 }
 

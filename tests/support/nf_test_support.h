@@ -105,7 +105,8 @@ const char *nft_phi_map_name(nf_phi_map map);
 /* nf_config_init(preset) with `prior` and nft_phi_map(); for NF_PRIOR_CUSTOM the Phong
  * callbacks. */
 nf_config nft_config(nf_preset preset, nf_prior_kind prior);
-/* Creates a model with nft_config(preset, prior); NULL on error. */
+/* Creates a model with nft_config(preset, prior); fails the running cmocka test (never returns
+ * NULL) when nf_model_create refuses. */
 nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior);
 /* Replaces every parameter by a uniform value in [-scale, scale] drawn from PCG32(seed), so
  * the flow is far from the identity. Returns the nf_model_set_params status. */
