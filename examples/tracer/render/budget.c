@@ -21,27 +21,70 @@
 /* Budget passes use their own random streams, apart from render_image's passes. */
 #define PASS_STREAM_BASE 0x100000u
 
-/* ---- Training on a pass's records ------------------------------------------------------------ */
+/* ---- A training pass's samples, tile by tile -------------------------------------------- */
 
-/* Hands a pass's records to the guide, then trains on them. Collective (the guide's steps
- * reduce over the ranks). */
-static int train_on_pass(nf_guide *g, record_arrays *a, const record_buffer *rec, int threads,
-                         uint32_t pass, budget_report *rep, tr_error *err)
+/* One render thread's share of a training pass's intake: its arrays, reused from tile to
+ * tile, and its first failure. */
+typedef struct intake_thread {
+    record_arrays arrays;
+    int failed;
+    char message[256];
+} intake_thread;
+
+/* The record sink of training passes (render.h): each tile's records become the guide's
+ * samples as soon as the tile is traced, on its render thread, while the other tiles are
+ * traced; no thread waits for a pass's records to be joined. The keys (the tile, then the
+ * record's place in it) sort them as one thread would have traced them, so the guide trains
+ * on the same store whatever the number of threads. */
+typedef struct pass_intake {
+    nf_guide *guide;
+    intake_thread *threads; /* one per render thread */
+    int count;
+} pass_intake;
+
+static void intake_tile(void *user, size_t tile, int thread, const record_buffer *rec)
 {
-    size_t n = rec->count;
-    int ok = record_arrays_from(a, rec) ||
-             tr_fail(err, "out of memory for %zu training samples", n);
-    if (!ranks_agree(ok, err))
-        return 0;
-    nf_status st = nf_guide_add_samples(g, n, a->key, a->ctx, a->dir, a->weight, a->points);
-    if (!ranks_agree(st == NF_OK || tr_fail(err, "training pass %u: %s", pass,
-                                             nf_last_error_message()),
-                     err))
-        return 0;
+    pass_intake *in = user;
+    intake_thread *it = &in->threads[thread];
+    record_arrays *a = &it->arrays;
+    if (it->failed || rec->count == 0)
+        return;
+    if (rec->out_of_memory || !record_arrays_from(a, rec, (uint64_t)tile << 32)) {
+        it->failed = 1;
+        snprintf(it->message, sizeof it->message,
+                 "out of memory for the training samples of tile %zu", tile);
+    } else if (nf_guide_add_samples(in->guide, rec->count, a->key, a->ctx, a->dir, a->weight,
+                                    a->points) != NF_OK) {
+        it->failed = 1;
+        snprintf(it->message, sizeof it->message, "%s", nf_last_error_message());
+    }
+}
+
+/* The first failure of a pass's intake, into err; 1 when there was none. */
+static int intake_ok(pass_intake *in, uint32_t pass, tr_error *err)
+{
+    for (int i = 0; i < in->count; ++i)
+        if (in->threads[i].failed)
+            return tr_fail(err, "training pass %u: %s", pass, in->threads[i].message);
+    return 1;
+}
+
+static void intake_free(pass_intake *in)
+{
+    for (int i = 0; in->threads && i < in->count; ++i)
+        record_arrays_free(&in->threads[i].arrays);
+    free(in->threads);
+}
+
+/* Trains on the samples the pass added, then publishes. Collective (the guide's steps reduce
+ * over the ranks). */
+static int train_on_pass(nf_guide *g, int threads, uint32_t pass, budget_report *rep,
+                         tr_error *err)
+{
     nf_guide_pass_report pr;
     training_hooks hooks;
     training_hooks_init(&hooks, threads);
-    st = guide_train_pass(g, &hooks, &pr);
+    nf_status st = guide_train_pass(g, &hooks, &pr);
     if (st != NF_OK) /* the hooks failed (MPI): the same on every rank */
         return tr_fail(err, "training pass %u: %s", pass, nf_last_error_message());
     if (pr.refused && rep->refused < 5 && ranks_rank() == 0)
@@ -61,8 +104,8 @@ static int train_on_pass(nf_guide *g, record_arrays *a, const record_buffer *rec
 /* The pieces of the job that live as long as it. */
 typedef struct budget_job {
     nf_schedule *schedule;
-    record_arrays arrays;
-    record_buffer records;
+    pass_intake intake;
+    render_memory mem; /* the passes' per-thread buffers, kept from pass to pass */
     image pass;
     float *moment;
     training_hooks hooks; /* the ranks' reduce for the schedule */
@@ -71,8 +114,8 @@ typedef struct budget_job {
 static void job_free(budget_job *j)
 {
     nf_schedule_destroy(j->schedule);
-    record_arrays_free(&j->arrays);
-    record_buffer_free(&j->records);
+    intake_free(&j->intake);
+    render_memory_free(&j->mem);
     image_free(&j->pass);
     free(j->moment);
 }
@@ -93,6 +136,10 @@ static int job_start(budget_job *j, tracer *t, nf_guide *guide, const budget_set
                 image_alloc(&j->pass, s->width, s->height, err);
     j->moment = calloc(PATH_MOMENTS * (size_t)s->width * (size_t)s->height, sizeof *j->moment);
     ready = ready && (j->moment || tr_fail(err, "out of memory for the pass's moments"));
+    j->intake.guide = guide;
+    j->intake.count = bs->threads > 0 ? bs->threads : 1;
+    j->intake.threads = calloc((size_t)j->intake.count, sizeof *j->intake.threads);
+    ready = ready && (j->intake.threads || tr_fail(err, "out of memory for the intake"));
     ready = ready && (nf_schedule_create(guide, &sc, &j->schedule) == NF_OK ||
                       tr_fail(err, "%s", nf_last_error_message()));
     /* The BSDF prior's callbacks find each training sample's material in its payload. */
@@ -105,7 +152,7 @@ static int job_start(budget_job *j, tracer *t, nf_guide *guide, const budget_set
 }
 
 /* Renders the pass that `plan` asks for into j->pass and j->moment, with the guide's newest
- * published model unless it is plain, and the training records when it trains. */
+ * published model unless it is plain; a training pass's samples go to the guide meanwhile. */
 static int job_render(budget_job *j, tracer *t, nf_guide *guide, const budget_settings *bs,
                       const nf_pass_plan *plan, budget_report *rep, tr_error *err)
 {
@@ -115,9 +162,11 @@ static int job_render(budget_job *j, tracer *t, nf_guide *guide, const budget_se
     const int fixed_depth = t->guide_depth;
     t->model = m; /* every thread of the pass samples this one; NULL: a plain pass */
     t->guide_depth = (int)plan->depth;
+    const record_sink sink = {intake_tile, &j->intake};
     int rendered = render_pass(t, bs->seed, PASS_STREAM_BASE + plan->pass, bs->threads, &j->pass,
-                               j->moment, plan->todo == NF_TODO_TRAIN ? &j->records : NULL,
+                               j->moment, plan->todo == NF_TODO_TRAIN ? &sink : NULL, &j->mem,
                                &rep->stats, err);
+    rendered = rendered && intake_ok(&j->intake, plan->pass, err);
     if (m)
         nf_guide_release(guide, m);
     t->model = NULL;
@@ -153,7 +202,7 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
         }
         if (plan.todo != NF_TODO_TRAIN)
             continue;
-        ok = train_on_pass(guide, &j.arrays, &j.records, bs->threads, plan.pass, rep, err) &&
+        ok = train_on_pass(guide, bs->threads, plan.pass, rep, err) &&
              (ranks_size() == 1 ||
               models_agree_across_ranks(nf_guide_training_model(guide), (int)plan.pass + 1, err));
         rep->train_seconds += now_seconds() - t0;

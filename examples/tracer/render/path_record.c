@@ -115,13 +115,13 @@ static int record_arrays_reserve(record_arrays *a, size_t n)
     return 1;
 }
 
-int record_arrays_from(record_arrays *a, const record_buffer *b)
+int record_arrays_from(record_arrays *a, const record_buffer *b, uint64_t first_key)
 {
     if (!record_arrays_reserve(a, b->count))
         return 0;
     for (size_t i = 0; i < b->count; ++i) {
         const train_record *r = &b->data[i];
-        a->key[i] = i;
+        a->key[i] = first_key + i;
         a->ctx[i] = r->ctx;
         memcpy(a->dir + 3 * i, r->dir, sizeof r->dir);
         a->weight[i] = r->weight;

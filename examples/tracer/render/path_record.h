@@ -70,9 +70,9 @@ typedef struct record_arrays {
     size_t capacity;
 } record_arrays;
 
-/* Fills `a` with every record of `b` (index i of the arrays is b->data[i]). Returns 0 when
- * out of memory; `a` then keeps what it held. */
-int record_arrays_from(record_arrays *a, const record_buffer *b);
+/* Fills `a` with every record of `b` (index i of the arrays is b->data[i], keyed
+ * first_key + i). Returns 0 when out of memory; `a` then keeps what it held. */
+int record_arrays_from(record_arrays *a, const record_buffer *b, uint64_t first_key);
 void record_arrays_free(record_arrays *a);
 
 #endif /* TRACER_PATH_RECORD_H */

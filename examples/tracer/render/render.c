@@ -1,8 +1,9 @@
 /*
  * render.c - the tracer's one parallel engine (run_job: items on the threads, per-thread
- * counters and trace scratch, per-item training records joined in item order) and its three
- * kinds of item: an image's tile of spp paths per pixel, a pass's tile of one path per pixel,
- * and a chunk of training paths through random film positions.
+ * counters, reusable per-thread memory, per-item training records joined in item order) and
+ * its three kinds of item: an image's tile of spp paths per pixel, a pass's tile of one path
+ * per pixel (its records handed to a sink), and a chunk of training paths through random film
+ * positions.
  */
 #include "render.h"
 
@@ -49,29 +50,65 @@ typedef struct thread_stats {
     unsigned char apart[128 - sizeof(path_stats)];
 } thread_stats;
 
-/* What every job's items share: the tracer, per-thread counters and trace scratch, and with
- * records one buffer per item, joined in item order when the job ends. Jobs embed it first. */
+/* What every job's items share: the tracer, per-thread counters, the memory the threads
+ * reuse, and with joined records one buffer per item, joined in item order when the job ends.
+ * Jobs embed it first. */
 typedef struct job_common {
     const tracer *t;
-    thread_stats *stats;    /* one per thread                 */
-    trace_scratch *scratch; /* one per thread: trace_paths'   */
-    record_buffer *parts;   /* one per item; NULL: no records */
+    thread_stats *stats;  /* one per thread                        */
+    render_memory *mem;   /* at least one entry per thread         */
+    record_buffer *parts; /* one per item; NULL: no joined records */
 } job_common;
 
-/* Runs fn over `items` on `threads` threads with c's buffers, then appends the items' records
- * to *records in item order (replacing its contents; `joined`, if given, learns where each
- * item's records start) and adds the threads' counters to *stats. Deterministic whatever the
- * number of threads: items own their records and counters are sums. */
+/* Gives mem at least n threads' buffers, the new ones empty. */
+static int render_memory_reserve(render_memory *mem, int n)
+{
+    if (mem->threads >= n)
+        return 1;
+    trace_scratch *sc = realloc(mem->scratch, (size_t)n * sizeof *sc);
+    if (sc)
+        mem->scratch = sc;
+    record_buffer *rb = realloc(mem->records, (size_t)n * sizeof *rb);
+    if (rb)
+        mem->records = rb;
+    if (!sc || !rb)
+        return 0;
+    size_t more = (size_t)(n - mem->threads);
+    memset(sc + mem->threads, 0, more * sizeof *sc);
+    memset(rb + mem->threads, 0, more * sizeof *rb);
+    mem->threads = n;
+    return 1;
+}
+
+void render_memory_free(render_memory *mem)
+{
+    for (int i = 0; i < mem->threads; ++i) {
+        trace_scratch_free(&mem->scratch[i]);
+        record_buffer_free(&mem->records[i]);
+    }
+    free(mem->scratch);
+    free(mem->records);
+    memset(mem, 0, sizeof *mem);
+}
+
+/* Runs fn over `items` on `threads` threads with c's buffers (mem's, or for this job only
+ * when mem is NULL), then appends the items' records to *records in item order (replacing its
+ * contents; `joined`, if given, learns where each item's records start) and adds the threads'
+ * counters to *stats. Deterministic whatever the number of threads: items own their records
+ * and counters are sums. */
 static int run_job(job_common *c, const tracer *t, size_t items, int threads, parallel_fn fn,
-                   void *job, record_buffer *records, void (*joined)(void *, size_t, size_t),
-                   path_stats *stats, const char *label, tr_error *err)
+                   void *job, render_memory *mem, record_buffer *records,
+                   void (*joined)(void *, size_t, size_t), path_stats *stats, const char *label,
+                   tr_error *err)
 {
     int nthreads = threads > 0 ? threads : 1;
+    render_memory own = {0};
     c->t = t;
+    c->mem = mem ? mem : &own;
     c->stats = calloc((size_t)nthreads, sizeof *c->stats);
-    c->scratch = calloc((size_t)nthreads, sizeof *c->scratch);
     c->parts = records ? calloc(items ? items : 1, sizeof *c->parts) : NULL;
-    int ok = (c->stats && c->scratch && (!records || c->parts)) || tr_fail(err, "out of memory");
+    int ok = (c->stats && render_memory_reserve(c->mem, nthreads) && (!records || c->parts)) ||
+             tr_fail(err, "out of memory");
     if (ok)
         ok = parallel_for(items, threads, fn, job, label, err);
     if (records && c->parts) {
@@ -87,11 +124,9 @@ static int run_job(job_common *c, const tracer *t, size_t items, int threads, pa
     }
     for (int i = 0; stats && c->stats && i < nthreads; ++i)
         path_stats_add(stats, &c->stats[i].s);
-    for (int i = 0; c->scratch && i < nthreads; ++i)
-        trace_scratch_free(&c->scratch[i]);
     free(c->stats);
-    free(c->scratch);
     free(c->parts);
+    render_memory_free(&own);
     return ok;
 }
 
@@ -151,16 +186,16 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
 {
     image_job job = {{0}, img, spp, seed, pass};
     clear_for_ranks(t, img);
-    return run_job(&job.c, t, tile_count(t), threads, render_tile, &job, NULL, NULL, stats,
+    return run_job(&job.c, t, tile_count(t), threads, render_tile, &job, NULL, NULL, NULL, stats,
                    progress_label, err);
 }
 
 /* ---- A pass: one path per pixel --------------------------------------------------------------- */
 
-/* One sample per pixel whose training records are kept per tile, then concatenated in tile
- * order: the same records whatever the number of threads. */
+/* One sample per pixel whose training records go to the sink tile by tile. */
 typedef struct pass_job {
     job_common c;
+    const record_sink *sink; /* NULL: no records */
     image *img;
     float *moment; /* NULL, or PATH_MOMENTS planes of one float per pixel: the paths' second
                     * moments (trace_paths) */
@@ -192,7 +227,7 @@ static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float 
 {
     rgb c[TRACE_BATCH];
     float m[PATH_MOMENTS * TRACE_BATCH];
-    trace_paths(job->c.t, n, r, px, py, c, m, out, &job->c.scratch[thread],
+    trace_paths(job->c.t, n, r, px, py, c, m, out, &job->c.mem->scratch[thread],
                 &job->c.stats[thread].s);
     for (size_t i = 0; i < n; ++i)
         pass_pixel(job, at[i][0], at[i][1], c[i], &m[PATH_MOMENTS * i]);
@@ -204,7 +239,11 @@ static void pass_tile(void *user, size_t k, int thread)
 {
     pass_job *job = user;
     const scene *s = job->c.t->s;
-    record_buffer *out = job->c.parts ? &job->c.parts[k] : NULL;
+    record_buffer *out = job->sink ? &job->c.mem->records[thread] : NULL;
+    if (out) { /* the thread's buffer, emptied for this tile; its memory stays */
+        out->count = 0;
+        out->out_of_memory = 0;
+    }
     int x0, y0;
     tile_bounds(job->c.t, k, &x0, &y0);
     /* Unguided paths ask nothing: advancing them together would only cost locality. */
@@ -237,18 +276,21 @@ static void pass_tile(void *user, size_t k, int thread)
         }
     if (n)
         pass_paths(job, thread, n, r, px, py, at, out);
+    if (out)
+        job->sink->fn(job->sink->user, rank_tile(job->c.t, k), thread, out);
 }
 
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
-                float *moment, record_buffer *records, path_stats *stats, tr_error *err)
+                float *moment, const record_sink *sink, render_memory *mem, path_stats *stats,
+                tr_error *err)
 {
-    pass_job job = {{0}, img, moment, seed, pass};
+    pass_job job = {{0}, sink, img, moment, seed, pass};
     clear_for_ranks(t, img);
     if (moment && t->ranks > 1)
         memset(moment, 0,
                PATH_MOMENTS * (size_t)img->width * (size_t)img->height * sizeof *moment);
-    return run_job(&job.c, t, tile_count(t), threads, pass_tile, &job, records, NULL, stats, NULL,
-                   err);
+    return run_job(&job.c, t, tile_count(t), threads, pass_tile, &job, mem, NULL, NULL, stats,
+                   NULL, err);
 }
 
 /* ---- Training paths through random film positions ---------------------------------------- */
@@ -292,6 +334,6 @@ int trace_training_batch(const tracer *t, size_t first, size_t paths, uint64_t s
 {
     train_job job = {{0}, first, paths, seed, iteration, path_end};
     size_t chunks = (paths + TRAIN_CHUNK - 1) / TRAIN_CHUNK;
-    return run_job(&job.c, t, chunks, threads, train_chunk, &job, out, joined_chunk, stats,
+    return run_job(&job.c, t, chunks, threads, train_chunk, &job, NULL, out, joined_chunk, stats,
                    NULL, err);
 }

@@ -2,7 +2,8 @@
  * render.h - the two parallel jobs of the tracer: rendering an image (tiles of pixels) and
  * tracing a batch of training paths. Both are deterministic for a given seed whatever the
  * number of threads: every pixel and every training path has its own random stream, and
- * training records are gathered per chunk of paths and concatenated in chunk order.
+ * training records are gathered per chunk of paths and concatenated in chunk order (a
+ * batch) or handed over tile by tile with the tile's index (a pass).
  */
 #ifndef TRACER_RENDER_H
 #define TRACER_RENDER_H
@@ -22,16 +23,40 @@
 int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int threads,
                  image *img, path_stats *stats, const char *progress_label, tr_error *err);
 
+/* Memory that render_pass reuses from pass to pass, so that a pass neither allocates nor
+ * touches fresh pages: per thread, trace_paths' scratch and the records of the tile it traces.
+ * Zero-initialize ({0}); it grows to the threads of the passes; render_memory_free releases
+ * it. One pass at a time may use it. */
+typedef struct render_memory {
+    trace_scratch *scratch;
+    record_buffer *records;
+    int threads;
+} render_memory;
+
+void render_memory_free(render_memory *mem);
+
+/* Where a training pass's records go: fn(user, tile, thread, records) runs on the render
+ * thread that traced the tile, once the tile is done, with its records in path order
+ * (records->out_of_memory set when some could not be kept). `tile` is the tile's index on the
+ * film, the same for any number of threads and on every rank, so that keys made from it
+ * order the samples as one thread would. fn may run on several threads at once, each with its
+ * own `thread` in [0, threads); failures are its own to keep and report. */
+typedef struct record_sink {
+    void (*fn)(void *user, size_t tile, int thread, const record_buffer *records);
+    void *user;
+} record_sink;
+
 /* Renders one path per pixel into img (overwriting it; the scene's resolution; with
  * t->ranks > 1 only this rank's tiles, the others black, as render_image) with the random
  * streams of `pass`. With moment != NULL (PATH_MOMENTS planes of one float per pixel,
  * row-major), each pixel's path also writes its estimates of second moments there, plane k
  * its moment[k] (trace_path_moment).
- * With records != NULL, replaces its contents with the training records of those paths, in
- * tile order (the same whatever the number of threads). The passes of a time-budgeted render
- * (budget.h) are these. */
+ * With sink != NULL, the paths record training samples, which go to the sink tile by tile
+ * while the pass runs. mem: the memory to reuse, or NULL (allocated for this pass). The
+ * passes of a time-budgeted render (budget.h) are these. */
 int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
-                float *moment, record_buffer *records, path_stats *stats, tr_error *err);
+                float *moment, const record_sink *sink, render_memory *mem, path_stats *stats,
+                tr_error *err);
 
 /* Traces the training paths first .. first + paths - 1 of iteration `iteration`, each through
  * a uniformly random film position (path j's random stream depends on j alone, so a rank that

@@ -163,7 +163,7 @@ int train_guide(tracer *t, nf_model **model, const training_settings *ts,
         }
         double t1 = now_seconds(), c1 = cpu_seconds();
         size_t n = records.count;
-        if (ok && !record_arrays_from(&batch, &records))
+        if (ok && !record_arrays_from(&batch, &records, 0))
             ok = tr_fail(err, "out of memory for a training batch of %zu samples", n);
         if (!ranks_agree(ok, err)) { /* a rank that failed stops them all */
             ok = 0;

@@ -153,6 +153,31 @@ static void assert_same_records(const record_buffer *a, const record_buffer *b)
     }
 }
 
+/* A record sink that keeps each tile's records apart (at most 16 tiles), to compare passes in
+ * tile order. */
+typedef struct tile_parts {
+    record_buffer tile[16];
+    int out_of_memory;
+} tile_parts;
+
+static void keep_tile(void *user, size_t tile, int thread, const record_buffer *records)
+{
+    (void)thread;
+    tile_parts *p = user;
+    if (tile >= 16 || records->out_of_memory || !record_buffer_append(&p->tile[tile], records))
+        p->out_of_memory = 1;
+}
+
+/* The pass's records in tile order; the parts are freed. */
+static void join_tiles(tile_parts *p, record_buffer *out)
+{
+    assert_false(p->out_of_memory);
+    for (int i = 0; i < 16; ++i) {
+        assert_true(record_buffer_append(out, &p->tile[i]));
+        record_buffer_free(&p->tile[i]);
+    }
+}
+
 /* One pass rendered three times: one path at a time with the flow asked at shading points
  * (no_batching), and with the questions of TRACE_BATCH paths batched (trace_paths), with
  * records (a training pass) and without. 37 x 23 pixels leave partial tiles and partial
@@ -181,16 +206,25 @@ static void check_batched_pass_in(const char *scene_name, model_prior prior,
     assert_true(image_alloc(&recorded, s.width, s.height, &err));
     assert_true(image_alloc(&other, s.width, s.height, &err));
     record_buffer records_one = {0}, records_batched = {0};
+    tile_parts parts_one = {0}, parts_batched = {0};
+    const record_sink sink_one = {keep_tile, &parts_one},
+                      sink_batched = {keep_tile, &parts_batched};
+    render_memory mem = {0}; /* reused by the passes, as budget.c does */
     path_stats st_one = {0}, st_batched = {0}, st_recorded = {0};
     size_t pixels = (size_t)s.width * (size_t)s.height;
     float *moment_one = calloc(PATH_MOMENTS * pixels, sizeof(float)),
           *moment_batched = calloc(PATH_MOMENTS * pixels, sizeof(float));
     assert_non_null(moment_one);
     assert_non_null(moment_batched);
-    assert_true(render_pass(&one_by_one, 7, 3, 2, &one, moment_one, &records_one, &st_one, &err));
-    assert_true(render_pass(&t, 7, 3, 2, &batched, moment_batched, NULL, &st_batched, &err));
-    assert_true(render_pass(&t, 7, 3, 2, &recorded, NULL, &records_batched, &st_recorded, &err));
-    assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, NULL, &err));
+    assert_true(render_pass(&one_by_one, 7, 3, 2, &one, moment_one, &sink_one, NULL, &st_one,
+                            &err));
+    assert_true(render_pass(&t, 7, 3, 2, &batched, moment_batched, NULL, &mem, &st_batched, &err));
+    assert_true(render_pass(&t, 7, 3, 2, &recorded, NULL, &sink_batched, &mem, &st_recorded,
+                            &err));
+    assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, &mem, NULL, &err));
+    render_memory_free(&mem);
+    join_tiles(&parts_one, &records_one);
+    join_tiles(&parts_batched, &records_batched);
     size_t bytes = pixels * 3u * sizeof(float);
     assert_memory_equal(one.data, batched.data, bytes);
     /* The paths' estimates of plain path tracing's and the depth candidates' second moments
