@@ -49,16 +49,24 @@ static nf_status nf_schedule_check_config(const nf_schedule_config *sc, const ch
     return NF_OK;
 }
 
-static double *nf_schedule_array(nf_schedule *s, size_t count, int *ok)
+/* An array of count doubles, zeroed unless `zero` is 0 (an array written before it is read:
+ * its pages are then first touched when used, and a short job that fills few training groups
+ * never pays for the others). */
+static double *nf_schedule_array_of(nf_schedule *s, size_t count, int zero, int *ok)
 {
     double *p = NULL;
     if (*ok && count <= SIZE_MAX / sizeof(double))
         p = (double *)s->alloc.alloc(s->alloc.user, count * sizeof(double));
-    if (p)
-        memset(p, 0, count * sizeof(double));
-    else
+    if (!p)
         *ok = 0;
+    else if (zero)
+        memset(p, 0, count * sizeof(double));
     return p;
+}
+
+static double *nf_schedule_array(nf_schedule *s, size_t count, int *ok)
+{
+    return nf_schedule_array_of(s, count, 1, ok);
 }
 
 static void nf_schedule_release(nf_schedule *s, double *p)
@@ -125,8 +133,8 @@ nf_status nf_schedule_create(nf_guide *guide, const nf_schedule_config *sc, nf_s
     nf_kind_arrays(s, &s->train, &ok);
     for (unsigned k = 0; k < NF_KINDS; ++k)
         nf_kind_arrays(s, &s->kind[k], &ok);
-    for (unsigned g = 0; g < NF_TRAIN_GROUPS; ++g)
-        s->group[g] = nf_schedule_array(s, 3 * s->pixels, &ok);
+    for (unsigned g = 0; g < NF_TRAIN_GROUPS; ++g) /* nf_groups_add writes a group first */
+        s->group[g] = nf_schedule_array_of(s, 3 * s->pixels, 0, &ok);
     s->ref = nf_schedule_array(s, s->pixels, &ok);
     s->peakless = nf_schedule_array(s, s->pixels, &ok);
     s->pool = nf_schedule_array(s, s->pixels, &ok);
