@@ -26,8 +26,7 @@ static nf_model *make(nf_preset preset, nf_prior_kind prior, nf_phi_map map)
 {
     nf_config cfg = nft_config(preset, prior);
     cfg.phi_map = map;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     return m;
 }
 

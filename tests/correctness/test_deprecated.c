@@ -28,8 +28,7 @@ static nf_context test_context(void)
 /* The model's names: parameters, their count, the learning rate, the configuration. */
 static void test_model_names(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     assert_int_equal(nft_randomize_params(m, 0.3f, 5), NF_OK);
     const size_t n = nf_model_param_count(m);
     assert_true(n > 0 && nf_param_count(m) == n);
@@ -56,14 +55,12 @@ static void test_model_names(void **state)
     assert_int_equal(nf_model_config(m, NULL), NF_ERROR_INVALID_ARGUMENT);
     free(a);
     free(b);
-    nf_model_destroy(m);
 }
 
 /* nf_prior_pdf is nf_model_prior_pdf's density, -1 where it refuses. */
 static void test_prior_pdf(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_context c = test_context();
     const float dir[3] = {0.1f, 0.5f, 0.8f}, zero[3] = {0.0f, 0.0f, 0.0f};
     float q = 0.0f;
@@ -71,14 +68,12 @@ static void test_prior_pdf(void **state)
     assert_true(q > 0.0f && nf_prior_pdf(m, &c, dir) == q);
     assert_true(nf_prior_pdf(m, &c, zero) == -1.0f);
     assert_true(nf_prior_pdf(NULL, &c, dir) == -1.0f);
-    nf_model_destroy(m);
 }
 
 /* The batch forms of the shading points, one direction per point. */
 static void test_point_batches(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     assert_int_equal(nft_randomize_params(m, 0.3f, 9), NF_OK);
     nf_shading_point p[2];
     nf_context c[2] = {test_context(), test_context()};
@@ -95,7 +90,6 @@ static void test_point_batches(void **state)
     assert_int_equal(nf_points_pdf(m, 2, p, d0, e1), NF_OK);
     assert_memory_equal(e0, e1, sizeof e0);
     assert_int_equal(nf_points_pdf(m, 2, NULL, d0, e1), NF_ERROR_INVALID_ARGUMENT);
-    nf_model_destroy(m);
 }
 
 /* The depth of a guided kind is the kind itself: every depth, then 1 and 2; 0 beyond. */
@@ -110,8 +104,8 @@ static void test_depth_of(void **state)
 }
 
 NFT_TEST_MAIN(
-    cmocka_unit_test(test_model_names),
-    cmocka_unit_test(test_prior_pdf),
-    cmocka_unit_test(test_point_batches),
+    NFT_WITH_MODEL(test_model_names),
+    NFT_WITH_MODEL(test_prior_pdf),
+    NFT_WITH_MODEL(test_point_batches),
     cmocka_unit_test(test_depth_of),
 )

@@ -328,8 +328,7 @@ static void test_zero_weights(void **state)
     for (size_t i = 0; i < count; ++i)
         assert_true(grad[i] == 0.0f);
     /* nf_train_step with zero weights: no step, loss 0, the model unchanged. */
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     loss = 5.0f;
     assert_int_equal(nf_train_step(m, BATCH, b.ctx, b.dir, b.weight, &loss), NF_OK);
     assert_true(loss == 0.0f);
@@ -380,8 +379,7 @@ static void test_tiles_match_single_samples(void **state)
                 cfg.hidden_layers = 8;
                 cfg.hidden_width = 80;
             }
-            nf_model *m = NULL;
-            assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+            nf_model *m = nft_model_from(&cfg);
             assert_int_equal(nft_randomize_params(m, 0.3f, 701u + (uint64_t)p), NF_OK);
             size_t count = nf_model_param_count(m);
             float *batch_grad = malloc(count * sizeof(float));
@@ -673,8 +671,7 @@ static void test_apply_gradient_adamw(void **state)
     cfg.beta2 = 0.95f;
     cfg.adam_epsilon = 1e-6f;
     cfg.weight_decay = 0.1f;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     size_t count = nf_model_param_count(m);
     float *p = malloc(count * sizeof *p), *g = malloc(count * sizeof *g);
     double *P = malloc(count * sizeof *P), *M = calloc(count, sizeof *M);

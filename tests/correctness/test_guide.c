@@ -115,8 +115,7 @@ static void pool_run(void *user, size_t count, nf_task_fn task, void *data)
 
 static void test_config_checked(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_guide *g = NULL;
     nf_guide_config gc;
     memset(&gc, 0, sizeof gc);
@@ -165,7 +164,6 @@ static void test_config_checked(void **state)
     assert_int_equal(nf_guide_get_config(g)->store_capacity, gc.store_capacity);
     nf_guide_destroy(g);
     nf_guide_destroy(NULL);
-    nf_model_destroy(m);
 }
 
 /* ---- The path policy ------------------------------------------------------------------- */
@@ -186,8 +184,7 @@ static void test_model_config(void **state)
     assert_int_equal(cfg.spline_bins, preset.spline_bins);
     assert_memory_equal(cfg.bounds_min, lo, sizeof lo);
     assert_memory_equal(cfg.bounds_max, hi, sizeof hi);
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     nf_model_destroy(m);
     nf_guide_model_config_init(&cfg, NULL, hi);
     assert_memory_equal(cfg.bounds_min, preset.bounds_min, sizeof lo);
@@ -235,8 +232,7 @@ static void test_policy_points(void **state)
 
 static void test_store_bounds(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_guide_config gc = nft_guide_config(100, 32, 2);
     gc.clamp_quantile = 0.99f; /* off by default; this test asks for it */
     nf_guide *g = make_guide(m, &gc);
@@ -281,7 +277,6 @@ static void test_store_bounds(void **state)
     assert_true(rep.clamp > 0.0f);
     free_samples(&s);
     nf_guide_destroy(g);
-    nf_model_destroy(m);
 }
 
 /* ---- Same bits for any threads and any order of adds ------------------------------------ */
@@ -310,8 +305,7 @@ static void train_two_passes(nf_guide *g, const samples *a, const samples *b, in
 
 static void test_same_bits_any_threads(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_guide_config gc = nft_guide_config(4096, 512, 4);
     samples a = make_samples(1500, 11), b = make_samples(1200, 12);
     size_t P = nf_model_param_count(m);
@@ -345,7 +339,6 @@ static void test_same_bits_any_threads(void **state)
     free(ref);
     free(got);
     free(start);
-    nf_model_destroy(m);
 }
 
 /* ---- Exact sums across processes ---------------------------------------------------------- */
@@ -408,8 +401,7 @@ static void *process_main(void *arg)
 
 static void test_exact_across_processes(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_guide_config gc;
     nf_guide_config_init(&gc);
     gc.store_capacity = 16;
@@ -481,15 +473,13 @@ static void test_exact_across_processes(void **state)
     free_samples(&s);
     free(one);
     free(two);
-    nf_model_destroy(m);
 }
 
 /* ---- The schedule: patience ----------------------------------------------------------------- */
 
 static void test_patience(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_guide_config gc = nft_guide_config(512, 256, 1);
     gc.patience = 3;
     gc.learning_rate = 1e-9f; /* the model cannot improve: only patience ends training */
@@ -512,15 +502,13 @@ static void test_patience(void **state)
     assert_int_equal(nf_guide_keep_training(g, 4.51, 30.0), 0);
     nf_guide_destroy(g);
     free_samples(&s);
-    nf_model_destroy(m);
 }
 
 /* ---- Publication -------------------------------------------------------------------------- */
 
 static void test_publish(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_guide_config gc = nft_guide_config(1024, 256, 2);
     nf_guide *g = make_guide(m, &gc);
     size_t P = nf_model_param_count(m);
@@ -579,7 +567,6 @@ static void test_publish(void **state)
     free(a);
     free(b);
     nf_guide_destroy(g);
-    nf_model_destroy(m);
 }
 
 /* ---- A custom prior finds each sample's payload ------------------------------------------- */
@@ -609,8 +596,7 @@ static void test_payload(void **state)
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_CUSTOM);
     cfg.custom_prior.sample = payload_sample;
     cfg.custom_prior.pdf = payload_pdf; /* user stays nft_phong_callbacks()'s */
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     nf_guide_config gc;
     nf_guide_config_init(&gc);
     gc.store_capacity = 300;
@@ -662,8 +648,7 @@ static nf_status passing_sum(void *user, int64_t *v, size_t n)
 
 static void test_failing_reduce_changes_nothing(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_guide_config gc;
     nf_guide_config_init(&gc);
     gc.store_capacity = 64;
@@ -696,7 +681,6 @@ static void test_failing_reduce_changes_nothing(void **state)
     free(after);
     free_samples(&s);
     nf_guide_destroy(g);
-    nf_model_destroy(m);
 }
 
 /* nf_model_copy, which publication uses: dst becomes src (parameters, optimizer state, step
@@ -745,11 +729,11 @@ static void test_model_copy(void **state)
 }
 
 NFT_TEST_MAIN(
-    cmocka_unit_test(test_config_checked),   cmocka_unit_test(test_policy_points),
+    NFT_WITH_MODEL(test_config_checked),   cmocka_unit_test(test_policy_points),
     cmocka_unit_test(test_model_config),
-    cmocka_unit_test(test_store_bounds),     cmocka_unit_test(test_same_bits_any_threads),
-    cmocka_unit_test(test_exact_across_processes), cmocka_unit_test(test_patience),
-    cmocka_unit_test(test_publish),          cmocka_unit_test(test_payload),
+    NFT_WITH_MODEL(test_store_bounds),     NFT_WITH_MODEL(test_same_bits_any_threads),
+    NFT_WITH_MODEL(test_exact_across_processes), NFT_WITH_MODEL(test_patience),
+    NFT_WITH_MODEL(test_publish),          cmocka_unit_test(test_payload),
     cmocka_unit_test(test_model_copy),
-    cmocka_unit_test(test_failing_reduce_changes_nothing),
+    NFT_WITH_MODEL(test_failing_reduce_changes_nothing),
 )

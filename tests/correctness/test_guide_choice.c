@@ -19,8 +19,7 @@
 static nf_guide *make_guide(const nf_guide_config *gc)
 {
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     nf_guide *g = NULL;
     assert_int_equal(nf_guide_create(m, gc, &g), NF_OK);
     nf_model_destroy(m);
@@ -372,8 +371,7 @@ static void test_fixed_policy_and_refusals(void **state)
 
     /* The configuration's new fields are range-checked like the others. */
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_model *model = NULL;
-    assert_int_equal(nf_model_create(&cfg, &model), NF_OK);
+    nf_model *model = nft_model_from(&cfg);
     nf_guide_config_init(&gc);
     gc.pass_choice = 2;
     assert_int_equal(nf_guide_create(model, &gc, &g), NF_ERROR_INVALID_ARGUMENT);

@@ -160,8 +160,7 @@ static void test_fresh_density_epsilon(void **state)
         for (int e = 0; e < 3; ++e) {
             nf_config cfg = nft_config(NF_PRESET_SMALL, all_priors[k]);
             cfg.prior_epsilon = eps[e];
-            nf_model *m = NULL;
-            assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+            nf_model *m = nft_model_from(&cfg);
             nft_rng r;
             nft_rng_seed(&r, 5u, (uint64_t)e);
             for (int i = 0; i < 256; ++i) {

@@ -208,8 +208,7 @@ static void test_auto_and_invalid(void **state)
     (void)state;
     nf_config cfg;
     nf_config_init(&cfg, NF_PRESET_SMALL);
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     assert_true(strlen(nf_model_isa_name(m)) > 0);
     nf_model_destroy(m);
     memset(&cfg.isa, 0x7f, sizeof cfg.isa); /* not an nf_isa value */

@@ -155,8 +155,7 @@ static void test_learns_vmf_lobe(void **state)
 
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     cfg.learning_rate = 5e-3f;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
 
     nft_rng r;
     nft_rng_seed(&r, 4001u, 1u);
@@ -289,8 +288,7 @@ static void test_cosine_prior_after_training(void **state)
     for (int p = 0; p < 3; ++p) {
         nf_config cfg = nft_config(NF_PRESET_SMALL, priors[p]);
         cfg.learning_rate = 5e-3f;
-        nf_model *m = NULL;
-        assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+        nf_model *m = nft_model_from(&cfg);
         before[p] = held_out_loss(m, N, ctx, dir);
         nft_rng tr;
         nft_rng_seed(&tr, 4005u, 4u); /* the same u and contexts for every prior */

@@ -60,8 +60,7 @@ static double rel(double a, double b) { return fabs(a - b) / b; }
 
 static void test_fresh_model_is_the_phase_function(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_config cfg;
     assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
@@ -109,7 +108,6 @@ static void test_fresh_model_is_the_phase_function(void **state)
         }
     }
     print_message("fresh model vs analytic HG: worst relative difference %.3g\n", worst);
-    nf_model_destroy(m);
 }
 
 /* ---- sampling ------------------------------------------------------------------------------ */
@@ -121,8 +119,7 @@ static void test_fresh_model_is_the_phase_function(void **state)
  * them, and a sampler drawing around wo instead of -wo would miss by 2 (1 - eps) |g|. */
 static void test_sample_matches_pdf_and_phase_function(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_config cfg;
     assert_int_equal(nf_model_get_config(m, &cfg), NF_OK);
     nft_rng r;
@@ -167,7 +164,6 @@ static void test_sample_matches_pdf_and_phase_function(void **state)
                       mean, want);
         assert_true(fabs(mean - want) < 0.06);
     }
-    nf_model_destroy(m);
 }
 
 /* ---- normalization -------------------------------------------------------------------------- */
@@ -339,8 +335,7 @@ static void test_training_at_medium_contexts(void **state)
     training_contexts(ctx);
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     cfg.learning_rate = 5e-3f;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     nft_rng r;
     nft_rng_seed(&r, 52u, 2u);
     double entropy[2] = {0.0, 0.0};
@@ -385,8 +380,7 @@ static void test_training_at_medium_contexts(void **state)
 
 static void test_medium_contexts_are_validated(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nft_rng r;
     nft_rng_seed(&r, 9u, 3u);
     float dir[3] = {0.0f, 0.6f, 0.8f}, pdf = -1.0f;
@@ -423,14 +417,13 @@ static void test_medium_contexts_are_validated(void **state)
     assert_int_equal(nf_pdf(m, 1, &c, dir, &pdf), NF_ERROR_INVALID_ARGUMENT);
     c.normal[2] = NAN;
     assert_int_equal(nf_pdf(m, 1, &c, dir, &pdf), NF_ERROR_INVALID_ARGUMENT);
-    nf_model_destroy(m);
 }
 
 NFT_TEST_MAIN(
-    cmocka_unit_test(test_fresh_model_is_the_phase_function),
-    cmocka_unit_test(test_sample_matches_pdf_and_phase_function),
+    NFT_WITH_MODEL(test_fresh_model_is_the_phase_function),
+    NFT_WITH_MODEL(test_sample_matches_pdf_and_phase_function),
     cmocka_unit_test(test_normalization),
     cmocka_unit_test(test_chi2),
     cmocka_unit_test(test_training_at_medium_contexts),
-    cmocka_unit_test(test_medium_contexts_are_validated),
+    NFT_WITH_MODEL(test_medium_contexts_are_validated),
 )

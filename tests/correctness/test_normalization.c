@@ -120,29 +120,8 @@ static void check_prior(nf_prior_kind prior)
     nf_model_destroy(randomized);
 }
 
-static void test_normalization_uniform_direction(void **state)
-{
-    (void)state;
-    check_prior(NF_PRIOR_UNIFORM_DIRECTION);
-}
-
-static void test_normalization_uniform_angle(void **state)
-{
-    (void)state;
-    check_prior(NF_PRIOR_UNIFORM_ANGLE);
-}
-
-static void test_normalization_cosine(void **state)
-{
-    (void)state;
-    check_prior(NF_PRIOR_COSINE);
-}
-
-static void test_normalization_custom(void **state)
-{
-    (void)state;
-    check_prior(NF_PRIOR_CUSTOM);
-}
+/* The integral of the density under the prior in *state. */
+static void test_normalization(void **state) { check_prior((nf_prior_kind)nft_case(state)); }
 
 /* A large-preset model (4 coupling layers, 16 bins, 2 hidden layers) also integrates to 1. */
 static void test_normalization_large_preset(void **state)
@@ -275,10 +254,11 @@ static void test_quadrature_self_check(void **state)
 
 NFT_TEST_MAIN(
     cmocka_unit_test(test_quadrature_self_check),
-    cmocka_unit_test(test_normalization_uniform_direction),
-    cmocka_unit_test(test_normalization_uniform_angle),
-    cmocka_unit_test(test_normalization_cosine),
-    cmocka_unit_test(test_normalization_custom),
+    NFT_TEST_CASE("test_normalization_uniform_direction", test_normalization,
+                  NF_PRIOR_UNIFORM_DIRECTION),
+    NFT_TEST_CASE("test_normalization_uniform_angle", test_normalization, NF_PRIOR_UNIFORM_ANGLE),
+    NFT_TEST_CASE("test_normalization_cosine", test_normalization, NF_PRIOR_COSINE),
+    NFT_TEST_CASE("test_normalization_custom", test_normalization, NF_PRIOR_CUSTOM),
     cmocka_unit_test(test_normalization_large_preset),
     cmocka_unit_test(test_normalization_rotated_frame),
     cmocka_unit_test(test_quadrature_convergence),

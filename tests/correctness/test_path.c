@@ -490,8 +490,7 @@ static void test_vertex_out_optional(void **state)
  * pass its checks), including learned vertices with directions and normals of odd lengths. */
 static void test_samples_train(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nft_rng g;
     nft_rng_seed(&g, 3, 4);
     nf_path_vertex v[MAX_V];
@@ -510,7 +509,6 @@ static void test_samples_train(void **state)
     assert_int_equal(nf_train_step(m, r.count, r.ctx, r.dir, r.weight, &loss), NF_OK);
     assert_true(isfinite(loss));
     assert_int_equal(nf_model_step_count(m), 1);
-    nf_model_destroy(m);
 }
 
 NFT_TEST_MAIN(
@@ -523,5 +521,5 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_overflow_and_underflow),
     cmocka_unit_test(test_capacity),
     cmocka_unit_test(test_vertex_out_optional),
-    cmocka_unit_test(test_samples_train),
+    NFT_WITH_MODEL(test_samples_train),
 )

@@ -235,8 +235,7 @@ static void test_round_trip_config(void **state)
     cfg.weight_decay = 0.0f;
     cfg.seed = 0x123456789abcdefull;
     cfg.phi_map = NF_PHI_INTERVAL; /* not the default */
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     assert_int_equal(nf_model_set_learning_rate(m, 0.02f), NF_OK);
     size_t size;
     unsigned char *buf = serialize(m, &size);
@@ -311,8 +310,7 @@ static void test_load_missing_file(void **state)
  * untouched. */
 static void test_serialize_capacity(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     size_t need = 0;
     assert_int_equal(nf_model_serialize(m, NULL, 0, &need), NF_OK);
     assert_true(need == HEADER + 12u * nf_model_param_count(m) + TRAILER);
@@ -334,7 +332,6 @@ static void test_serialize_capacity(void **state)
     assert_true(size == need);
     free(big);
     free(buf);
-    nf_model_destroy(m);
 }
 
 /* ---- resumed training ------------------------------------------------------------------------- */
@@ -719,8 +716,7 @@ static void test_custom_prior_callbacks(void **state)
 /* NULL arguments. */
 static void test_null_arguments(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     size_t size;
     unsigned char *buf = serialize(m, &size);
     nf_model *out = (nf_model *)(uintptr_t)0x1;
@@ -735,7 +731,6 @@ static void test_null_arguments(void **state)
     assert_int_equal(nf_model_serialize(NULL, buf, size, &size), NF_ERROR_INVALID_ARGUMENT);
     assert_int_equal(nf_model_serialize(m, buf, size, NULL), NF_ERROR_INVALID_ARGUMENT);
     free(buf);
-    nf_model_destroy(m);
 }
 
 NFT_TEST_MAIN(
@@ -744,7 +739,7 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_round_trip_config),
     cmocka_unit_test(test_save_load_file),
     cmocka_unit_test(test_load_missing_file),
-    cmocka_unit_test(test_serialize_capacity),
+    NFT_WITH_MODEL(test_serialize_capacity),
     cmocka_unit_test(test_resume_training),
     cmocka_unit_test(test_truncated),
     cmocka_unit_test(test_bit_flips),
@@ -753,5 +748,5 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_unknown_phi_map),
     cmocka_unit_test(test_invalid_content),
     cmocka_unit_test(test_custom_prior_callbacks),
-    cmocka_unit_test(test_null_arguments),
+    NFT_WITH_MODEL(test_null_arguments),
 )

@@ -801,8 +801,7 @@ static void test_other_models_refused(void **state)
     nf_config cfg = config_for(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     cfg.allocator.alloc = arena_alloc;
     cfg.allocator.free = arena_free;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     assert_ptr_equal(m, arena[0]);
     perturb(m, 5u);
     nf_context ctx[6];

@@ -50,8 +50,7 @@ static result measure(nf_prior_kind prior, double kappa, int steps, uint64_t see
     const nf_context c = nft_context(0.3f, 0.5f, 0.7f, 0, 0, 1, 0.2f, 0.1f, 1);
     nf_config cfg = nft_config(NF_PRESET_SMALL, prior);
     cfg.learning_rate = 5e-3f;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     nft_rng r;
     nft_rng_seed(&r, seed, 3u);
     for (int i = 0; i < BATCH; ++i) {

@@ -73,29 +73,8 @@ static void run_chi2(nf_prior_kind prior)
     }
 }
 
-static void test_chi2_uniform_direction(void **state)
-{
-    (void)state;
-    run_chi2(NF_PRIOR_UNIFORM_DIRECTION);
-}
-
-static void test_chi2_uniform_angle(void **state)
-{
-    (void)state;
-    run_chi2(NF_PRIOR_UNIFORM_ANGLE);
-}
-
-static void test_chi2_cosine(void **state)
-{
-    (void)state;
-    run_chi2(NF_PRIOR_COSINE);
-}
-
-static void test_chi2_custom(void **state)
-{
-    (void)state;
-    run_chi2(NF_PRIOR_CUSTOM);
-}
+/* The chi-square test of nf_sample against nf_pdf under the prior in *state. */
+static void test_chi2(void **state) { run_chi2((nf_prior_kind)nft_case(state)); }
 
 /* ---- the pdf of nf_sample ---------------------------------------------------------------- */
 
@@ -284,8 +263,7 @@ static void test_custom_callbacks_get_caller_context(void **state)
     cfg.custom_prior.sample = recording_sample;
     cfg.custom_prior.pdf = recording_pdf;
     cfg.custom_prior.user = &rec;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     nft_rng r;
     nft_rng_seed(&r, 4u, 4u);
     for (int i = 0; i < N; ++i) {
@@ -536,10 +514,10 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_gamma_q),
     cmocka_unit_test(test_chi2_harness),
     cmocka_unit_test(test_chi2_power),
-    cmocka_unit_test(test_chi2_uniform_direction),
-    cmocka_unit_test(test_chi2_uniform_angle),
-    cmocka_unit_test(test_chi2_cosine),
-    cmocka_unit_test(test_chi2_custom),
+    NFT_TEST_CASE("test_chi2_uniform_direction", test_chi2, NF_PRIOR_UNIFORM_DIRECTION),
+    NFT_TEST_CASE("test_chi2_uniform_angle", test_chi2, NF_PRIOR_UNIFORM_ANGLE),
+    NFT_TEST_CASE("test_chi2_cosine", test_chi2, NF_PRIOR_COSINE),
+    NFT_TEST_CASE("test_chi2_custom", test_chi2, NF_PRIOR_CUSTOM),
     cmocka_unit_test(test_sample_pdf_matches_pdf),
     cmocka_unit_test(test_sample_pdf_matches_pdf_sharp),
     cmocka_unit_test(test_sample_is_deterministic),

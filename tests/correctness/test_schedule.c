@@ -22,8 +22,7 @@ enum { W = 16, H = 8, PIXELS = W * H };
 static nf_guide *make_guide(void)
 {
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     nf_guide_config gc = nft_guide_config(64, 16, 1);
     nf_guide *g = NULL;
     assert_int_equal(nf_guide_create(m, &gc, &g), NF_OK);

@@ -43,8 +43,7 @@ static nf_model *make_model(nf_isa isa)
     nft_apply_phi_map(&cfg);
     cfg.isa = isa;
     cfg.learning_rate = 1e-2f; /* large steps: any difference of kernels shows at once */
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     return m;
 }
 

@@ -222,11 +222,9 @@ static void test_clone(void **state)
     failing f;
     memset(&f, 0, sizeof f);
     nf_config cfg = failing_config(&f, NF_PRESET_LARGE, NF_PRIOR_CUSTOM);
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     train(m, 3, 1u);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     const long live = f.live;
     const long long bytes = f.live_bytes;
     unsigned long k = 0;
@@ -279,11 +277,9 @@ static void test_save(void **state)
     failing f;
     memset(&f, 0, sizeof f);
     nf_config cfg = failing_config(&f, NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     train(m, 2, 3u);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     const char *previous = "a file that was here before";
     write_file(path, previous);
     const long live = f.live;
@@ -488,8 +484,7 @@ static void test_load_and_deserialize(void **state)
     nf_config cfg = nft_config(NF_PRESET_LARGE, NF_PRIOR_COSINE);
     nft_config_largest(&cfg);
     cfg.spline_bins = 16; /* the large preset's: the figures above are for it */
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     size_t size = 0;
     assert_int_equal(nf_model_serialize(m, NULL, 0, &size), NF_OK);
     unsigned char *buf = malloc(size);
@@ -553,8 +548,7 @@ static void test_shading_points_never_allocate(void **state)
             cfg.coupling_layers = 8;
             cfg.hidden_width = 64;
         }
-        nf_model *m = NULL;
-        assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+        nf_model *m = nft_model_from(&cfg);
         assert_true(f.calls > 0); /* the allocator is the one the library uses */
         train(m, 2, 5u);
         const unsigned long calls = f.calls;

@@ -22,8 +22,7 @@ static void assert_refused_naming(nf_status got, nf_status want, const char *tex
 
 static void test_null_arguments_are_named(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_context ctx = nft_context(0.5f, 0.5f, 0.5f, 0, 0, 1, 0, 0, 1);
     float u[2] = {0.5f, 0.5f}, dir[3] = {0, 0, 1}, pdf;
     nf_shading_point sp;
@@ -40,13 +39,11 @@ static void test_null_arguments_are_named(void **state)
     assert_refused_naming(nf_train_step(m, 1, &ctx, dir, NULL, NULL), bad, "weight is NULL");
     assert_refused_naming(nf_model_get_params(m, NULL), bad, "params is NULL");
     assert_refused_naming(nf_model_set_params(NULL, u), bad, "m is NULL");
-    nf_model_destroy(m);
 }
 
 static void test_empty_calls_check_the_rest(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    nf_model *m = *state;
     nf_context ctx = nft_context(0.5f, 0.5f, 0.5f, 0, 0, 1, 0, 0, 1);
     nf_shading_point sp;
     assert_int_equal(nf_point_prepare(m, &ctx, NULL, &sp), NF_OK);
@@ -69,7 +66,6 @@ static void test_empty_calls_check_the_rest(void **state)
     assert_int_equal(nf_train_step(m, 1, &ctx, dir, &w, NULL), NF_OK);
     assert_refused_naming(nf_point_sample(m, &sp, 0, NULL, NULL, NULL), NF_ERROR_STALE,
                           "prepare it again");
-    nf_model_destroy(m);
 }
 
 static void test_zeroed_config_points_at_init(void **state)
@@ -84,7 +80,7 @@ static void test_zeroed_config_points_at_init(void **state)
 }
 
 NFT_TEST_MAIN(
-    cmocka_unit_test(test_null_arguments_are_named),
-    cmocka_unit_test(test_empty_calls_check_the_rest),
+    NFT_WITH_MODEL(test_null_arguments_are_named),
+    NFT_WITH_MODEL(test_empty_calls_check_the_rest),
     cmocka_unit_test(test_zeroed_config_points_at_init),
 )

@@ -326,8 +326,7 @@ static void test_life_cycle_null(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_COSINE);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     nf_model *out = not_null;
     EXPECT_INVALID(nf_model_clone(NULL, &out));
     assert_null(out);
@@ -349,8 +348,7 @@ static void test_sample_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_COSINE);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     batch b = valid_batch();
     float dir[3 * N], pdf[N];
     char what[64];
@@ -425,8 +423,7 @@ static void test_pdf_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_CUSTOM);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     batch b = valid_batch();
     float pdf[N];
     char what[64];
@@ -523,8 +520,7 @@ static void test_train_step_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_COSINE);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     batch b = valid_batch(), bad;
     char what[64];
     float loss = NFT_SENTINEL;
@@ -564,8 +560,7 @@ static void test_loss_gradient_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_CUSTOM);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     const size_t pc = nf_model_param_count(m);
     float *grad = malloc(pc * sizeof *grad);
     assert_non_null(grad);
@@ -636,8 +631,7 @@ static void test_params_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_UNIFORM_DIRECTION);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     const size_t pc = nf_model_param_count(m);
     float *p = malloc(pc * sizeof *p);
     assert_non_null(p);
@@ -665,8 +659,7 @@ static void test_apply_gradient_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_COSINE);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     const size_t pc = nf_model_param_count(m);
     float *g = malloc(pc * sizeof *g);
     assert_non_null(g);
@@ -695,8 +688,7 @@ static void test_learning_rate_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_COSINE);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     nf_config before, after;
     assert_int_equal(nf_model_get_config(m, &before), NF_OK);
     EXPECT_INVALID(nf_model_set_learning_rate(NULL, 1e-3f));
@@ -721,8 +713,7 @@ static void test_io_bad_input(void **state)
 {
     (void)state;
     nf_model *m = trained_model(NF_PRIOR_COSINE);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     nf_model *out = not_null;
     const char *missing_dir = "nf_test_no_such_directory/model.nf";
 
@@ -831,15 +822,13 @@ static void test_custom_callbacks_misbehave(void **state)
     cfg.custom_prior.sample = faulty_sample;
     cfg.custom_prior.pdf = faulty_pdf;
     cfg.custom_prior.user = &f;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     assert_int_equal(nft_randomize_params(m, 0.3f, 3u), NF_OK);
     batch b = valid_batch();
     const int k = 5; /* the faulty sample; u0 = 0.5 picks the custom component */
     b.ctx[k].position[0] = MARKER;
     b.u[2 * k] = 0.5f;
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     float dir[3 * N], pdf[N], loss;
     float *grad = malloc(nf_model_param_count(m) * sizeof *grad);
     assert_non_null(grad);

@@ -201,8 +201,7 @@ static void test_concurrent_const_and_io(void **state)
     cfg.allocator.alloc = counting_alloc;
     cfg.allocator.free = counting_free;
     cfg.allocator.user = &alloc;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     assert_int_equal(nft_randomize_params(m, 0.3f, 1u), NF_OK);
     s.alloc = &alloc;
     nft_rng r;

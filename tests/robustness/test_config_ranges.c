@@ -117,8 +117,7 @@ static void test_prior_epsilon_floor(void **state)
     for (size_t k = 0; k < 2; ++k) {
         nf_config cfg = nft_config(NF_PRESET_SMALL, priors[k]);
         cfg.prior_epsilon = NF_PRIOR_EPSILON_MIN;
-        nf_model *m = NULL;
-        assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+        nf_model *m = nft_model_from(&cfg);
         nf_context ctx = nft_context(0.5f, 0.5f, 0.5f, 0.0f, 0.0f, 1.0f, 0.0f, 0.0f, 1.0f);
         const float below[3] = {0.3f, -0.2f, -0.9f};
         float prior = nft_prior_pdf(m, &ctx, below), pdf = 0.0f;
@@ -307,14 +306,12 @@ static void test_set_learning_rate(void **state)
     (void)state;
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     cfg.weight_decay = 0.0f;
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     const field lr = fields[1];
     probe probes[16];
     size_t n = probes_of(&lr, probes);
     for (size_t k = 0; k < n; ++k) {
-        nft_snapshot snap;
-        assert_int_equal(nft_snapshot_take(m, &snap), 0);
+        nft_snapshot snap = nft_snapshot_of(m);
         nf_status st = nf_model_set_learning_rate(m, probes[k].v);
         assert_int_equal(st, probes[k].ok ? NF_OK : NF_ERROR_INVALID_ARGUMENT);
         if (!probes[k].ok) {

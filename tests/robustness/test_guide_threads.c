@@ -53,8 +53,11 @@ typedef struct shared {
     atomic_ulong checked, mismatched, refused_adds, added, publishes, models_seen;
 } shared;
 
-static void fill(shared *s, uint64_t seed)
+/* A zeroed `shared` (the test fails without one) holding the samples of `seed`. */
+static shared *new_shared(uint64_t seed)
 {
+    shared *s = calloc(1, sizeof *s);
+    assert_non_null(s);
     nft_rng r;
     nft_rng_seed(&r, seed, 3);
     const double mu[3] = {0.3, 0.0, 0.95};
@@ -63,6 +66,7 @@ static void fill(shared *s, uint64_t seed)
         nft_vmf_sample(&r, mu, 30.0, s->dir + 3 * i);
         s->weight[i] = 0.5f + nft_rng_float(&r);
     }
+    return s;
 }
 
 static void *render_thread(void *arg)
@@ -124,11 +128,8 @@ static void *render_thread(void *arg)
 
 static void test_guide_train_while_sampling(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    shared *s = calloc(1, sizeof *s);
-    assert_non_null(s);
-    fill(s, 9);
+    nf_model *m = *state;
+    shared *s = new_shared(9);
     nf_guide_config gc = nft_guide_config(4096, 128, 2);
     gc.learning_rate = 2e-2f;
     assert_int_equal(nf_guide_create(m, &gc, &s->g), NF_OK);
@@ -187,7 +188,6 @@ static void test_guide_train_while_sampling(void **state)
     assert_true(atomic_load(&s->publishes) > 0);
     nf_guide_destroy(s->g);
     free(s);
-    nf_model_destroy(m);
 }
 
 /* ---- 1b. Training helped by render threads (nf_guide_helpers, nf_guide_help) ------------ */
@@ -215,11 +215,8 @@ static void *helper_thread(void *arg)
  * must take tasks (else nf_guide_help does nothing) and the models end with the same bits. */
 static void test_guide_helped_by_render_threads(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    shared *s = calloc(1, sizeof *s);
-    assert_non_null(s);
-    fill(s, 4);
+    nf_model *m = *state;
+    shared *s = new_shared(4);
     nf_guide_config gc = nft_guide_config(4096, 256, 4);
     nf_guide *alone, *helped;
     assert_int_equal(nf_guide_create(m, &gc, &alone), NF_OK);
@@ -265,7 +262,6 @@ static void test_guide_helped_by_render_threads(void **state)
     nf_guide_destroy(alone);
     nf_guide_destroy(helped);
     free(s);
-    nf_model_destroy(m);
 }
 
 /* ---- 2. A bare model trained while points are prepared ------------------------------------ */
@@ -326,11 +322,11 @@ static void test_bare_model_misuse_detected(void **state)
     assert_non_null(b->which);
     b->m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     assert_int_equal(nf_model_set_learning_rate(b->m, 2e-2f), NF_OK);
-    shared tmp;
-    fill(&tmp, 17);
-    memcpy(b->ctx, tmp.ctx, sizeof b->ctx);
-    memcpy(b->dir, tmp.dir, sizeof b->dir);
-    memcpy(b->weight, tmp.weight, sizeof b->weight);
+    shared *tmp = new_shared(17);
+    memcpy(b->ctx, tmp->ctx, sizeof b->ctx);
+    memcpy(b->dir, tmp->dir, sizeof b->dir);
+    memcpy(b->weight, tmp->weight, sizeof b->weight);
+    free(tmp);
 
     pthread_t t1, t2;
     assert_int_equal(pthread_create(&t2, NULL, bare_preparer, b), 0);
@@ -371,7 +367,7 @@ static void test_bare_model_misuse_detected(void **state)
 }
 
 NFT_TEST_MAIN(
-    cmocka_unit_test(test_guide_train_while_sampling),
-    cmocka_unit_test(test_guide_helped_by_render_threads),
+    NFT_WITH_MODEL(test_guide_train_while_sampling),
+    NFT_WITH_MODEL(test_guide_helped_by_render_threads),
     cmocka_unit_test(test_bare_model_misuse_detected),
 )

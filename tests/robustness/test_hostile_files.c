@@ -58,10 +58,8 @@ static void test_load_devices(void **state)
 
 static void test_save_unwritable(void **state)
 {
-    (void)state;
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nf_model *m = *state;
+    nft_snapshot snap = nft_snapshot_of(m);
     /* A directory cannot be opened for writing. */
     assert_int_equal(nf_model_save(m, "."), NF_ERROR_IO);
     /* /dev/full accepts the open and refuses the data (ENOSPC): the short write is noticed
@@ -74,7 +72,6 @@ static void test_save_unwritable(void **state)
     }
     assert_true(nft_snapshot_equal(m, &snap));
     nft_snapshot_free(&snap);
-    nf_model_destroy(m);
 }
 
 /* Files of exactly the right size whose content is not a model: all zeros, all 0xFF, the
@@ -121,6 +118,6 @@ static void test_load_wrong_content(void **state)
 NFT_TEST_MAIN(
     cmocka_unit_test(test_load_directory),
     cmocka_unit_test(test_load_devices),
-    cmocka_unit_test(test_save_unwritable),
+    NFT_WITH_MODEL(test_save_unwritable),
     cmocka_unit_test(test_load_wrong_content),
 )

@@ -31,16 +31,22 @@ static void temp_path(char *buf, size_t cap, const char *name)
     snprintf(buf, cap, "%s/nf_msg_%ld_%s", NF_TEST_BINARY_DIR, (long)getpid(), name);
 }
 
+/* nf_model_load's message for `path`, which it must refuse with `expected` and no model. */
+static const char *load_refused(const char *path, nf_status expected)
+{
+    nf_model *out = NULL;
+    assert_int_equal(nf_model_load(path, NULL, &out), expected);
+    assert_null(out);
+    return nf_last_error_message();
+}
+
 static void test_missing_file(void **state)
 {
     (void)state;
     char path[512];
     temp_path(path, sizeof path, "does_not_exist.nf");
     remove(path);
-    nf_model *out = NULL;
-    assert_int_equal(nf_model_load(path, NULL, &out), NF_ERROR_IO);
-    assert_null(out);
-    const char *msg = nf_last_error_message();
+    const char *msg = load_refused(path, NF_ERROR_IO);
     assert_contains(msg, "nf_model_load");
     assert_contains(msg, "does_not_exist.nf");
     assert_contains(msg, strerror(ENOENT));
@@ -57,10 +63,7 @@ static void test_garbage_file(void **state)
     assert_non_null(f);
     assert_int_equal(fwrite("hello world", 1, 11, f), 11);
     assert_int_equal(fclose(f), 0);
-    nf_model *out = NULL;
-    assert_int_equal(nf_model_load(path, NULL, &out), NF_ERROR_FORMAT);
-    assert_null(out);
-    const char *msg = nf_last_error_message();
+    const char *msg = load_refused(path, NF_ERROR_FORMAT);
     assert_contains(msg, "nf_model_load");
     assert_contains(msg, "garbage.nf");
     assert_contains(msg, "too short");
@@ -68,6 +71,7 @@ static void test_garbage_file(void **state)
     remove(path);
 
     /* The same bytes through nf_model_deserialize name that function. */
+    nf_model *out = NULL;
     assert_int_equal(nf_model_deserialize("hello world", 11, NULL, &out), NF_ERROR_FORMAT);
     assert_contains(nf_last_error_message(), "nf_model_deserialize");
 }
@@ -84,9 +88,7 @@ static void test_long_path(void **state)
         ++len;
     }
     snprintf(path + len, sizeof path - (size_t)len, "/tail_name.nf");
-    nf_model *out = NULL;
-    assert_int_equal(nf_model_load(path, NULL, &out), NF_ERROR_IO);
-    const char *msg = nf_last_error_message();
+    const char *msg = load_refused(path, NF_ERROR_IO);
     assert_contains(msg, "nf_model_load");
     assert_contains(msg, "tail_name.nf");
     assert_contains(msg, strerror(ENOENT));
@@ -97,8 +99,7 @@ static void test_save_into_missing_directory(void **state)
     (void)state;
     nf_config cfg;
     nf_config_init(&cfg, NF_PRESET_SMALL);
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     char path[512];
     temp_path(path, sizeof path, "no_such_dir/model.nf");
     assert_int_equal(nf_model_save(m, path), NF_ERROR_IO);

@@ -105,8 +105,7 @@ static void test_batches_refuse_bad_medium_contexts(void **state)
     for (int i = 0; i < N; ++i)
         assert_true(isfinite(pdf[i]) && pdf[i] > 0.0f);
     assert_int_equal(nf_loss_gradient(m, N, good.ctx, good.dir, good.weight, NULL, grad), NF_OK);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
     for (int which = 0; which < BAD_COUNT; ++which) {
         const char *field;
         bad = good;

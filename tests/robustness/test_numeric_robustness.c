@@ -413,8 +413,7 @@ static void test_positions_outside_bounds(void **state)
             cfg.bounds_min[a] = bounds[b].lo;
             cfg.bounds_max[a] = bounds[b].hi;
         }
-        nf_model *m = NULL;
-        assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+        nf_model *m = nft_model_from(&cfg);
         assert_int_equal(nft_randomize_params(m, 0.5f, 5u), NF_OK);
         for (size_t f = 0; f < sizeof far / sizeof far[0]; ++f) {
             for (int axis = 0; axis < 3; ++axis) {
@@ -740,8 +739,7 @@ static void check_extreme_model(nf_model *m, const char *name, size_t stride,
             }
             /* A training step works and leaves finite parameters, or is refused with
              * NF_ERROR_NUMERIC and leaves the model exactly as it was. */
-            nft_snapshot snap;
-            assert_int_equal(nft_snapshot_take(m, &snap), 0);
+            nft_snapshot snap = nft_snapshot_of(m);
             st = nf_train_step(m, EXTREME_N, ctx, dir, weight, &loss);
             if (st == NF_OK) {
                 assert_int_equal(nf_model_get_params(m, grad), NF_OK);
@@ -945,16 +943,14 @@ static void test_numeric_refusal_keeps_model(void **state)
     make_wbatch(&b, 31u);
     nf_config cfg = nft_config(NF_PRESET_SMALL, NF_PRIOR_COSINE);
     cfg.weight_decay = 0.0f; /* so that NF_LEARNING_RATE_MAX is valid */
-    nf_model *m = NULL;
-    assert_int_equal(nf_model_create(&cfg, &m), NF_OK);
+    nf_model *m = nft_model_from(&cfg);
     assert_int_equal(nft_randomize_params(m, 0.3f, 32u), NF_OK);
     for (int k = 0; k < 3; ++k) /* non-trivial AdamW state */
         assert_int_equal(nf_train_step(m, WN, b.ctx, b.dir, b.weight, NULL), NF_OK);
     const size_t count = nf_model_param_count(m);
     float *g = malloc(count * sizeof *g), *keep = malloc(count * sizeof *keep);
     assert_true(g && keep);
-    nft_snapshot snap;
-    assert_int_equal(nft_snapshot_take(m, &snap), 0);
+    nft_snapshot snap = nft_snapshot_of(m);
 
     /* 1. A learning rate of FLT_MAX would overflow the step size lr / (1 - beta1^t): it is
      *    refused with the rest of the configuration's ranges (model.h), the model untouched.
@@ -979,8 +975,7 @@ static void test_numeric_refusal_keeps_model(void **state)
     for (size_t i = 0; i < count; ++i)
         g[i] = (i % 2) ? FLT_MAX : -FLT_MAX;
     assert_int_equal(nf_model_set_params(m, g), NF_OK);
-    nft_snapshot extreme;
-    assert_int_equal(nft_snapshot_take(m, &extreme), 0);
+    nft_snapshot extreme = nft_snapshot_of(m);
     assert_int_equal(nf_train_step(m, WN, b.ctx, b.dir, b.weight, &loss), NF_ERROR_NUMERIC);
     assert_true(strstr(nf_last_error_message(), "not finite") != NULL);
     assert_true(nft_snapshot_equal(m, &extreme));

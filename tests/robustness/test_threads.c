@@ -228,8 +228,7 @@ static void check_loss_gradient(nf_prior_kind prior)
     make_slices(&s);
     float *ref = malloc(pc * sizeof *ref);
     assert_true(s.grad && s.loss && ref);
-    nft_snapshot before;
-    assert_int_equal(nft_snapshot_take(m, &before), 0);
+    nft_snapshot before = nft_snapshot_of(m);
 
     run_threads(&s);
 

@@ -15,6 +15,16 @@
 /* A test program's main: its cmocka tests, one group without setup, run in order; main returns
  * the number of tests that failed. The arguments are cmocka_unit_test(...) entries, each with
  * a trailing comma. */
+/* A cmocka entry that runs `fn` under the name `label` with *state holding the integer `value`
+ * (a prior, a mode), so that one function checks every case under a name of its own; `fn` reads
+ * the value with nft_case(state). cmocka hands a test its initial state as it is, NULL for 0. */
+#define NFT_TEST_CASE(label, fn, value)                                                        \
+    {                                                                                          \
+        .name = (label), .test_func = (fn), .initial_state = (void *)(uintptr_t)(value)        \
+    }
+
+static inline int nft_case(void **state) { return (int)(uintptr_t)*state; }
+
 #define NFT_TEST_MAIN(...)                                                                     \
     int main(void)                                                                             \
     {                                                                                          \

@@ -310,15 +310,33 @@ void nft_config_largest(nf_config *cfg)
     cfg->sh_bands = NF_MAX_SH_BANDS;
 }
 
-nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior)
+nf_model *nft_model_from(const nf_config *cfg)
 {
-    nf_config cfg = nft_config(preset, prior);
     nf_model *m = NULL;
     /* Every caller needs the model: fail the running test here, with the library's reason,
      * rather than at each call site. */
-    if (nf_model_create(&cfg, &m) != NF_OK)
-        fail_msg("nft_make_model: %s", nf_last_error_message());
+    if (nf_model_create(cfg, &m) != NF_OK)
+        fail_msg("nf_model_create: %s", nf_last_error_message());
     return m;
+}
+
+nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior)
+{
+    nf_config cfg = nft_config(preset, prior);
+    return nft_model_from(&cfg);
+}
+
+int nft_setup_model(void **state)
+{
+    *state = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    return 0;
+}
+
+int nft_teardown_model(void **state)
+{
+    nf_model_destroy(*state);
+    *state = NULL;
+    return 0;
 }
 
 nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed)
@@ -548,19 +566,10 @@ double nft_gamma_q(double a, double x)
 
 nft_chi2_params nft_chi2_defaults(const char *name)
 {
-    nft_chi2_params p;
-    p.name = name;
-    p.theta_res = 16;
-    p.phi_res = 32;
-    p.subdiv = 8;
-    p.sample_count = 100000;
-    p.seed = 1;
-    p.significance = 0.01;
-    p.run_count = 1;
-    p.min_expected = 5.0;
-    p.integral_tolerance = 1e-2;
-    p.dump_on_failure = 1;
-    return p;
+    return (nft_chi2_params){.name = name, .theta_res = 16, .phi_res = 32, .subdiv = 8,
+                             .sample_count = 100000, .seed = 1, .significance = 0.01,
+                             .run_count = 1, .min_expected = 5.0, .integral_tolerance = 1e-2,
+                             .dump_on_failure = 1};
 }
 
 typedef struct chi2_cell {
@@ -829,6 +838,15 @@ int nft_snapshot_take(const nf_model *m, nft_snapshot *s)
         return -1;
     s->steps = nf_model_step_count(m);
     return 0;
+}
+
+nft_snapshot nft_snapshot_of(const nf_model *m)
+{
+    nft_snapshot s;
+    if (nft_snapshot_take(m, &s) != 0)
+        fail_msg("nft_snapshot_of: the model's parameters or bytes could not be read: %s",
+                 nf_last_error_message());
+    return s;
 }
 
 int nft_snapshot_equal(const nf_model *m, const nft_snapshot *s)

@@ -105,9 +105,17 @@ const char *nft_phi_map_name(nf_phi_map map);
 /* nf_config_init(preset) with `prior` and nft_phi_map(); for NF_PRIOR_CUSTOM the Phong
  * callbacks. */
 nf_config nft_config(nf_preset preset, nf_prior_kind prior);
-/* Creates a model with nft_config(preset, prior); fails the running cmocka test (never returns
- * NULL) when nf_model_create refuses. */
+/* Creates a model from `cfg`; fails the running cmocka test with the library's message (never
+ * returns NULL) when nf_model_create refuses. */
+nf_model *nft_model_from(const nf_config *cfg);
+/* nft_model_from(nft_config(preset, prior)). */
 nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior);
+/* cmocka fixtures: nft_setup_model puts nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE) in
+ * *state, nft_teardown_model destroys it after the test, whatever the test did. A test
+ * registered with NFT_WITH_MODEL(test) begins `nf_model *m = *state;` and does not destroy it. */
+int nft_setup_model(void **state);
+int nft_teardown_model(void **state);
+#define NFT_WITH_MODEL(test) cmocka_unit_test_setup_teardown(test, nft_setup_model, nft_teardown_model)
 /* Replaces every parameter by a uniform value in [-scale, scale] drawn from PCG32(seed), so
  * the flow is far from the identity. Returns the nf_model_set_params status. */
 nf_status nft_randomize_params(nf_model *m, float scale, uint64_t seed);
@@ -231,6 +239,8 @@ typedef struct nft_snapshot {
 
 /* Takes a snapshot; returns 0 on success. */
 int nft_snapshot_take(const nf_model *m, nft_snapshot *s);
+/* The snapshot of `m`; fails the running cmocka test when it cannot be taken. */
+nft_snapshot nft_snapshot_of(const nf_model *m);
 /* 1 if the model's parameters, serialized bytes and step count equal the snapshot's. */
 int nft_snapshot_equal(const nf_model *m, const nft_snapshot *s);
 void nft_snapshot_free(nft_snapshot *s);

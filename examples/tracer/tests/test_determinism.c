@@ -102,16 +102,11 @@ static void check_prior(model_prior prior)
     assert_int_equal(atomic_load(&test_lookup.failures), 0);
 }
 
-static void test_threads_do_not_change_results_cosine(void **state)
+/* The same model and image on 1 and 3 threads (another seed differs) under the prior in
+ * *state. */
+static void test_threads_do_not_change_results(void **state)
 {
-    (void)state;
-    check_prior(MODEL_PRIOR_COSINE);
-}
-
-static void test_threads_do_not_change_results_bsdf_prior(void **state)
-{
-    (void)state;
-    check_prior(MODEL_PRIOR_BSDF);
+    check_prior((model_prior)nft_case(state));
 }
 
 static void test_saved_model_renders_identically(void **state)
@@ -273,8 +268,10 @@ static void test_batched_pass_equals_one_path_at_a_time(void **state)
 }
 
 NFT_TEST_MAIN(
-    cmocka_unit_test(test_threads_do_not_change_results_cosine),
-    cmocka_unit_test(test_threads_do_not_change_results_bsdf_prior),
+    NFT_TEST_CASE("test_threads_do_not_change_results_cosine",
+                  test_threads_do_not_change_results, MODEL_PRIOR_COSINE),
+    NFT_TEST_CASE("test_threads_do_not_change_results_bsdf_prior",
+                  test_threads_do_not_change_results, MODEL_PRIOR_BSDF),
     cmocka_unit_test(test_saved_model_renders_identically),
     cmocka_unit_test(test_batched_pass_equals_one_path_at_a_time),
 )
