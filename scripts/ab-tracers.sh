@@ -11,8 +11,8 @@
 #
 # NF_AB_SCENES, NF_AB_SEEDS and NF_AB_BUDGETS (a list of seconds) choose the runs;
 # NF_AB_REFERENCES=own renders every scene's reference (NF_AB_REFERENCE_SECONDS, default 150),
-# Tungsten's or not. Guided against plain path tracing, 5 seeds at 10, 20 and 30 s (about 45
-# minutes for two scenes):
+# Tungsten's or not. Guided against plain path tracing, 5 seeds at 10, 20 and 30 s (about 32
+# minutes for two scenes, their 240-s references included):
 #   NF_AB_SCENES="cornell-box veach-bidir" NF_AB_SEEDS="1 2 3 4 5" NF_AB_BUDGETS="10 20 30" \
 #       NF_AB_REFERENCES=own NF_AB_REFERENCE_SECONDS=240 \
 #       scripts/ab-tracers.sh build/examples/nf_tracer --no-guiding

@@ -12,9 +12,6 @@
 
 #include <cmocka.h>
 
-/* A test program's main: its cmocka tests, one group without setup, run in order; main returns
- * the number of tests that failed. The arguments are cmocka_unit_test(...) entries, each with
- * a trailing comma. */
 /* A cmocka entry that runs `fn` under the name `label` with *state holding the integer `value`
  * (a prior, a mode), so that one function checks every case under a name of its own; `fn` reads
  * the value with nft_case(state). cmocka hands a test its initial state as it is, NULL for 0. */
@@ -25,6 +22,9 @@
 
 static inline int nft_case(void **state) { return (int)(uintptr_t)*state; }
 
+/* A test program's main: its cmocka tests, one group without setup, run in order; main returns
+ * the number of tests that failed. The arguments are cmocka entries (cmocka_unit_test(...),
+ * NFT_TEST_CASE, a fixture's entry), each with a trailing comma. */
 #define NFT_TEST_MAIN(...)                                                                     \
     int main(void)                                                                             \
     {                                                                                          \
