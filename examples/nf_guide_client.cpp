@@ -119,11 +119,12 @@ float power(float a, float b) { return a * a / (a * a + b * b); }
 
 // ---- One path -------------------------------------------------------------------------------
 
-// What a path gives the pass: its radiance, its moments (nisflow/schedule.h), its vertices.
+// What a path gives the pass: its radiance, its moments (nisflow/schedule.h), its vertices,
+// and how many it shaded (guided: those that asked the flow).
 struct PathOut {
     float radiance = 0.0f, moments[NF_GUIDE_DEPTHS] = {};
     nf_path_vertex v[kMaxDepth];
-    int vertices = 0;
+    int vertices = 0, shaded = 0, guided = 0;
 };
 
 // One camera path through pixel (px, py). m: the model of a guided pass (NULL: plain); its
@@ -138,7 +139,7 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
     nf_path_state ps;   // guide: the boost, and the moments the schedule weighs
     nf_path_start(&ps); // nf
     std::memset(out.v, 0, sizeof out.v);
-    out.vertices = 0;
+    out.vertices = out.shaded = out.guided = 0;
     out.radiance = 0.0f;
     for (int depth = 1;; ++depth) {
         Hit h = intersect(o, d);
@@ -157,11 +158,13 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         if (h.light != 0 || depth > kMaxDepth)
             break;
         Vec x = h.p, n = h.n, wo = d * -1.0f;
+        out.shaded++;
         nf_context ctx = {{x.x, x.y, x.z}, {n.x, n.y, n.z}, {wo.x, wo.y, wo.z}, 0.0f}; // nf
         float g = m ? nf_path_mixture_prob(&ps, pol, uint32_t(depth), guide_depth) : 0.0f; // nf
         nf_shading_point sp;
         if (g > 0.0f && nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK) // nf
             g = 0.0f;
+        out.guided += g > 0.0f;
         // The random numbers first: the roulette, the technique, the direction, the light.
         float q = nf_path_survival(&ps, pol, beta); // nf
         bool go_on = depth < kRrDepth || uni(rng) < q;
@@ -238,20 +241,28 @@ double wall_seconds()
     return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
+// What a pass cost: the tracing's CPU seconds (helping excluded) and the vertices it shaded.
+struct PassCost {
+    double cpu = 0.0;
+    uint64_t shaded = 0, guided = 0;
+};
+
 // One pass of one path per pixel, rows shared by the threads; a training pass adds its
-// samples to the guide row by row. Returns the tracing's CPU seconds (helping excluded).
-double render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
-                   const nf_guide_policy *pol, uint64_t seed, std::vector<float> &rgb,
-                   std::vector<float> &moments)
+// samples to the guide row by row.
+PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
+                     const nf_guide_policy *pol, uint64_t seed, std::vector<float> &rgb,
+                     std::vector<float> &moments)
 {
     std::atomic<int> next_row{0};
     std::atomic<double> cpu{0.0};
+    std::atomic<uint64_t> shaded{0}, guided{0};
     auto work = [&](int t) {
         std::vector<nf_context> ctx(kWidth * kMaxDepth);    // guide
         std::vector<float> dir(3 * ctx.size()), w(ctx.size()); // guide
         std::vector<uint64_t> key(ctx.size());              // guide
         PathOut path;
         double spent = 0.0;
+        uint64_t n_shaded = 0, n_guided = 0;
         for (int y; (y = next_row++) < kHeight;) {
             double c0 = thread_cpu_seconds();
             std::mt19937 rng(uint32_t(seed * 1000003u + plan.pass * 7919u + unsigned(y)));
@@ -259,6 +270,8 @@ double render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
             for (int x = 0; x < kWidth; ++x) {
                 int i = y * kWidth + x;
                 trace(m, pol, plan.depth, x, y, rng, path);
+                n_shaded += uint64_t(path.shaded);
+                n_guided += uint64_t(path.guided);
                 rgb[3 * i] = rgb[3 * i + 1] = rgb[3 * i + 2] = path.radiance;
                 for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k)
                     moments[k * kPixels + i] = path.moments[k];
@@ -278,6 +291,8 @@ double render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
         }
         for (double c = cpu; !cpu.compare_exchange_weak(c, c + spent);)
             ;
+        shaded += n_shaded;
+        guided += n_guided;
         (void)t;
     };
     std::vector<std::thread> pool;
@@ -285,7 +300,7 @@ double render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
         pool.emplace_back(work, t);
     for (auto &th : pool)
         th.join();
-    return cpu;
+    return PassCost{cpu, shaded, guided};
 }
 
 // ---- The job --------------------------------------------------------------------------------
@@ -294,6 +309,7 @@ struct Result {
     std::vector<float> image;
     nf_schedule_report report;
     std::vector<double> pass_means; // each pass's image mean (the spread of the estimate)
+    PassCost kind_cost[2];          // the render passes' cost by kind (nf_pass_kind)
     bool ok = false;
 };
 
@@ -343,7 +359,11 @@ Result render(double seconds, uint64_t seed, bool plain)
             if (plan.todo != NF_TODO_PLAIN)
                 nf_guide_acquire(guide, &m);                                // nf
             double t0 = wall_seconds();
-            double cpu = render_pass(plan, m, guide, &gc.policy, seed, rgb, moments);
+            PassCost cost = render_pass(plan, m, guide, &gc.policy, seed, rgb, moments);
+            if (plan.todo != NF_TODO_TRAIN) {
+                PassCost &k = r.kind_cost[plan.todo == NF_TODO_PLAIN ? NF_PASS_PLAIN : NF_PASS_GUIDED];
+                k.cpu += cost.cpu, k.shaded += cost.shaded, k.guided += cost.guided;
+            }
             if (m)
                 nf_guide_release(guide, m);                                 // nf
             if (trainer.joinable()) // guide: the schedule reads the guide: training is done
@@ -353,7 +373,7 @@ Result render(double seconds, uint64_t seed, bool plain)
                 mean += rgb[3 * i] / kPixels;
             r.pass_means.push_back(mean);
             r.ok = nf_schedule_add_pass(sched, &plan, rgb.data(), moments.data(),  // nf
-                                        wall_seconds() - t0, cpu, nullptr) == NF_OK; // nf
+                                        wall_seconds() - t0, cost.cpu, nullptr) == NF_OK; // nf
         }
         train_next = plan.todo == NF_TODO_TRAIN; // guide
         if (!r.ok || trained != NF_OK || plan.todo == NF_TODO_STOP)
@@ -437,6 +457,15 @@ void print(const char *name, const Result &r)
                 name, p.train_passes, p.kind_passes[NF_PASS_GUIDED], ms[0], p.depth,
                 p.kind_passes[NF_PASS_PLAIN], ms[1], p.kind_variance[0], p.kind_variance[1],
                 p.ratio, image_mean(r.image));
+    // A guided pass's vertex costs a plain one's plus, at the share f that asked the flow, the
+    // flow's questions: a guided vertex is plain + (guided pass's - plain) / f.
+    const PassCost &g = r.kind_cost[NF_PASS_GUIDED], &pl = r.kind_cost[NF_PASS_PLAIN];
+    double ns_g = g.shaded ? 1e9 * g.cpu / double(g.shaded) : 0.0;
+    double ns_p = pl.shaded ? 1e9 * pl.cpu / double(pl.shaded) : 0.0;
+    double f = g.shaded ? double(g.guided) / double(g.shaded) : 0.0;
+    std::printf("cost: %.1f CPU ns per vertex in guided passes (%.3f of them asked the flow), "
+                "%.1f in plain ones; a guided vertex %.2fx a plain one\n",
+                ns_g, f, ns_p, ns_p > 0.0 && f > 0.0 ? 1.0 + (ns_g / ns_p - 1.0) / f : 0.0);
 }
 
 // What ctest runs: a guided render and a plain one of 10 s each, and a plain reference of
