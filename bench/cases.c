@@ -37,6 +37,11 @@
  *                 direction, standing for a light sample's), all timed.
  *   vertex-calls  the same vertex as three calls: nf_point_prepare, nf_point_sample of one
  *                 direction and nf_point_pdf of the other.
+ *   table-build   nf_table_build (nisflow/table.h) from the ring's points, into a table on
+ *                 the calling thread's stack.
+ *   table-vertex  a guided vertex from tables built outside the timed region (a ring of 256,
+ *                 one per ring point, 576 KiB: a renderer's cells are more and colder):
+ *                 nf_table_sample with a new u and nf_table_pdf of another direction.
  *
  * With T threads, each thread processes its own contiguous 1/T of every batch and the figure
  * is throughput: wall time divided by the total samples. The main thread is worker 0; T - 1
@@ -126,6 +131,7 @@ static void point_range(bench_case *c, thread_result *r, size_t lo, size_t hi)
     /* prepare and vertex prepare into this thread's stack, as a renderer does: the point is
      * hot when vertex samples it, and the threads never share its cache lines. */
     _Alignas(64) nf_shading_point sp;
+    _Alignas(64) nf_direction_table table;
     nf_status st = NF_OK;
     const char *fn = NULL;
     switch (c->op) {
@@ -177,6 +183,25 @@ static void point_range(bench_case *c, thread_result *r, size_t lo, size_t hi)
             if ((st = nf_point_pdf(m, &sp, 1, d->light_dir + 3 * i, d->out_pdf2 + i)) !=
                 NF_OK) {
                 fn = "nf_point_pdf";
+                break;
+            }
+        }
+        break;
+    case OP_TABLE_BUILD:
+        fn = "nf_table_build";
+        for (size_t i = lo; i < hi && st == NF_OK; ++i)
+            st = nf_table_build(m, &d->points[i % NFB_POINT_RING], &table);
+        break;
+    case OP_TABLE_VERTEX:
+        for (size_t i = lo; i < hi; ++i) {
+            const nf_direction_table *t = &d->tables[i % NFB_POINT_RING];
+            if ((st = nf_table_sample(m, t, d->u + 2 * i, d->out_dir + 3 * i, d->out_pdf + i)) !=
+                NF_OK) {
+                fn = "nf_table_sample";
+                break;
+            }
+            if ((st = nf_table_pdf(m, t, d->light_dir + 3 * i, d->out_pdf2 + i)) != NF_OK) {
+                fn = "nf_table_pdf";
                 break;
             }
         }
@@ -469,11 +494,13 @@ static int check_outputs(const bench_case *c, const char *preset)
     /* Which outputs the op writes, and the function that writes them. */
     const char *dir_fn = op == OP_SAMPLE                                  ? "nf_sample"
                          : op == OP_POINT_SAMPLE || op == OP_VERTEX_CALLS ? "nf_point_sample"
-                         : op == OP_VERTEX ? "nf_point_sample_and_pdf"
-                                           : NULL;
+                         : op == OP_VERTEX       ? "nf_point_sample_and_pdf"
+                         : op == OP_TABLE_VERTEX ? "nf_table_sample"
+                                                 : NULL;
     const char *pdf_fn = op == OP_PDF ? "nf_pdf" : dir_fn;
     const char *pdf2_fn = op == OP_POINT_PDF || op == OP_VERTEX_CALLS ? "nf_point_pdf"
                           : op == OP_VERTEX                           ? "nf_point_sample_and_pdf"
+                          : op == OP_TABLE_VERTEX                     ? "nf_table_pdf"
                                                                       : NULL;
     size_t covered = c->cursor * unit_samples(c);
     if (covered > d->n)
@@ -487,7 +514,9 @@ static int check_outputs(const bench_case *c, const char *preset)
         } else if (pdf_fn && !valid_density(d->out_pdf[i])) {
             fn = pdf_fn;
             what = "density";
-        } else if (pdf2_fn && !valid_density(d->out_pdf2[i])) {
+        } else if (pdf2_fn && !valid_density(d->out_pdf2[i]) &&
+                   /* a surface table's density is 0 below the horizon */
+                   !(op == OP_TABLE_VERTEX && d->out_pdf2[i] == 0.0f)) {
             fn = pdf2_fn;
             what = "density";
         }
@@ -589,7 +618,7 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
     best.attempts = attempt <= o->retries ? attempt + 1 : attempt;
     *r = best;
     /* What one "sample" of the figure is: a call of n = 1, or a vertex of three calls. */
-    const int vertex = op == OP_VERTEX || op == OP_VERTEX_CALLS;
+    const int vertex = op == OP_VERTEX || op == OP_VERTEX_CALLS || op == OP_TABLE_VERTEX;
     const char *unit = vertex ? "vertex" : op_is_point(op) ? "call" : "sample";
     const char *units = vertex ? "vertices" : op_is_point(op) ? "calls" : "samples";
     fprintf(stderr,

@@ -37,7 +37,9 @@ enum {
     OP_POINT_PDF = 6,
     OP_VERTEX = 7,       /* the recipe: nf_point_prepare + nf_point_sample_and_pdf      */
     OP_VERTEX_CALLS = 8, /* the same questions as three calls: prepare, sample, pdf     */
-    OP_COUNT = 9
+    OP_TABLE_BUILD = 9,  /* nf_table_build from a prepared point (table.h)                */
+    OP_TABLE_VERTEX = 10, /* a vertex from a built table: nf_table_sample + nf_table_pdf   */
+    OP_COUNT = 11
 };
 #define OP_MASK_ALL ((1 << OP_COUNT) - 1)
 #define OP_MASK_BATCHED ((1 << OP_BATCHED_COUNT) - 1)

@@ -27,7 +27,8 @@
 
 const char *const OP_NAME[OP_COUNT] = {"sample",    "pdf",          "train",
                                        "guide",     "prepare",      "point-sample",
-                                       "point-pdf", "vertex",       "vertex-calls"};
+                                       "point-pdf", "vertex",       "vertex-calls",
+                                       "table-build", "table-vertex"};
 const char *const PRESET_NAME[2] = {"small", "large"};
 
 /* ---- Command line ------------------------------------------------------------------------ */
@@ -41,8 +42,8 @@ static void usage(FILE *f)
             "  --op LIST                  operations to measure, comma-separated (default\n"
             "                             all): sample, pdf, train, guide; the shading-point ops\n"
             "                             prepare, point-sample, point-pdf, vertex,\n"
-            "                             vertex-calls; point\n"
-            "                             (those four); all\n"
+            "                             vertex-calls, table-build, table-vertex; point\n"
+            "                             (those seven); all\n"
             "  --reps N                   timed repetitions, median reported (default 7)\n"
             "  --min-rep-ms X             minimum length of one repetition (default 50)\n"
             "  --prior NAME               cosine (default), uniform-direction,\n"
@@ -66,7 +67,9 @@ static void usage(FILE *f)
             "prepare (nf_point_prepare on a new context), point-sample and point-pdf (one\n"
             "direction at a prepared point), vertex (prepare + nf_point_sample_and_pdf: a\n"
             "draw and another direction's density, per vertex), vertex-calls (the same as\n"
-            "prepare + point-sample + point-pdf, per vertex).\n",
+            "prepare + point-sample + point-pdf, per vertex), table-build (nf_table_build\n"
+            "from a prepared point), table-vertex (nf_table_sample + nf_table_pdf of another\n"
+            "direction on a built table, per vertex).\n",
             NFB_STREAM);
 }
 

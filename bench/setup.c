@@ -33,6 +33,7 @@ void bench_data_free(bench_data *d)
     free(d->out_pdf);
     free(d->out_pdf2);
     free(d->points);
+    free(d->tables);
     memset(d, 0, sizeof *d);
 }
 
@@ -40,7 +41,7 @@ size_t bench_data_bytes(const bench_data *d)
 {
     /* 14 floats an input: u 2, dir 3, light_dir 3, weight 1, out_dir 3, out_pdf 1, out_pdf2 1 */
     return d->n * (sizeof(nf_context) + 14 * sizeof(float)) +
-           NFB_POINT_RING * sizeof(nf_shading_point);
+           NFB_POINT_RING * (sizeof(nf_shading_point) + sizeof(nf_direction_table));
 }
 
 int bench_data_alloc(bench_data *d, size_t n, const nf_config *cfg)
@@ -58,8 +59,10 @@ int bench_data_alloc(bench_data *d, size_t n, const nf_config *cfg)
     /* 64-byte aligned, as point.h advises; aligned_alloc needs a multiple of 64 bytes. */
     d->points = (nf_shading_point *)aligned_alloc(
         64, (NFB_POINT_RING * sizeof *d->points + 63u) / 64u * 64u);
+    d->tables = (nf_direction_table *)aligned_alloc(
+        64, (NFB_POINT_RING * sizeof *d->tables + 63u) / 64u * 64u);
     if (!d->ctx || !d->u || !d->dir || !d->light_dir || !d->weight || !d->out_dir ||
-        !d->out_pdf || !d->out_pdf2 || !d->points) {
+        !d->out_pdf || !d->out_pdf2 || !d->points || !d->tables) {
         bench_data_free(d);
         return -1;
     }
@@ -95,7 +98,8 @@ int prepare_ring(const nf_model *m, bench_data *d)
 {
     for (size_t i = 0; i < NFB_POINT_RING; ++i)
         if (report_status(nf_point_prepare(m, d->ctx + i, NULL, &d->points[i]),
-                          "nf_point_prepare") != 0)
+                          "nf_point_prepare") != 0 ||
+            report_status(nf_table_build(m, &d->points[i], &d->tables[i]), "nf_table_build") != 0)
             return -1;
     return 0;
 }
@@ -171,6 +175,10 @@ double flops_per_sample(const preset_info *pi, int op)
     case OP_VERTEX:
     case OP_VERTEX_CALLS:
         return pi->flops_context + 2.0 * direction;
+    case OP_TABLE_BUILD: /* a density per cell: the flow's arithmetic, the table's aside */
+        return NF_TABLE_CELLS * direction;
+    case OP_TABLE_VERTEX: /* no network */
+        return 0.0;
     default:
         return pi->flops_sparse;
     }

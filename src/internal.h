@@ -255,6 +255,16 @@ typedef struct nf_point {
 /* ---- shading points (point.c, point.h) ---------------------------------------------- */
 
 #define NF_POINT_MAGIC 0x4e465054u /* "NFPT" */
+#define NF_TABLE_MAGIC 0x4e465442u /* "NFTB" */
+
+/* Whether point p may be used with m (its header intact, prepared on m, m's parameters not
+ * changed since): NF_OK, or the status and message of fn's refusal; i names the point in the
+ * message (SIZE_MAX: the only one). point.c; table.c asks it too. */
+nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_shading_point *p, size_t i);
+
+/* st, or NF_ERROR_STALE when m's parameters moved since generation `seen` (a call that
+ * overlapped a change on another thread read a mix of two models). */
+nf_status nf_point_checked(const char *fn, const nf_model *m, uint64_t seen, nf_status st);
 
 /* A hash of every field of a point before check_ (context, identity, prior callbacks, normal,
  * cache mode), so that a point whose header was overwritten (or never written) is refused

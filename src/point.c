@@ -21,8 +21,7 @@ _Static_assert(
 /* A point is usable with `m` when its header is intact, it was prepared on `m`, and m's
  * parameters have not changed since. `i` names the point in messages (SIZE_MAX: the only
  * one). */
-static nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_shading_point *p,
-                                 size_t i)
+nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_shading_point *p, size_t i)
 {
     const char *why;
     nf_status st = NF_ERROR_INVALID_ARGUMENT;
@@ -45,7 +44,7 @@ static nf_status nf_point_usable(const char *fn, const nf_model *m, const nf_sha
 
 /* A call that overlapped a change of the weights on another thread may have read a mix of two
  * models: its results are refused, not returned as valid. */
-static nf_status nf_point_checked(const char *fn, const nf_model *m, uint64_t seen, nf_status st)
+nf_status nf_point_checked(const char *fn, const nf_model *m, uint64_t seen, nf_status st)
 {
     if (nf_generation_moved(m, seen))
         return nf_fail(NF_ERROR_STALE,

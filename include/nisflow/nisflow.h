@@ -21,6 +21,7 @@
 #include "status.h"
 #include "model.h"
 #include "point.h"
+#include "table.h"
 #include "train.h"
 #include "path.h"
 #include "policy.h"

@@ -1,0 +1,104 @@
+/*
+ * test_table_input.c - the tables of nisflow/table.h against bad input and overwritten tables
+ * (their contract otherwise: tests/correctness/test_table.c).
+ *   - refusals: NULL, a table never built, another model's, a stale one, NaN u, a zero
+ *     direction, an unprepared point; a failed build leaves a built table as it was;
+ *   - a table whose contents (after its identity) were overwritten with random bytes, NaN and
+ *     infinities among them, is answered without reading outside itself (what the ASan
+ *     build checks; the library guards its float-to-index conversions), as table.h states.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <nisflow/nisflow.h>
+
+#include "nf_test_main.h"
+#include "nf_test_support.h"
+
+static nf_model *random_model(void)
+{
+    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    assert_int_equal(nft_randomize_params(m, 0.5f, 11u), NF_OK);
+    return m;
+}
+
+static void test_table_refusals(void **state)
+{
+    (void)state;
+    nf_model *m = random_model(), *other = random_model();
+    nft_rng r;
+    nft_rng_seed(&r, 13u, 1u);
+    nf_context ctx;
+    nft_random_context(&r, &ctx);
+    nf_shading_point p;
+    assert_int_equal(nf_point_prepare(m, &ctx, NULL, &p), NF_OK);
+    nf_direction_table t, never;
+    memset(&never, 0, sizeof never);
+    assert_int_equal(nf_table_build(m, &p, &t), NF_OK);
+    const float u[2] = {0.3f, 0.6f}, nan_u[2] = {NAN, 0.5f}, zero[3] = {0, 0, 0};
+    float dir[3], pdf;
+    assert_int_equal(nf_table_build(NULL, &p, &t), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_table_sample(m, NULL, u, dir, &pdf), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_table_pdf(m, &t, NULL, &pdf), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_table_sample(m, &never, u, dir, &pdf), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "never built"));
+    assert_int_equal(nf_table_sample(other, &t, u, dir, &pdf), NF_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(nf_last_error_message(), "another model"));
+    assert_int_equal(nf_table_sample(m, &t, nan_u, dir, &pdf), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_table_pdf(m, &t, zero, &pdf), NF_ERROR_INVALID_ARGUMENT);
+
+    /* A failed build (a point never prepared) leaves the built table as it was. */
+    nf_direction_table before = t;
+    nf_shading_point unprepared;
+    memset(&unprepared, 0, sizeof unprepared);
+    assert_int_equal(nf_table_build(m, &unprepared, &t), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(memcmp(&before, &t, sizeof t), 0);
+    assert_int_equal(nf_table_sample(m, &t, u, dir, &pdf), NF_OK);
+
+    /* New parameters make the table stale, as they make the point. */
+    assert_int_equal(nft_randomize_params(m, 0.5f, 12u), NF_OK);
+    assert_int_equal(nf_table_sample(m, &t, u, dir, &pdf), NF_ERROR_STALE);
+    assert_int_equal(nf_table_pdf(m, &t, ctx.normal, &pdf), NF_ERROR_STALE);
+    assert_int_equal(nf_table_build(m, &p, &t), NF_ERROR_STALE);
+    nf_model_destroy(m);
+    nf_model_destroy(other);
+}
+
+static void test_overwritten_table(void **state)
+{
+    (void)state;
+    nf_model *m = random_model();
+    nft_rng r;
+    nft_rng_seed(&r, 17u, 1u);
+    nf_context ctx;
+    nft_random_context(&r, &ctx);
+    nf_shading_point p;
+    assert_int_equal(nf_point_prepare(m, &ctx, NULL, &p), NF_OK);
+    nf_direction_table built;
+    assert_int_equal(nf_table_build(m, &p, &built), NF_OK);
+    /* The identity (magic, model, generation) stays; the rest is noise: random words,
+     * and in one table of four, NaN, infinities and huge values in random places. */
+    const size_t head = offsetof(nf_direction_table, frame_);
+    const float specials[] = {NAN, INFINITY, -INFINITY, 3e38f, -3e38f, 0.0f, -0.0f, 1e-45f};
+    for (int k = 0; k < 2000; ++k) {
+        nf_direction_table t = built;
+        unsigned char *bytes = (unsigned char *)&t;
+        for (size_t b = head; b < sizeof t; ++b)
+            bytes[b] = (unsigned char)nft_rng_u32(&r);
+        if (k % 4 == 0) {
+            float *f = (float *)(bytes + head);
+            size_t nf = (sizeof t - head) / sizeof(float);
+            for (int s = 0; s < 64; ++s)
+                f[nft_rng_u32(&r) % nf] = specials[nft_rng_u32(&r) % 8];
+        }
+        t.medium_ = nft_rng_u32(&r);
+        float u[2] = {nft_rng_float(&r), nft_rng_float(&r)}, dir[3], pdf, q, d[3];
+        nft_random_unit_vector(&r, d);
+        assert_int_equal(nf_table_sample(m, &t, u, dir, &pdf), NF_OK);
+        assert_int_equal(nf_table_pdf(m, &t, d, &q), NF_OK);
+    }
+    nf_model_destroy(m);
+}
+
+NFT_TEST_MAIN(cmocka_unit_test(test_table_refusals), cmocka_unit_test(test_overwritten_table), )
