@@ -12,6 +12,10 @@
 // The library decides what each pass is (nisflow/schedule.h): training passes, whose samples
 // go to the guide while its previous pass trains on a third thread (the render threads help
 // with those steps between rows: nf_guide_help), then guided or plain passes, and the image.
+// Training passes ask the flow at a shading point per vertex (nisflow/point.h); guided render
+// passes, whose model no longer changes, answer each vertex from a table of the flow built
+// once per cell of the walls (nisflow/table.h): a draw and a density there cost a few lookups
+// instead of a walk through the flow each.
 //
 //   nf_guide_client [--seconds S] [--seed N] [--plain] [--out FILE] [--reference FILE]
 //   nf_guide_client --check        what ctest runs (50 s): see check() below
@@ -22,6 +26,7 @@
 
 #include <time.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -117,6 +122,65 @@ Vec sample_cosine(Vec n, float u0, float u1)
 
 float power(float a, float b) { return a * a / (a * a + b * b); }
 
+double thread_cpu_seconds()
+{
+    timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+// ---- The flow by cells ------------------------------------------------------------------------
+
+// One render thread's tables of the flow (nisflow/table.h), one per cell of a wall: a grid of
+// kCellsPerSide x kCellsPerSide on each of the six walls. A guided render pass answers every
+// vertex in a cell from its table, built on first use from a point prepared at the cell's
+// centre; the tables hold while the pass's model does (a new model clears them).
+constexpr int kCellsPerSide = 16;
+struct Tables {
+    const nf_model *model = nullptr;                   // guide
+    uint64_t steps = 0;                                // guide: the model's training steps
+    std::vector<nf_direction_table> table;             // guide
+    std::vector<char> built;                           // guide
+    uint64_t lookups = 0, builds = 0;                  // guide: tables asked for, built
+    double build_cpu = 0.0;                            // guide: their CPU seconds
+
+    // The table of the cell at x on the wall of inward normal n; NULL if the flow refused.
+    const nf_direction_table *of(const nf_model *m, Vec x, Vec n)
+    {
+        if (m != model || nf_model_step_count(m) != steps) { // nf
+            model = m, steps = nf_model_step_count(m);       // nf
+            table.resize(6 * kCellsPerSide * kCellsPerSide);
+            built.assign(table.size(), 0);
+        }
+        int axis = std::fabs(n.x) > 0.5f ? 0 : std::fabs(n.y) > 0.5f ? 1 : 2, cell[2], k = 0;
+        float centre[3];
+        for (int a = 0; a < 3; ++a) {
+            if (a == axis) {
+                centre[a] = at(x, a);
+                continue;
+            }
+            cell[k] = std::min(std::max(int(at(x, a) * kCellsPerSide), 0), kCellsPerSide - 1);
+            centre[a] = (float(cell[k++]) + 0.5f) / kCellsPerSide;
+        }
+        size_t i = (size_t(2 * axis + (at(n, axis) > 0.0f)) * kCellsPerSide + size_t(cell[0])) *
+                       kCellsPerSide + size_t(cell[1]);
+        lookups++;
+        if (!built[i]) {
+            double c0 = thread_cpu_seconds();
+            nf_context ctx = {{centre[0], centre[1], centre[2]}, {n.x, n.y, n.z}, {n.x, n.y, n.z},
+                              0.0f}; // nf: the cell's centre (the flow reads no wo)
+            nf_shading_point sp;
+            if (nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK || // nf
+                nf_table_build(m, &sp, &table[i]) != NF_OK)         // nf
+                return nullptr;
+            built[i] = 1;
+            builds++;
+            build_cpu += thread_cpu_seconds() - c0;
+        }
+        return &table[i];
+    }
+};
+
 // ---- One path -------------------------------------------------------------------------------
 
 // What a path gives the pass: its radiance, its moments (nisflow/schedule.h), its vertices,
@@ -128,9 +192,10 @@ struct PathOut {
 };
 
 // One camera path through pixel (px, py). m: the model of a guided pass (NULL: plain); its
-// vertices up to `guide_depth` deep (0: every one) are guided.
+// vertices up to `guide_depth` deep (0: every one) are guided, from the cells' tables when
+// `tables` is not NULL, else at a shading point of their own.
 void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, int px, int py,
-           std::mt19937 &rng, PathOut &out)
+           std::mt19937 &rng, PathOut &out, Tables *tables)
 {
     std::uniform_real_distribution<float> uni(0.0f, 1.0f);
     Vec o{0.5f, 0.02f, 0.5f};
@@ -161,10 +226,6 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         out.shaded++;
         nf_context ctx = {{x.x, x.y, x.z}, {n.x, n.y, n.z}, {wo.x, wo.y, wo.z}, 0.0f}; // nf
         float g = m ? nf_path_mixture_prob(&ps, pol, uint32_t(depth), guide_depth) : 0.0f; // nf
-        nf_shading_point sp;
-        if (g > 0.0f && nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK) // nf
-            g = 0.0f;
-        out.guided += g > 0.0f;
         // The random numbers first: the roulette, the technique, the direction, the light.
         float q = nf_path_survival(&ps, pol, beta); // nf
         bool go_on = depth < kRrDepth || uni(rng) < q;
@@ -173,23 +234,49 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         float u[2] = {uni(rng), uni(rng)}, wi[3], p_flow = 0.0f, p_flow_l = 0.0f;
         Vec dir = sample_cosine(n, u[0], u[1]), wl;
         float p_light = sample_light(x, uni(rng), uni(rng), &wl), wl3[3] = {wl.x, wl.y, wl.z};
+        float cos_l = dot(n, wl);
+        bool lit = p_light > 0.0f && cos_l > 0.0f; // the light sample contributes
         bool flow_mis = g > 0.0f && nf_guide_light_mis_uses_flow(pol, uint32_t(depth)); // nf
+        // The flow answers only what the vertex uses: the scattered direction if the path goes
+        // on, the light sample's density if that sample contributes.
+        bool ask_dir = go_on && g > 0.0f, ask_light = flow_mis && lit;
+        nf_shading_point sp;
+        const nf_direction_table *tab = nullptr;
+        if ((ask_dir || ask_light) &&
+            (tables ? !(tab = tables->of(m, x, n))
+                    : nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK)) { // nf
+            g = 0.0f; // unguided: the BSDF's direction, still unbiased
+            from_flow = flow_mis = ask_dir = ask_light = false;
+        }
+        out.guided += ask_dir || ask_light;
         nf_status st = NF_OK;
-        if (from_flow) { // the flow's direction, and the light sample's flow density with it
-            st = flow_mis ? nf_point_sample_and_pdf(m, &sp, u, wi, &p_flow, wl3, &p_flow_l) // nf
-                          : nf_point_sample(m, &sp, 1, u, wi, &p_flow);                  // nf
+        if (tab) { // the cell's table: a draw or the density of the BSDF's direction, the light's
+            if (from_flow)
+                st = nf_table_sample(m, tab, u, wi, &p_flow); // nf
+            else if (ask_dir) {
+                const float d3[3] = {dir.x, dir.y, dir.z};
+                st = nf_table_pdf(m, tab, d3, &p_flow); // nf
+            }
+            if (st == NF_OK && ask_light)
+                st = nf_table_pdf(m, tab, wl3, &p_flow_l); // nf
+            if (from_flow)
+                dir = Vec{wi[0], wi[1], wi[2]};
+        } else if (from_flow) { // the flow's direction, and the light sample's density with it
+            st = ask_light ? nf_point_sample_and_pdf(m, &sp, u, wi, &p_flow, wl3, &p_flow_l) // nf
+                           : nf_point_sample(m, &sp, 1, u, wi, &p_flow);                  // nf
             dir = Vec{wi[0], wi[1], wi[2]};
-        } else if (g > 0.0f) { // the flow's density of the BSDF's direction and the light's
+        } else if (ask_dir || ask_light) { // the flow's density of the BSDF's direction, light's
             float dirs[6] = {dir.x, dir.y, dir.z, wl.x, wl.y, wl.z}, p[2];
-            st = nf_point_pdf(m, &sp, flow_mis ? 2 : 1, dirs, p); // nf
-            p_flow = p[0];
-            p_flow_l = flow_mis ? p[1] : 0.0f;
+            size_t k = ask_dir && ask_light ? 2 : 1;
+            st = nf_point_pdf(m, &sp, k, ask_dir ? dirs : dirs + 3, p); // nf
+            p_flow = ask_dir ? p[0] : 0.0f;
+            p_flow_l = ask_light ? p[k - 1] : 0.0f;
         }
         if (st != NF_OK)
             break;
         // Next-event estimation, weighed against the mixture near the camera.
-        float cos_l = dot(n, wl), p_bsdf_l = cos_l > 0.0f ? cos_l / kPi : 0.0f;
-        if (p_light > 0.0f && cos_l > 0.0f) {
+        float p_bsdf_l = cos_l > 0.0f ? cos_l / kPi : 0.0f;
+        if (lit) {
             float p_mix_l = flow_mis ? g * p_flow_l + (1.0f - g) * p_bsdf_l : p_bsdf_l;
             float f = kAlbedo / kPi * cos_l * kLe / p_light;
             float direct = f * power(p_light, p_mix_l);
@@ -227,13 +314,6 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
 
 // ---- A pass ---------------------------------------------------------------------------------
 
-double thread_cpu_seconds()
-{
-    timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-}
-
 double wall_seconds()
 {
     timespec ts;
@@ -251,7 +331,7 @@ struct PassCost {
 // samples to the guide row by row.
 PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
                      const nf_guide_policy *pol, uint64_t seed, std::vector<float> &rgb,
-                     std::vector<float> &moments)
+                     std::vector<float> &moments, std::vector<Tables> &tables)
 {
     std::atomic<int> next_row{0};
     std::atomic<double> cpu{0.0};
@@ -264,12 +344,13 @@ PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guid
         double spent = 0.0;
         uint64_t n_shaded = 0, n_guided = 0;
         for (int y; (y = next_row++) < kHeight;) {
-            double c0 = thread_cpu_seconds();
+            double c0 = thread_cpu_seconds(), b0 = tables[size_t(t)].build_cpu;
             std::mt19937 rng(uint32_t(seed * 1000003u + plan.pass * 7919u + unsigned(y)));
             size_t n = 0;
             for (int x = 0; x < kWidth; ++x) {
                 int i = y * kWidth + x;
-                trace(m, pol, plan.depth, x, y, rng, path);
+                trace(m, pol, plan.depth, x, y, rng, path,
+                      plan.todo == NF_TODO_GUIDED ? &tables[size_t(t)] : nullptr); // guide
                 n_shaded += uint64_t(path.shaded);
                 n_guided += uint64_t(path.guided);
                 rgb[3 * i] = rgb[3 * i + 1] = rgb[3 * i + 2] = path.radiance;
@@ -286,14 +367,15 @@ PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guid
             if (n > 0) // never refused: samples added while a pass trains wait for the next
                 nf_guide_add_samples(guide, n, key.data(), ctx.data(), dir.data(), w.data(), // nf
                                      nullptr);                                             // nf
-            spent += thread_cpu_seconds() - c0;
+            // A table is built once for the model's whole life: its cost is not the pass's, whose
+            // cost the schedule weighs against plain passes (tables_cpu reports it).
+            spent += thread_cpu_seconds() - c0 - (tables[size_t(t)].build_cpu - b0);
             nf_guide_help(guide); // nf: a share of the training step in progress, if any
         }
         for (double c = cpu; !cpu.compare_exchange_weak(c, c + spent);)
             ;
         shaded += n_shaded;
         guided += n_guided;
-        (void)t;
     };
     std::vector<std::thread> pool;
     for (int t = 0; t < kThreads; ++t)
@@ -310,6 +392,8 @@ struct Result {
     nf_schedule_report report;
     std::vector<double> pass_means; // each pass's image mean (the spread of the estimate)
     PassCost kind_cost[2];          // the render passes' cost by kind (nf_pass_kind)
+    uint64_t lookups = 0, tables = 0; // tables asked for, built, and the builds' CPU seconds
+    double tables_cpu = 0.0;
     bool ok = false;
 };
 
@@ -336,6 +420,7 @@ Result render(double seconds, uint64_t seed, bool plain)
     }
     nf_model_destroy(model); // nf: the guide keeps its own copies
     std::vector<float> rgb(3 * kPixels), moments(NF_GUIDE_DEPTHS * kPixels);
+    std::vector<Tables> tables(kThreads); // guide: each render thread's
     std::thread trainer;     // guide: trains the previous pass while the next one renders
     nf_status trained = NF_OK;
     const double start = wall_seconds();
@@ -359,7 +444,7 @@ Result render(double seconds, uint64_t seed, bool plain)
             if (plan.todo != NF_TODO_PLAIN)
                 nf_guide_acquire(guide, &m);                                // nf
             double t0 = wall_seconds();
-            PassCost cost = render_pass(plan, m, guide, &gc.policy, seed, rgb, moments);
+            PassCost cost = render_pass(plan, m, guide, &gc.policy, seed, rgb, moments, tables);
             if (plan.todo != NF_TODO_TRAIN) {
                 PassCost &k = r.kind_cost[plan.todo == NF_TODO_PLAIN ? NF_PASS_PLAIN : NF_PASS_GUIDED];
                 k.cpu += cost.cpu, k.shaded += cost.shaded, k.guided += cost.guided;
@@ -385,6 +470,8 @@ Result render(double seconds, uint64_t seed, bool plain)
         std::fprintf(stderr, "nf_guide_client: %s\n", nf_last_error_message()); // nf
         r.ok = false;
     }
+    for (const Tables &t : tables)
+        r.lookups += t.lookups, r.tables += t.builds, r.tables_cpu += t.build_cpu;
     nf_schedule_destroy(sched); // nf
     nf_guide_destroy(guide);    // nf
     return r;
@@ -464,8 +551,12 @@ void print(const char *name, const Result &r)
     double ns_p = pl.shaded ? 1e9 * pl.cpu / double(pl.shaded) : 0.0;
     double f = g.shaded ? double(g.guided) / double(g.shaded) : 0.0;
     std::printf("cost: %.1f CPU ns per vertex in guided passes (%.3f of them asked the flow), "
-                "%.1f in plain ones; a guided vertex %.2fx a plain one\n",
-                ns_g, f, ns_p, ns_p > 0.0 && f > 0.0 ? 1.0 + (ns_g / ns_p - 1.0) / f : 0.0);
+                "%.1f in plain ones; a guided vertex %.2fx a plain one; %llu tables built in "
+                "%.2f CPU s, %.5f of %llu lookups found theirs built\n",
+                ns_g, f, ns_p, ns_p > 0.0 && f > 0.0 ? 1.0 + (ns_g / ns_p - 1.0) / f : 0.0,
+                (unsigned long long)r.tables, r.tables_cpu,
+                r.lookups ? 1.0 - double(r.tables) / double(r.lookups) : 0.0,
+                (unsigned long long)r.lookups);
 }
 
 // What ctest runs: a guided render and a plain one of 10 s each, and a plain reference of
