@@ -257,6 +257,16 @@ typedef struct nf_point {
 #define NF_POINT_MAGIC 0x4e465054u /* "NFPT" */
 #define NF_TABLE_MAGIC 0x4e465442u /* "NFTB" */
 
+/* The cell of x in [0, 1) on n cells, x outside clamped to the ends; NaN (a corrupted table)
+ * lands in cell 0. The comparisons keep the float-to-integer conversion defined. */
+static inline uint32_t nf_table_cell(float x, uint32_t n)
+{
+    if (!(x > 0.0f))
+        return 0;
+    float c = x * (float)n;
+    return c < (float)(n - 1) ? (uint32_t)c : n - 1;
+}
+
 /* Whether point p may be used with m (its header intact, prepared on m, m's parameters not
  * changed since): NF_OK, or the status and message of fn's refusal; i names the point in the
  * message (SIZE_MAX: the only one). point.c; table.c asks it too. */

@@ -11,17 +11,10 @@
 #include "kernels/prior.h"
 
 #if UINTPTR_MAX == UINT64_MAX
-_Static_assert(sizeof(nf_direction_table) == 2304, "table.h states the table's size");
+_Static_assert(sizeof(nf_direction_table) == 2176 &&
+                   offsetof(nf_direction_table, rows_) == 128,
+               "table.h states the table's size, and its rows start on a cache line");
 #endif
-
-/* The cell of x in [0, 1) on n cells; NaN (a corrupted table) lands in cell 0. */
-static uint32_t nf_table_cell(float x, uint32_t n)
-{
-    if (!(x > 0.0f))
-        return 0;
-    float c = x * (float)n;
-    return c < (float)(n - 1) ? (uint32_t)c : n - 1;
-}
 
 /* Where num falls in a cell of width den, in [0, 1]; the middle of an empty cell. */
 static float nf_table_within(float num, float den)
@@ -29,13 +22,13 @@ static float nf_table_within(float num, float den)
     return den > 0.0f ? nf_clampf(num / den, 0.0f, 1.0f) : 0.5f;
 }
 
-/* The largest i < n with cdf[i] <= u (cdf[0] = 0 <= u): the bin that u falls in. A count of
- * the entries at or below u, without branches: the compiler turns it into vector compares, and
- * a binary search's branches, one mispredicted in two, cost more than the 32 compares. */
+/* The bin that u falls in among n bins whose inner edges are cdf[0..n-2] (the outer ones 0
+ * and 1): a count of the edges at or below u, without branches. The compiler turns it into
+ * vector compares; a binary search's branches, one mispredicted in two, cost more. */
 static uint32_t nf_table_search(const float *cdf, uint32_t n, float u)
 {
     uint32_t count = 0;
-    for (uint32_t k = 1; k < n; ++k)
+    for (uint32_t k = 0; k + 1 < n; ++k)
         count += cdf[k] <= u;
     return count;
 }
@@ -63,11 +56,18 @@ static float nf_table_direction(const nf_direction_table *t, float r, float phi,
     return t->medium_ ? 1.0f : c;
 }
 
+/* Column j's share of its row (the row's mass aside: row[0]; its cumulative shares row[1..]). */
+static float nf_table_share(const float *row, uint32_t j)
+{
+    const float lo = j > 0 ? row[j] : 0.0f, hi = j + 1 < NF_TABLE_COLS ? row[j + 1] : 1.0f;
+    return hi - lo;
+}
+
 /* Density per steradian of cell (i, j) at a direction whose cosine factor is c. */
 static float nf_table_density(const nf_direction_table *t, uint32_t i, uint32_t j, float c)
 {
-    const float *col = t->col_cdf_ + i * (NF_TABLE_COLS + 1);
-    double cell = (double)t->row_mass_[i] * (double)(col[j + 1] - col[j]) * NF_TABLE_CELLS;
+    const float *row = t->rows_[i];
+    double cell = (double)row[0] * (double)nf_table_share(row, j) * NF_TABLE_CELLS;
     double p = t->medium_ ? cell / (4.0 * NF_PI) : cell * (double)c / NF_PI;
     return (float)(p > FLT_MAX ? FLT_MAX : p < FLT_MIN ? FLT_MIN : p);
 }
@@ -114,24 +114,23 @@ nf_status nf_table_build(const nf_model *m, const nf_shading_point *point, nf_di
     double row_sum[NF_TABLE_ROWS], total = 0.0;
     for (uint32_t i = 0; i < NF_TABLE_ROWS; ++i) {
         float dirs[3 * NF_TABLE_COLS], pdf[NF_TABLE_COLS], c[NF_TABLE_COLS]; /* a row a call */
-        float *col = t.col_cdf_ + i * (NF_TABLE_COLS + 1);
+        float *row = t.rows_[i];
         for (uint32_t j = 0; j < NF_TABLE_COLS; ++j)
             c[j] = nf_table_direction(&t, ((float)i + 0.5f) / NF_TABLE_ROWS,
                                       ((float)j + 0.5f) / NF_TABLE_COLS, dirs + 3 * j);
         st = m->kernels->point_pdf(m, point, NF_TABLE_COLS, 0, dirs, pdf);
         if ((st = nf_point_checked(fn, m, point->generation_, st)) != NF_OK)
             return st;
-        double acc = 0.0;
+        double acc = 0.0, cum[NF_TABLE_COLS];
         for (uint32_t j = 0; j < NF_TABLE_COLS; ++j) {
             acc += (double)pdf[j] / (double)c[j];
-            col[j + 1] = (float)acc;
+            cum[j] = acc;
         }
         if (!(acc > 0.0) || !isfinite(acc))
             return nf_fail(NF_ERROR_NUMERIC, "%s: the flow's densities in row %u sum to %g", fn,
                            i, acc);
         for (uint32_t j = 1; j < NF_TABLE_COLS; ++j)
-            col[j] = (float)((double)col[j] / acc);
-        col[NF_TABLE_COLS] = 1.0f;
+            row[j] = (float)(cum[j - 1] / acc);
         row_sum[i] = acc;
         total += acc;
     }
@@ -139,11 +138,11 @@ nf_status nf_table_build(const nf_model *m, const nf_shading_point *point, nf_di
         return nf_fail(NF_ERROR_NUMERIC, "%s: the flow's densities sum to %g", fn, total);
     double acc = 0.0;
     for (uint32_t i = 0; i < NF_TABLE_ROWS; ++i) {
-        t.row_mass_[i] = (float)(row_sum[i] / total);
+        t.rows_[i][0] = (float)(row_sum[i] / total);
         acc += row_sum[i];
-        t.row_cdf_[i + 1] = (float)(acc / total);
+        if (i + 1 < NF_TABLE_ROWS)
+            t.row_cdf_[i] = (float)(acc / total);
     }
-    t.row_cdf_[NF_TABLE_ROWS] = 1.0f;
     *table = t;
     return NF_OK;
 }
@@ -160,11 +159,11 @@ nf_status nf_table_sample(const nf_model *m, const nf_direction_table *table, co
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: u contains NaN or Inf", fn);
     const float u0 = nf_clamp_unit(u[0]), u1 = nf_clamp_unit(u[1]);
     const uint32_t i = nf_table_search(table->row_cdf_, NF_TABLE_ROWS, u0);
-    const float *col = table->col_cdf_ + i * (NF_TABLE_COLS + 1);
-    const uint32_t j = nf_table_search(col, NF_TABLE_COLS, u1);
+    const float *row = table->rows_[i];
+    const uint32_t j = nf_table_search(row + 1, NF_TABLE_COLS, u1);
     /* where u falls inside its cell, reused for the point in the cell */
-    const float r0 = nf_table_within(u0 - table->row_cdf_[i], table->row_mass_[i]);
-    const float r1 = nf_table_within(u1 - col[j], col[j + 1] - col[j]);
+    const float r0 = nf_table_within(u0 - (i > 0 ? table->row_cdf_[i - 1] : 0.0f), row[0]);
+    const float r1 = nf_table_within(u1 - (j > 0 ? row[j] : 0.0f), nf_table_share(row, j));
     float d[3];
     const float c = nf_table_direction(table, ((float)i + r0) / NF_TABLE_ROWS,
                                        ((float)j + r1) / NF_TABLE_COLS, d);

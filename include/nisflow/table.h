@@ -22,7 +22,7 @@
  * of equal solid angle (rows of equal z, columns of equal azimuth about +z), each holding the
  * flow's density at its centre.
  *
- * Memory: an nf_direction_table is a plain struct (2,304 bytes) that the caller owns; nothing
+ * Memory: an nf_direction_table is a plain struct (2,176 bytes) that the caller owns; nothing
  * is allocated. Its fields are the library's: read or write none of them. It may be copied.
  *
  * Validity: a table belongs to the model its point was prepared on and to that model's
@@ -45,6 +45,8 @@
 
 #include <stdint.h>
 
+#include "model.h"
+
 #include "point.h"
 #include "status.h"
 #include "version.h"
@@ -55,16 +57,19 @@ NF_EXTERN_C_BEGIN
 #define NF_TABLE_COLS 32u                              /* azimuthal columns           */
 #define NF_TABLE_CELLS (NF_TABLE_ROWS * NF_TABLE_COLS) /* 512 directions asked a build */
 
-/* A tabulated point. Its layout is private: the names exist only to size it. */
+/* A tabulated point. Its layout is private: the names exist only to size it. A draw reads the
+ * first 128 bytes and one row of 128, a density one line of the first and one or two of a row:
+ * 64-byte alignment of the struct keeps each row on two cache lines (best, not required). */
 typedef struct nf_direction_table {
-    uint32_t magic_;                                      /* marks a built table            */
-    uint32_t medium_;                                     /* 1: the sphere; 0: a hemisphere */
-    uint64_t model_id_;                                   /* the model it belongs to        */
-    uint64_t generation_;                                 /* that model's parameters        */
-    float frame_[9];                                      /* t, b, n                        */
-    float row_cdf_[NF_TABLE_ROWS + 1];                    /* the rows' cumulative mass      */
-    float row_mass_[NF_TABLE_ROWS];                       /* each row's mass                */
-    float col_cdf_[NF_TABLE_ROWS * (NF_TABLE_COLS + 1)];  /* each row's columns, cumulative */
+    uint32_t magic_;                              /* marks a built table                   */
+    uint32_t medium_;                             /* 1: the sphere; 0: a hemisphere        */
+    uint64_t model_id_;                           /* the model it belongs to               */
+    uint64_t generation_;                         /* that model's parameters               */
+    float frame_[9];                              /* t, b, n                               */
+    float row_cdf_[NF_TABLE_ROWS - 1];            /* the rows' cumulative mass, 0 and 1 aside */
+    float pad_[2];                                /* the rows start at byte 128            */
+    float rows_[NF_TABLE_ROWS][NF_TABLE_COLS];    /* a row's mass, then its columns'
+                                                   * cumulative shares, 0 and 1 aside       */
 } nf_direction_table;
 
 /* Builds `table` from the prepared `point`: asks the flow the density of each of the
@@ -90,6 +95,77 @@ NF_API nf_status nf_table_sample(const nf_model *m, const nf_direction_table *ta
  * Thread-safe; never allocates. */
 NF_API nf_status nf_table_pdf(const nf_model *m, const nf_direction_table *table,
                               const float dir[3], float *pdf);
+
+/* ---- A render thread's tables, by cells of the scene ----------------------------------------- */
+
+/* A cache of tables keyed by cells of shading contexts. The normal's cell first: each face of
+ * the cube around the origin cut into normal_cells x normal_cells squares, an odd number so
+ * that the axes are cells' centres (a wall facing +x gets a table about +x exactly). Then,
+ * along the two axes other than the face's, a grid of position_cells over the model's bounds
+ * (nf_config.bounds_min / bounds_max); along the face's axis, the offset of the plane through
+ * the position with the normal cell's normal, rounded to a sixteenth of a grid cell. A cell's
+ * table is built on first use from a point prepared at the cell's centre: the grid cell's
+ * centre on that plane, so that a surface's table is asked on the surface (on it exactly for a
+ * wall at a multiple of the step, such as the bounds' faces), with the normal cell's normal as
+ * the normal and as wo (a model that reads wo, sh_bands > 0, is tabulated for that wo alone).
+ * Contexts in a medium are refused (NF_ERROR_INVALID_ARGUMENT): the phase function's lobe
+ * follows wo, which one table per cell cannot; ask them at a shading point. A model with a
+ * custom prior is tabulated with the model's own callbacks at the centre context. The cells,
+ * and so the tables, depend only on the contexts and the model: the same for any order of the
+ * finds and any number of threads.
+ *
+ * Memory: nf_table_cache_create allocates everything, capacity tables of 2,176 bytes and 16
+ * bytes each for their keys, from the config's allocator; nothing is allocated afterwards.
+ * Cells hash to buckets of 8 tables; a cell whose bucket is full gets no table (the find says
+ * so, and stats.full counts it): ask that vertex at a shading point. Give the cache room for
+ * about three times the cells a render visits, and a bucket overflows once in some 250. A
+ * table is kept until the model changes: a find with another model, or after the parameters
+ * changed, forgets every table first (O(1): a new epoch) and reuses their memory.
+ *
+ * Thread-safety: a cache belongs to one thread at a time (one per render thread); its calls
+ * never overlap. The models it is asked about may be shared (const). */
+typedef struct nf_table_cache nf_table_cache;
+
+typedef struct nf_table_cache_config {
+    uint32_t capacity;       /* tables kept, 1..2^24; default 4096 (8.6 MiB)                  */
+    uint32_t position_cells; /* grid cells per axis of the model's bounds, 1..1024; default 16 */
+    uint32_t normal_cells;   /* cells per side of a face of the normals' cube, odd, 1..15;
+                              * default 3 (54 directions)                                     */
+    nf_allocator allocator;  /* optional; both NULL: malloc and free                          */
+    uint32_t magic_;         /* set by nf_table_cache_config_init                             */
+} nf_table_cache_config;
+
+/* The defaults above. NULL is ignored. Thread-safe. */
+NF_API void nf_table_cache_config_init(nf_table_cache_config *cfg);
+
+/* Creates a cache. Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a config not initialized by
+ * nf_table_cache_config_init, a field out of its range; the message names it),
+ * NF_ERROR_OUT_OF_MEMORY. *out is NULL on error. Thread-safe. */
+NF_API nf_status nf_table_cache_create(const nf_table_cache_config *cfg, nf_table_cache **out);
+
+/* Frees the cache and its tables. NULL is a no-op. */
+NF_API void nf_table_cache_destroy(nf_table_cache *c);
+
+/* The table of ctx's cell for model m (ctx: the rules of nf_point_prepare, on a surface).
+ * build = 0: *table is the cell's table, or NULL when the cache holds none. build = 1: a
+ * missing table is built first (about one nf_table_build; renderers that time their passes
+ * can time this call alone and leave one-time builds out), or *table is NULL when the cell's
+ * bucket is full. *table is valid until a find with another model or new parameters, or the
+ * cache's destruction. Errors (*table NULL): NF_ERROR_INVALID_ARGUMENT (NULL, a bad context,
+ * a medium context), NF_ERROR_STALE or NF_ERROR_NUMERIC from the build. Never allocates. */
+NF_API nf_status nf_table_cache_find(nf_table_cache *c, const nf_model *m, const nf_context *ctx,
+                                     int build, const nf_direction_table **table);
+
+/* What a cache has done since its creation: finds, the tables it built, and the finds with
+ * build = 1 that found their cell's bucket full. */
+typedef struct nf_table_cache_stats {
+    uint64_t finds;
+    uint64_t builds;
+    uint64_t full;
+} nf_table_cache_stats;
+
+/* *stats of cache c. Errors: NF_ERROR_INVALID_ARGUMENT (NULL). */
+NF_API nf_status nf_table_cache_get_stats(const nf_table_cache *c, nf_table_cache_stats *stats);
 
 NF_EXTERN_C_END
 

@@ -215,7 +215,7 @@ static void *stack_thread(void *arg)
     case 3: j->status = nf_table_pdf(j->m, j->t, d, &pdf); break;
     default: j->status = NF_OK; break;
     }
-    volatile float sink = dir[0] + pdf + local.row_mass_[0]; /* the same frame for every case */
+    volatile float sink = dir[0] + pdf + local.rows_[0][0]; /* the same frame for every case */
     (void)sink;
     return NULL;
 }

@@ -3,6 +3,8 @@
  * (their contract otherwise: tests/correctness/test_table.c).
  *   - refusals: NULL, a table never built, another model's, a stale one, NaN u, a zero
  *     direction, an unprepared point; a failed build leaves a built table as it was;
+ *   - the cache of tables (nf_table_cache): an uninitialized or out-of-range config (each field),
+ *     NULL, a medium context, an allocator that fails;
  *   - a table whose contents (after its identity) were overwritten with random bytes, NaN and
  *     infinities among them, is answered without reading outside itself (what the ASan
  *     build checks; the library guards its float-to-index conversions), as table.h states.
@@ -101,4 +103,72 @@ static void test_overwritten_table(void **state)
     nf_model_destroy(m);
 }
 
-NFT_TEST_MAIN(cmocka_unit_test(test_table_refusals), cmocka_unit_test(test_overwritten_table), )
+static void *failing_alloc(void *user, size_t size)
+{
+    (void)user;
+    (void)size;
+    return NULL;
+}
+
+static void never_free(void *user, void *ptr)
+{
+    (void)user;
+    (void)ptr;
+    fail_msg("free called for memory never allocated");
+}
+
+static void test_cache_refusals(void **state)
+{
+    (void)state;
+    nf_table_cache_config cfg, bad;
+    nf_table_cache_config_init(&cfg);
+    nf_table_cache *c = (nf_table_cache *)&cfg; /* must be set to NULL on failure */
+    memset(&bad, 0, sizeof bad);
+    assert_int_equal(nf_table_cache_create(&bad, &c), NF_ERROR_INVALID_ARGUMENT);
+    assert_null(c);
+    assert_non_null(strstr(nf_last_error_message(), "nf_table_cache_config_init"));
+    struct {
+        uint32_t *field, value;
+        const char *name;
+    } cases[] = {{&bad.capacity, 0, "capacity"},          {&bad.capacity, (1u << 24) + 1, "capacity"},
+                 {&bad.position_cells, 0, "position_cells"}, {&bad.position_cells, 1025, "position_cells"},
+                 {&bad.normal_cells, 2, "normal_cells"},   {&bad.normal_cells, 17, "normal_cells"}};
+    for (size_t k = 0; k < sizeof cases / sizeof cases[0]; ++k) {
+        bad = cfg;
+        *cases[k].field = cases[k].value;
+        assert_int_equal(nf_table_cache_create(&bad, &c), NF_ERROR_INVALID_ARGUMENT);
+        assert_non_null(strstr(nf_last_error_message(), cases[k].name));
+    }
+    bad = cfg;
+    bad.allocator.alloc = failing_alloc;
+    assert_int_equal(nf_table_cache_create(&bad, &c), NF_ERROR_INVALID_ARGUMENT); /* no free */
+    bad.allocator.free = never_free;
+    assert_int_equal(nf_table_cache_create(&bad, &c), NF_ERROR_OUT_OF_MEMORY);
+    assert_null(c);
+    assert_int_equal(nf_table_cache_create(NULL, &c), NF_ERROR_INVALID_ARGUMENT);
+
+    assert_int_equal(nf_table_cache_create(&cfg, &c), NF_OK);
+    nf_model *m = random_model();
+    nf_context surface = nft_context(0.5f, 0.5f, 0.5f, 0, 0, 1, 0, 0, 1), medium = surface;
+    medium.normal[2] = 0.0f;
+    medium.phase_g = 0.3f;
+    nf_context nan_pos = surface;
+    nan_pos.position[1] = NAN;
+    const nf_direction_table *t = (const nf_direction_table *)&cfg;
+    assert_int_equal(nf_table_cache_find(c, m, &medium, 1, &t), NF_ERROR_INVALID_ARGUMENT);
+    assert_null(t);
+    assert_non_null(strstr(nf_last_error_message(), "medium"));
+    assert_int_equal(nf_table_cache_find(c, m, &nan_pos, 1, &t), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_table_cache_find(NULL, m, &surface, 1, &t), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_table_cache_find(c, m, &surface, 1, NULL), NF_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(nf_table_cache_get_stats(c, NULL), NF_ERROR_INVALID_ARGUMENT);
+    nf_table_cache_stats s;
+    assert_int_equal(nf_table_cache_get_stats(c, &s), NF_OK);
+    assert_int_equal(s.builds, 0);
+    nf_table_cache_destroy(c);
+    nf_table_cache_destroy(NULL);
+    nf_model_destroy(m);
+}
+
+NFT_TEST_MAIN(cmocka_unit_test(test_table_refusals), cmocka_unit_test(test_overwritten_table),
+              cmocka_unit_test(test_cache_refusals), )
