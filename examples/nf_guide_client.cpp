@@ -131,53 +131,24 @@ double thread_cpu_seconds()
 
 // ---- The flow by cells ------------------------------------------------------------------------
 
-// One render thread's tables of the flow (nisflow/table.h), one per cell of a wall: a grid of
-// kCellsPerSide x kCellsPerSide on each of the six walls. A guided render pass answers every
-// vertex in a cell from its table, built on first use from a point prepared at the cell's
-// centre; the tables hold while the pass's model does (a new model clears them).
-constexpr int kCellsPerSide = 16;
+// One render thread's tables of the flow (nisflow/table.h): the library's cache of cells, 16
+// per side of the box and the walls' own normals, each table built on first use from a point
+// prepared at the cell's centre and kept while the model is. A build is timed apart: it is
+// done once for the model's life, not by the pass that happens to need it first.
 struct Tables {
-    const nf_model *model = nullptr;                   // guide
-    uint64_t steps = 0;                                // guide: the model's training steps
-    std::vector<nf_direction_table> table;             // guide
-    std::vector<char> built;                           // guide
-    uint64_t lookups = 0, builds = 0;                  // guide: tables asked for, built
-    double build_cpu = 0.0;                            // guide: their CPU seconds
+    nf_table_cache *cache = nullptr; // guide
+    double build_cpu = 0.0;          // guide: the builds' CPU seconds
 
-    // The table of the cell at x on the wall of inward normal n; NULL if the flow refused.
-    const nf_direction_table *of(const nf_model *m, Vec x, Vec n)
+    // The table of ctx's cell; NULL where the cache has no room for it (or the flow refused).
+    const nf_direction_table *of(const nf_model *m, const nf_context &ctx)
     {
-        if (m != model || nf_model_step_count(m) != steps) { // nf
-            model = m, steps = nf_model_step_count(m);       // nf
-            table.resize(6 * kCellsPerSide * kCellsPerSide);
-            built.assign(table.size(), 0);
-        }
-        int axis = std::fabs(n.x) > 0.5f ? 0 : std::fabs(n.y) > 0.5f ? 1 : 2, cell[2], k = 0;
-        float centre[3];
-        for (int a = 0; a < 3; ++a) {
-            if (a == axis) {
-                centre[a] = at(x, a);
-                continue;
-            }
-            cell[k] = std::min(std::max(int(at(x, a) * kCellsPerSide), 0), kCellsPerSide - 1);
-            centre[a] = (float(cell[k++]) + 0.5f) / kCellsPerSide;
-        }
-        size_t i = (size_t(2 * axis + (at(n, axis) > 0.0f)) * kCellsPerSide + size_t(cell[0])) *
-                       kCellsPerSide + size_t(cell[1]);
-        lookups++;
-        if (!built[i]) {
+        const nf_direction_table *t = nullptr;
+        if (nf_table_cache_find(cache, m, &ctx, 0, &t) == NF_OK && !t) { // nf
             double c0 = thread_cpu_seconds();
-            nf_context ctx = {{centre[0], centre[1], centre[2]}, {n.x, n.y, n.z}, {n.x, n.y, n.z},
-                              0.0f}; // nf: the cell's centre (the flow reads no wo)
-            nf_shading_point sp;
-            if (nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK || // nf
-                nf_table_build(m, &sp, &table[i]) != NF_OK)         // nf
-                return nullptr;
-            built[i] = 1;
-            builds++;
+            nf_table_cache_find(cache, m, &ctx, 1, &t); // nf
             build_cpu += thread_cpu_seconds() - c0;
         }
-        return &table[i];
+        return t;
     }
 };
 
@@ -242,9 +213,9 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         bool ask_dir = go_on && g > 0.0f, ask_light = flow_mis && lit;
         nf_shading_point sp;
         const nf_direction_table *tab = nullptr;
-        if ((ask_dir || ask_light) &&
-            (tables ? !(tab = tables->of(m, x, n))
-                    : nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK)) { // nf
+        if ((ask_dir || ask_light) && tables) // guide: NULL if the cell has no table
+            tab = tables->of(m, ctx);
+        if ((ask_dir || ask_light) && !tab && nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK) { // nf
             g = 0.0f; // unguided: the BSDF's direction, still unbiased
             from_flow = flow_mis = ask_dir = ask_light = false;
         }
@@ -421,10 +392,15 @@ Result render(double seconds, uint64_t seed, bool plain)
     nf_model_destroy(model); // nf: the guide keeps its own copies
     std::vector<float> rgb(3 * kPixels), moments(NF_GUIDE_DEPTHS * kPixels);
     std::vector<Tables> tables(kThreads); // guide: each render thread's
+    nf_table_cache_config tc;             // nf
+    nf_table_cache_config_init(&tc);      // nf
+    bool made = true;                     // otherwise the error is reported below
+    for (Tables &t : tables)
+        made = made && nf_table_cache_create(&tc, &t.cache) == NF_OK; // nf
     std::thread trainer;     // guide: trains the previous pass while the next one renders
     nf_status trained = NF_OK;
     const double start = wall_seconds();
-    for (bool train_next = false;;) {
+    for (bool train_next = false; made;) {
         nf_pass_plan plan;                                                  // nf
         if (nf_schedule_next(sched, wall_seconds() - start, nullptr, &plan) != NF_OK) { // nf
             r.ok = false;
@@ -470,8 +446,13 @@ Result render(double seconds, uint64_t seed, bool plain)
         std::fprintf(stderr, "nf_guide_client: %s\n", nf_last_error_message()); // nf
         r.ok = false;
     }
-    for (const Tables &t : tables)
-        r.lookups += t.lookups, r.tables += t.builds, r.tables_cpu += t.build_cpu;
+    for (Tables &t : tables) {
+        nf_table_cache_stats st;                              // nf
+        if (nf_table_cache_get_stats(t.cache, &st) == NF_OK)  // nf
+            r.lookups += st.finds, r.tables += st.builds;
+        r.tables_cpu += t.build_cpu;
+        nf_table_cache_destroy(t.cache); // nf
+    }
     nf_schedule_destroy(sched); // nf
     nf_guide_destroy(guide);    // nf
     return r;

@@ -65,11 +65,11 @@ echo "client: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'
 for seed in $SEEDS; do
     for s in $SETTINGS; do
         if [ "$s" = plain ]; then
-            r=$("$CLIENT" --plain --seconds "$SECONDS_PER_RUN" --seed "$seed" --reference "$WORK/ref.img" | tail -2 | tr "\n" " ")
+            r=$("$CLIENT" --plain --seconds "$SECONDS_PER_RUN" --seed "$seed" --reference "$WORK/ref.img" | tail -3 | tr "\n" " ")
         else
             # shellcheck disable=SC2046 # the settings are words without blanks
             r=$(env $(setting_env "$s") "$CLIENT" --seconds "$SECONDS_PER_RUN" --seed "$seed" \
-                --reference "$WORK/ref.img" | tail -2 | tr "\n" " ")
+                --reference "$WORK/ref.img" | tail -3 | tr "\n" " ")
         fi
         echo "$seed $s $r" | tee -a "$WORK/runs.txt"
     done
