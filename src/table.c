@@ -11,8 +11,7 @@
 #include "kernels/prior.h"
 
 #if UINTPTR_MAX == UINT64_MAX
-_Static_assert(sizeof(nf_direction_table) == 2176 &&
-                   offsetof(nf_direction_table, rows_) == 128,
+_Static_assert(sizeof(nf_direction_table) == 2176 && offsetof(nf_direction_table, rows_) == 128,
                "table.h states the table's size, and its rows start on a cache line");
 #endif
 
@@ -87,7 +86,8 @@ static nf_status nf_table_usable(const char *fn, const nf_model *m, const nf_dir
     return NF_OK;
 }
 
-nf_status nf_table_build(const nf_model *m, const nf_shading_point *point, nf_direction_table *table)
+nf_status nf_table_build(const nf_model *m, const nf_shading_point *point,
+                         nf_direction_table *table)
 {
     static const char fn[] = "nf_table_build";
     nf_status st;
@@ -127,8 +127,8 @@ nf_status nf_table_build(const nf_model *m, const nf_shading_point *point, nf_di
             cum[j] = acc;
         }
         if (!(acc > 0.0) || !isfinite(acc))
-            return nf_fail(NF_ERROR_NUMERIC, "%s: the flow's densities in row %u sum to %g", fn,
-                           i, acc);
+            return nf_fail(NF_ERROR_NUMERIC, "%s: the flow's densities in row %u sum to %g", fn, i,
+                           acc);
         for (uint32_t j = 1; j < NF_TABLE_COLS; ++j)
             row[j] = (float)(cum[j - 1] / acc);
         row_sum[i] = acc;

@@ -13,7 +13,8 @@
 
 typedef struct nf_table_slot {
     uint64_t key;   /* the cell's key */
-    uint64_t epoch; /* the cache's epoch when it was built: another epoch is an empty slot */
+    uint32_t epoch; /* the cache's epoch when it was built: another epoch is an empty slot */
+    uint32_t table; /* its table: tables[table] */
 } nf_table_slot;
 
 struct nf_table_cache {
@@ -23,8 +24,9 @@ struct nf_table_cache {
     float lo[3], inv_extent[3]; /* the model's bounds, for the grid                          */
     double inv_step[3];         /* planes' steps per unit along each axis                    */
     float normal_at[NF_TABLE_CACHE_MAX_NORMAL]; /* a normal cell's centre component          */
-    uint64_t model_id, generation; /* the parameters whose tables the slots hold */
-    uint64_t epoch;                /* starts at 1: a zeroed slot is empty */
+    uint64_t model_id, generation;              /* the parameters whose tables the slots hold */
+    uint32_t epoch; /* starts at 1: a zeroed slot is empty (slots are cleared when it wraps) */
+    uint32_t used;  /* tables built in this epoch: tables[0 .. used) */
     nf_table_cache_stats stats;
     nf_table_slot *slots;
     nf_direction_table *tables;
@@ -52,25 +54,32 @@ nf_status nf_table_cache_create(const nf_table_cache_config *cfg, nf_table_cache
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: cfg was not initialized by nf_table_cache_config_init", fn);
     if (cfg->capacity < 1 || cfg->capacity > NF_TABLE_CACHE_MAX_CAPACITY)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: cfg->capacity = %u is out of range: it must "
-                       "be 1..%u", fn, cfg->capacity, NF_TABLE_CACHE_MAX_CAPACITY);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: cfg->capacity = %u is out of range: it must "
+                       "be 1..%u",
+                       fn, cfg->capacity, NF_TABLE_CACHE_MAX_CAPACITY);
     if (cfg->position_cells < 1 || cfg->position_cells > NF_TABLE_CACHE_MAX_POSITION)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: cfg->position_cells = %u is out of range: "
-                       "it must be 1..%u", fn, cfg->position_cells, NF_TABLE_CACHE_MAX_POSITION);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: cfg->position_cells = %u is out of range: "
+                       "it must be 1..%u",
+                       fn, cfg->position_cells, NF_TABLE_CACHE_MAX_POSITION);
     if (cfg->normal_cells % 2u == 0u || cfg->normal_cells > NF_TABLE_CACHE_MAX_NORMAL)
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: cfg->normal_cells = %u is out of range: it "
-                       "must be odd, 1..%u", fn, cfg->normal_cells, NF_TABLE_CACHE_MAX_NORMAL);
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT,
+                       "%s: cfg->normal_cells = %u is out of range: it "
+                       "must be odd, 1..%u",
+                       fn, cfg->normal_cells, NF_TABLE_CACHE_MAX_NORMAL);
     if ((cfg->allocator.alloc == NULL) != (cfg->allocator.free == NULL))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: cfg->allocator needs both alloc and free, or neither", fn);
     nf_allocator alloc = cfg->allocator.alloc ? cfg->allocator : nf_default_allocator();
     /* 63 bytes more, so that the tables start on a cache line (table.h: a row on two) */
-    const size_t bytes = sizeof(nf_table_cache) + 63u +
-                         (size_t)cfg->capacity * (sizeof(nf_table_slot) + sizeof(nf_direction_table));
+    const size_t bytes =
+        sizeof(nf_table_cache) + 63u +
+        (size_t)cfg->capacity * (sizeof(nf_table_slot) + sizeof(nf_direction_table));
     unsigned char *block = (unsigned char *)alloc.alloc(alloc.user, bytes);
     if (!block)
-        return nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate %zu bytes for %u tables",
-                       fn, bytes, cfg->capacity);
+        return nf_fail(NF_ERROR_OUT_OF_MEMORY, "%s: could not allocate %zu bytes for %u tables", fn,
+                       bytes, cfg->capacity);
     nf_table_cache *c = (nf_table_cache *)block;
     memset(c, 0, sizeof *c);
     c->alloc = alloc;
@@ -101,11 +110,11 @@ void nf_table_cache_destroy(nf_table_cache *c)
 
 /* A cell: what its key is made of, and so its centre. */
 typedef struct nf_table_cell_of {
-    int axis;          /* the normal's face: its largest component's axis...      */
-    float sign;        /* ...and that component's sign                             */
-    uint32_t nrm[2];   /* its square on the face, along axes axis + 1 and axis + 2 */
-    uint32_t pos[2];   /* the grid cells along those axes                          */
-    int64_t plane;     /* the plane's offset in steps                              */
+    int axis;        /* the normal's face: its largest component's axis...      */
+    float sign;      /* ...and that component's sign                             */
+    uint32_t nrm[2]; /* its square on the face, along axes axis + 1 and axis + 2 */
+    uint32_t pos[2]; /* the grid cells along those axes                          */
+    int64_t plane;   /* the plane's offset in steps                              */
 } nf_table_cell_of;
 
 /* ctx's cell and its key. The normal's cell first: the face of the cube its largest component
@@ -169,9 +178,8 @@ static void nf_table_cache_centre(const nf_table_cache *c, const nf_table_cell_o
 /* ctx's position finite, its normal finite and not zero: all the cache reads of it. */
 static nf_status nf_table_cache_context(const char *fn, const nf_context *ctx)
 {
-    if (!nf_all_finite(ctx->position, 3) || !nf_all_finite(ctx->normal, 3))
-        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: ctx's position or normal is not finite",
-                       fn);
+    if (!nf_floats_finite(ctx->position, 3) || !nf_floats_finite(ctx->normal, 3))
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: ctx's position or normal is not finite", fn);
     const float *n = ctx->normal;
     if (nf_context_in_medium(ctx))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
@@ -198,7 +206,11 @@ nf_status nf_table_cache_find(nf_table_cache *c, const nf_model *m, const nf_con
     if (m->id != c->model_id || nf_generation_moved(m, c->generation)) {
         c->model_id = m->id;
         c->generation = nf_generation_read(m);
-        c->epoch++;
+        if (++c->epoch == 0u) { /* after 2^32 - 1 models: clear, so no old slot matches */
+            memset(c->slots, 0, (size_t)c->capacity * sizeof *c->slots);
+            c->epoch = 1;
+        }
+        c->used = 0;
         for (int a = 0; a < 3; ++a) {
             const double extent = (double)m->cfg.bounds_max[a] - m->cfg.bounds_min[a];
             c->lo[a] = m->cfg.bounds_min[a];
@@ -221,21 +233,17 @@ nf_status nf_table_cache_find(nf_table_cache *c, const nf_model *m, const nf_con
      * bucket's cells evict each other on every find, a build each (measured: 18 times the
      * builds in the client with slots replaced in turn). */
     const uint32_t ways = c->ways, first = (uint32_t)(h & c->bucket_mask) * ways;
-    uint32_t s = UINT32_MAX;
-    for (uint32_t k = first; k < first + ways; ++k) {
-        const nf_table_slot *slot = &c->slots[k];
-        if (slot->epoch != c->epoch) {
-            s = s == UINT32_MAX ? k : s;
-            continue;
-        }
-        if (slot->key == key) {
-            *table = &c->tables[k];
+    /* A bucket fills in order and empties all at once: its live slots come first, and the first
+     * dead one ends the search (a branch-free pass over all eight measured 10-20 ns slower). */
+    uint32_t s = first;
+    for (; s < first + ways && c->slots[s].epoch == c->epoch; ++s)
+        if (c->slots[s].key == key) {
+            *table = &c->tables[c->slots[s].table];
             return NF_OK;
         }
-    }
     if (!build)
         return NF_OK;
-    if (s == UINT32_MAX) {
+    if (s == first + ways) {
         c->stats.full++;
         return NF_OK;
     }
@@ -245,19 +253,22 @@ nf_status nf_table_cache_find(nf_table_cache *c, const nf_model *m, const nf_con
     if ((st = nf_point_prepare(m, &centre, NULL, &point)) != NF_OK)
         return st;
     /* A failed build leaves the slot free (nf_table_build writes only on success). */
-    if ((st = nf_table_build(m, &point, &c->tables[s])) != NF_OK)
+    /* Tables in the order they are built, not by slot: the cells a render visits take that many
+     * tables side by side, not capacity's worth of memory scattered by the hash. */
+    if ((st = nf_table_build(m, &point, &c->tables[c->used])) != NF_OK)
         return st;
     c->stats.builds++;
     c->slots[s].key = key;
     c->slots[s].epoch = c->epoch;
-    *table = &c->tables[s];
+    c->slots[s].table = c->used;
+    *table = &c->tables[c->used++];
     return NF_OK;
 }
 
 nf_status nf_table_cache_get_stats(const nf_table_cache *c, nf_table_cache_stats *stats)
 {
-    nf_status st = nf_check_pointers("nf_table_cache_get_stats", "c", c, "stats", stats, NULL,
-                                     NULL, NULL, NULL);
+    nf_status st = nf_check_pointers("nf_table_cache_get_stats", "c", c, "stats", stats, NULL, NULL,
+                                     NULL, NULL);
     if (st == NF_OK)
         *stats = c->stats;
     return st;

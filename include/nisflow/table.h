@@ -61,15 +61,15 @@ NF_EXTERN_C_BEGIN
  * first 128 bytes and one row of 128, a density one line of the first and one or two of a row:
  * 64-byte alignment of the struct keeps each row on two cache lines (best, not required). */
 typedef struct nf_direction_table {
-    uint32_t magic_;                              /* marks a built table                   */
-    uint32_t medium_;                             /* 1: the sphere; 0: a hemisphere        */
-    uint64_t model_id_;                           /* the model it belongs to               */
-    uint64_t generation_;                         /* that model's parameters               */
-    float frame_[9];                              /* t, b, n                               */
-    float row_cdf_[NF_TABLE_ROWS - 1];            /* the rows' cumulative mass, 0 and 1 aside */
-    float pad_[2];                                /* the rows start at byte 128            */
-    float rows_[NF_TABLE_ROWS][NF_TABLE_COLS];    /* a row's mass, then its columns'
-                                                   * cumulative shares, 0 and 1 aside       */
+    uint32_t magic_;                           /* marks a built table                   */
+    uint32_t medium_;                          /* 1: the sphere; 0: a hemisphere        */
+    uint64_t model_id_;                        /* the model it belongs to               */
+    uint64_t generation_;                      /* that model's parameters               */
+    float frame_[9];                           /* t, b, n                               */
+    float row_cdf_[NF_TABLE_ROWS - 1];         /* the rows' cumulative mass, 0 and 1 aside */
+    float pad_[2];                             /* the rows start at byte 128            */
+    float rows_[NF_TABLE_ROWS][NF_TABLE_COLS]; /* a row's mass, then its columns'
+                                                * cumulative shares, 0 and 1 aside       */
 } nf_direction_table;
 
 /* Builds `table` from the prepared `point`: asks the flow the density of each of the
