@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The per-path client's studies (docs/equal-time.md, "How large a training pass";
+# The per-path client's studies (docs/client.md, "How large a training pass";
 # docs/studies/cost-of-a-direction.md, "A per-path preset"): examples/nf_guide_client.cpp at
 # equal time with one of the guide's or the model's settings varied, against plain path
 # tracing, seed by seed, back to back.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The per-path client at equal time (docs/equal-time.md, "A renderer of its own"):
+# The per-path client at equal time (docs/client.md, "The result"):
 # examples/nf_guide_client.cpp renders its indirectly lit box with the library's schedule
 # (training, guided or plain passes, the image) and with plain path tracing, seed by seed,
 # back to back, and prints each run's relMSE against a long plain reference of its own and the
@@ -44,6 +44,7 @@ for seed in $SEEDS; do
             > "$OUT/$kind-$seed.log"
         e=$(awk '/^relMSE/ { print $2 }' "$OUT/$kind-$seed.log")
         echo "seed $seed $kind relMSE $e: $(head -1 "$OUT/$kind-$seed.log")"
+        [ "$kind" = guided ] && echo "    $(sed -n 2p "$OUT/$kind-$seed.log")"
         if [ "$kind" = guided ]; then sum_g=$(awk "BEGIN { print $sum_g + $e }"); else
             sum_p=$(awk "BEGIN { print $sum_p + $e }"); fi
     done
