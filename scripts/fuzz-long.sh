@@ -46,6 +46,7 @@ ALL_TARGETS=(
     # every execution) up to 32 hits instead of 255: faster, as much coverage
     # (docs/robustness.md, "fuzz_point's speed"; the header of fuzz/fuzz_point.c).
     "fuzz_point:fuzz/corpus/point:-entropic_feature_frequency_threshold=32"
+    "fuzz_table:fuzz/corpus/table:"
     "fuzz_blocks:fuzz/corpus/blocks:"
     "fuzz_path:fuzz/corpus/path:"
     "fuzz_scene_load:examples/tracer/fuzz/corpus:-dict=$ROOT/examples/tracer/fuzz/scene.dict"
