@@ -26,20 +26,11 @@
 
 enum { SLOTS = 4, MAX_OPS = 48 };
 
-typedef struct reader {
-    const uint8_t *p;
-    size_t n, at;
-} reader;
+typedef nf_fuzz_reader reader;
 
-static unsigned rd_u8(reader *r) { return r->at < r->n ? r->p[r->at++] : 0u; }
+static unsigned rd_u8(reader *r) { return nf_fuzz_byte(r); }
 
-static uint32_t rd_u32(reader *r)
-{
-    uint32_t v = 0;
-    for (int i = 0; i < 4; ++i)
-        v |= (uint32_t)rd_u8(r) << (8 * i);
-    return v;
-}
+static uint32_t rd_u32(reader *r) { return nf_fuzz_u32(r); }
 
 /* A float: raw bits, an edge value, or a value in [-1, 2) (the useful range of u and of
  * positions and directions in the unit box). */
@@ -200,7 +191,7 @@ static void run_cache(const nf_model *m, reader *r, nf_table_cache *cache, int c
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    reader r = {data, size, 0};
+    reader r = {data, size};
     nf_model *m = program_model(&r);
     nf_table_cache_config cc;
     nf_table_cache_config_init(&cc);
@@ -216,7 +207,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     static slot slots[SLOTS];
     memset(slots, 0, sizeof slots);
     int changed = 0;
-    for (int op = 0; op < MAX_OPS && r.at < r.n; ++op) {
+    for (int op = 0; op < MAX_OPS && r.n > 0; ++op) {
         slot *s = &slots[rd_u8(&r) % SLOTS];
         switch (rd_u8(&r) % 6u) {
         case 0: { /* build from a raw context */
