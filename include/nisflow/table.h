@@ -9,8 +9,8 @@
  * one lookup, where the flow costs a walk through its layers. The table is a distribution of
  * its own, not the flow's: sampling and evaluating at a vertex both use the same table, so an
  * estimator that mixes it with the BSDF stays unbiased; what the cell's size and the grid's
- * resolution cost in variance is the renderer's to measure (docs/equal-time.md has our
- * client's figures).
+ * resolution cost in variance is the renderer's to measure (docs/client.md has our client's
+ * figures). nf_table_cache, below, keeps a render thread's tables by cells.
  *
  * The grid. At a surface point (a non-zero normal n) the table covers n's hemisphere in the
  * cosine lobe's coordinates: NF_TABLE_ROWS rows of equal sin^2(theta) and NF_TABLE_COLS
@@ -35,8 +35,9 @@
  * Drawing and evaluating are scalar code compiled once: the same bits on every instruction
  * set for the same table.
  *
- * Thread-safety: every function takes a const model and a const table (the build writes only
- * *table); any number of threads may draw from one table at once. Nothing allocates.
+ * Thread-safety: the table functions take a const model and a const table (the build writes
+ * only *table); any number of threads may draw from one table at once. They never allocate.
+ * The cache's rules are its own (below).
  * Stack: a build uses at most 8 KiB (its table, a row of directions and the flow's share), a
  * draw or a density 256 bytes; tests/correctness/test_table.c measures both.
  */
@@ -46,7 +47,6 @@
 #include <stdint.h>
 
 #include "model.h"
-
 #include "point.h"
 #include "status.h"
 #include "version.h"
@@ -110,9 +110,9 @@ NF_API nf_status nf_table_pdf(const nf_model *m, const nf_direction_table *table
  * the normal and as wo (a model that reads wo, sh_bands > 0, is tabulated for that wo alone).
  * Contexts in a medium are refused (NF_ERROR_INVALID_ARGUMENT): the phase function's lobe
  * follows wo, which one table per cell cannot; ask them at a shading point. A model with a
- * custom prior is tabulated with the model's own callbacks at the centre context. The cells,
- * and so the tables, depend only on the contexts and the model: the same for any order of the
- * finds and any number of threads.
+ * custom prior is tabulated with the model's own callbacks at the centre context. A cell's
+ * table depends only on the cell and the model, the same for any order of the finds and any
+ * number of threads; which cells of a full bucket (below) go without depends on the order.
  *
  * Memory: nf_table_cache_create allocates everything, capacity tables of 2,176 bytes and 16
  * bytes each for their keys, from the config's allocator; nothing is allocated afterwards.
@@ -146,7 +146,8 @@ NF_API nf_status nf_table_cache_create(const nf_table_cache_config *cfg, nf_tabl
 /* Frees the cache and its tables. NULL is a no-op. */
 NF_API void nf_table_cache_destroy(nf_table_cache *c);
 
-/* The table of ctx's cell for model m (ctx: the rules of nf_point_prepare, on a surface).
+/* The table of ctx's cell for model m (ctx: a finite position and a finite normal of squared
+ * length above 1e-30; wo and phase_g are not read).
  * build = 0: *table is the cell's table, or NULL when the cache holds none. build = 1: a
  * missing table is built first (about one nf_table_build; renderers that time their passes
  * can time this call alone and leave one-time builds out), or *table is NULL when the cell's
