@@ -41,22 +41,6 @@ static int table_pdf_fn(void *user, size_t n, const float *dir, float *pdf)
     return 0;
 }
 
-/* A model far from the identity, so that the table is not the prior's. */
-static nf_model *random_model(void)
-{
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_int_equal(nft_randomize_params(m, 0.5f, 11u), NF_OK);
-    return m;
-}
-
-static void build_at(const nf_model *m, const nf_context *ctx, nf_direction_table *t)
-{
-    nf_shading_point p;
-    assert_int_equal(nf_point_prepare(m, ctx, NULL, &p), NF_OK);
-    if (nf_table_build(m, &p, t) != NF_OK)
-        fail_msg("nf_table_build: %s", nf_last_error_message());
-}
-
 static nf_context medium_at(nft_rng *r)
 {
     nf_context c;
@@ -73,7 +57,7 @@ static nf_context medium_at(nft_rng *r)
 static void test_table_is_a_distribution(void **state)
 {
     (void)state;
-    nf_model *m = random_model();
+    nf_model *m = nft_random_model();
     nft_rng r;
     nft_rng_seed(&r, 3u, 1u);
     enum { SURFACES = 3, RUNS = SURFACES + 1 };
@@ -84,7 +68,7 @@ static void test_table_is_a_distribution(void **state)
         else
             ctx = medium_at(&r);
         nf_direction_table t;
-        build_at(m, &ctx, &t);
+        t = nft_table_at(m, &ctx);
         table_fn f = {m, &t};
         char name[32];
         snprintf(name, sizeof name, "table_%d", k);
@@ -104,7 +88,7 @@ static void test_table_is_a_distribution(void **state)
 static void test_sample_density_is_the_tables(void **state)
 {
     (void)state;
-    nf_model *m = random_model();
+    nf_model *m = nft_random_model();
     nft_rng r;
     nft_rng_seed(&r, 5u, 1u);
     enum { N = 4000 };
@@ -116,7 +100,7 @@ static void test_sample_density_is_the_tables(void **state)
         else
             ctx = medium_at(&r);
         nf_direction_table t;
-        build_at(m, &ctx, &t);
+        t = nft_table_at(m, &ctx);
         float n[3];
         memcpy(n, ctx.normal, sizeof n);
         for (int i = 0; i < N; ++i) {
@@ -151,13 +135,13 @@ static void test_sample_density_is_the_tables(void **state)
 static void test_table_follows_the_flow(void **state)
 {
     (void)state;
-    nf_model *m = random_model();
+    nf_model *m = nft_random_model();
     nft_rng r;
     nft_rng_seed(&r, 9u, 1u);
     nf_context ctx;
     nft_random_context(&r, &ctx);
     nf_direction_table t;
-    build_at(m, &ctx, &t);
+    t = nft_table_at(m, &ctx);
     nf_shading_point p;
     assert_int_equal(nf_point_prepare(m, &ctx, NULL, &p), NF_OK);
     /* The cells' centres in the library's frame about the unit normal (Duff et al. 2017,

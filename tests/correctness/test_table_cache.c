@@ -19,13 +19,6 @@
 #include "nf_test_main.h"
 #include "nf_test_support.h"
 
-static nf_model *random_model(void)
-{
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_int_equal(nft_randomize_params(m, 0.5f, 11u), NF_OK);
-    return m;
-}
-
 static nf_table_cache *make_cache(uint32_t capacity, uint32_t position_cells, uint32_t normal_cells)
 {
     nf_table_cache_config cfg;
@@ -48,20 +41,10 @@ static const nf_direction_table *find(nf_table_cache *c, const nf_model *m, cons
     return t;
 }
 
-/* The table a point prepared at ctx builds, to compare with the cache's. */
-static nf_direction_table table_at(const nf_model *m, const nf_context *ctx)
-{
-    nf_shading_point p;
-    nf_direction_table t;
-    assert_int_equal(nf_point_prepare(m, ctx, NULL, &p), NF_OK);
-    assert_int_equal(nf_table_build(m, &p, &t), NF_OK);
-    return t;
-}
-
 static void test_a_cell_is_built_once(void **state)
 {
     (void)state;
-    nf_model *m = random_model(); /* bounds [0, 1]^3 */
+    nf_model *m = nft_random_model(); /* bounds [0, 1]^3 */
     nf_table_cache *c = make_cache(64, 4, 3);
     /* Two contexts in the cell [0.25, 0.5) x [0.5, 0.75) of x and y, normals near +z, on planes
      * z = 0.26 and 0.262 that round to the same sixteenth of a grid cell, 17 / 64. */
@@ -75,7 +58,7 @@ static void test_a_cell_is_built_once(void **state)
     /* The cell's centre: (0.375, 0.625) on the plane z = 17 / 64, the normal +z (the middle of
      * 3 x 3), wo = it. */
     nf_context centre = nft_context(0.375f, 0.625f, 0.265625f, 0, 0, 1, 0, 0, 1);
-    nf_direction_table expect = table_at(m, &centre);
+    nf_direction_table expect = nft_table_at(m, &centre);
     assert_int_equal(memcmp(&expect, ta, sizeof expect), 0);
     nf_table_cache_stats s;
     assert_int_equal(nf_table_cache_get_stats(c, &s), NF_OK);
@@ -97,14 +80,14 @@ static void test_a_cell_is_built_once(void **state)
 static void test_axis_walls_are_centres(void **state)
 {
     (void)state;
-    nf_model *m = random_model();
+    nf_model *m = nft_random_model();
     for (uint32_t b = 1; b <= 15; b += 2) {
         nf_table_cache *c = make_cache(16, 2, b);
         /* A wall facing -y at y = 1, its normal exactly -y: the cell's normal is -y itself and
          * its centre on the wall (y = 1 is a multiple of the plane's step, 1/32). */
         nf_context wall = nft_context(0.2f, 1.0f, 0.7f, 0, -1, 0, 0.3f, -0.5f, 0.2f);
         nf_context centre = nft_context(0.25f, 1.0f, 0.75f, 0, -1, 0, 0, -1, 0);
-        nf_direction_table expect = table_at(m, &centre);
+        nf_direction_table expect = nft_table_at(m, &centre);
         if (memcmp(&expect, find(c, m, &wall, 1), sizeof expect) != 0)
             fail_msg("normal_cells %u: the wall's table is not its centre's", b);
         nf_table_cache_destroy(c);
@@ -115,7 +98,7 @@ static void test_axis_walls_are_centres(void **state)
 static void test_a_full_bucket_builds_nothing(void **state)
 {
     (void)state;
-    nf_model *m = random_model();
+    nf_model *m = nft_random_model();
     nf_table_cache *c = make_cache(1, 8, 3);
     nf_context a = nft_context(0.1f, 0.1f, 0.1f, 0, 0, 1, 0, 0, 1);
     nf_context b = nft_context(0.9f, 0.9f, 0.9f, 0, 0, 1, 0, 0, 1);
@@ -139,7 +122,7 @@ static void test_a_full_bucket_builds_nothing(void **state)
 static void test_new_parameters_rebuild(void **state)
 {
     (void)state;
-    nf_model *m = random_model(), *other = random_model();
+    nf_model *m = nft_random_model(), *other = nft_random_model();
     nf_table_cache *c = make_cache(64, 4, 3);
     nf_context a = nft_context(0.3f, 0.6f, 0.1f, 0, 0, 1, 0, 0, 1);
     const nf_direction_table *t = find(c, m, &a, 1);

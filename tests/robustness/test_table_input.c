@@ -18,17 +18,10 @@
 #include "nf_test_main.h"
 #include "nf_test_support.h"
 
-static nf_model *random_model(void)
-{
-    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
-    assert_int_equal(nft_randomize_params(m, 0.5f, 11u), NF_OK);
-    return m;
-}
-
 static void test_table_refusals(void **state)
 {
     (void)state;
-    nf_model *m = random_model(), *other = random_model();
+    nf_model *m = nft_random_model(), *other = nft_random_model();
     nft_rng r;
     nft_rng_seed(&r, 13u, 1u);
     nf_context ctx;
@@ -70,7 +63,7 @@ static void test_table_refusals(void **state)
 static void test_overwritten_table(void **state)
 {
     (void)state;
-    nf_model *m = random_model();
+    nf_model *m = nft_random_model();
     nft_rng r;
     nft_rng_seed(&r, 17u, 1u);
     nf_context ctx;
@@ -148,7 +141,7 @@ static void test_cache_refusals(void **state)
     assert_int_equal(nf_table_cache_create(NULL, &c), NF_ERROR_INVALID_ARGUMENT);
 
     assert_int_equal(nf_table_cache_create(&cfg, &c), NF_OK);
-    nf_model *m = random_model();
+    nf_model *m = nft_random_model();
     nf_context surface = nft_context(0.5f, 0.5f, 0.5f, 0, 0, 1, 0, 0, 1), medium = surface;
     medium.normal[2] = 0.0f;
     medium.phase_g = 0.3f;

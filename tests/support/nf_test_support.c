@@ -326,6 +326,24 @@ nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior)
     return nft_model_from(&cfg);
 }
 
+nf_model *nft_random_model(void)
+{
+    nf_model *m = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);
+    if (nft_randomize_params(m, 0.5f, 11u) != NF_OK)
+        fail_msg("nft_randomize_params: %s", nf_last_error_message());
+    return m;
+}
+
+nf_direction_table nft_table_at(const nf_model *m, const nf_context *ctx)
+{
+    nf_shading_point p;
+    nf_direction_table t;
+    memset(&t, 0, sizeof t); /* cmocka's fail_msg is not declared noreturn */
+    if (nf_point_prepare(m, ctx, NULL, &p) != NF_OK || nf_table_build(m, &p, &t) != NF_OK)
+        fail_msg("nft_table_at: %s", nf_last_error_message());
+    return t;
+}
+
 int nft_setup_model(void **state)
 {
     *state = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);

@@ -110,6 +110,12 @@ nf_config nft_config(nf_preset preset, nf_prior_kind prior);
 nf_model *nft_model_from(const nf_config *cfg);
 /* nft_model_from(nft_config(preset, prior)). */
 nf_model *nft_make_model(nf_preset preset, nf_prior_kind prior);
+/* The small preset with the cosine prior, its parameters nft_randomize_params(m, 0.5, 11): a
+ * flow far from its prior (the table tests'). Fails the test on a refusal. */
+nf_model *nft_random_model(void);
+/* The table (nisflow/table.h) of a point prepared at ctx. Fails the test with the library's
+ * message on a refusal. */
+nf_direction_table nft_table_at(const nf_model *m, const nf_context *ctx);
 /* cmocka fixtures: nft_setup_model puts nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE) in
  * *state, nft_teardown_model destroys it after the test, whatever the test did. A test
  * registered with NFT_WITH_MODEL(test) begins `nf_model *m = *state;` and does not destroy it. */
