@@ -42,6 +42,10 @@
  *   table-vertex  a guided vertex from tables built outside the timed region (a ring of 256,
  *                 one per ring point, 576 KiB: a renderer's cells are more and colder):
  *                 nf_table_sample with a new u and nf_table_pdf of another direction.
+ *   table-find    nf_table_cache_find (build = 0) of a context on the faces of the model's
+ *                 bounds, inward normals (a box's walls: 1,536 cells of the default grid),
+ *                 from each thread's cache in which every wall's table was built before the
+ *                 timing; a find without a table ends the case.
  *
  * With T threads, each thread processes its own contiguous 1/T of every batch and the figure
  * is throughput: wall time divided by the total samples. The main thread is worker 0; T - 1
@@ -98,6 +102,7 @@ typedef struct bench_case {
     float *grad_sum;
     size_t param_count;
     thread_result res[NFB_MAX_THREADS];
+    nf_table_cache *caches[NFB_MAX_THREADS]; /* table-find: each thread's, its walls built */
 } bench_case;
 
 /* Samples in one unit of work: a batch, or a stream of NFB_STREAM calls with n = 1. */
@@ -192,6 +197,21 @@ static void point_range(bench_case *c, thread_result *r, size_t lo, size_t hi)
         for (size_t i = lo; i < hi && st == NF_OK; ++i)
             st = nf_table_build(m, &d->points[i % NFB_POINT_RING], &table);
         break;
+    case OP_TABLE_FIND: {
+        nf_table_cache *cache = c->caches[r - c->res]; /* the calling thread's */
+        for (size_t i = lo; i < hi; ++i) {
+            const nf_direction_table *t = NULL;
+            if ((st = nf_table_cache_find(cache, m, d->walls + i, 0, &t)) != NF_OK || !t) {
+                fn = "nf_table_cache_find";
+                if (st == NF_OK) { /* every wall's table was built before the timing */
+                    fprintf(stderr, "nf_bench: table-find: a wall's cell had no table\n");
+                    st = NF_ERROR_INVALID_ARGUMENT;
+                }
+                break;
+            }
+        }
+        break;
+    }
     case OP_TABLE_VERTEX:
         for (size_t i = lo; i < hi; ++i) {
             const nf_direction_table *t = &d->tables[i % NFB_POINT_RING];
@@ -534,6 +554,39 @@ static int check_outputs(const bench_case *c, const char *preset)
 
 /* ---- One case, and a preset's cases ------------------------------------------------------ */
 
+/* table-find's caches, one a thread, every wall's cell built (8,192 tables of room for the
+ * 1,536 cells, so that no bucket of 8 fills), outside the timing. -1 on failure, reported. */
+static int fill_caches(bench_case *c)
+{
+    nf_table_cache_config cfg;
+    nf_table_cache_config_init(&cfg);
+    cfg.capacity = 8192;
+    for (int k = 0; k < c->threads; ++k) {
+        if (report_status(nf_table_cache_create(&cfg, &c->caches[k]), "nf_table_cache_create") !=
+            0)
+            return -1;
+        for (size_t i = 0; i < c->d->n; ++i) {
+            const nf_direction_table *t = NULL;
+            if (report_status(nf_table_cache_find(c->caches[k], c->model, c->d->walls + i, 1, &t),
+                              "nf_table_cache_find") != 0)
+                return -1;
+            if (!t) {
+                fprintf(stderr, "nf_bench: table-find: a bucket of the cache filled\n");
+                return -1;
+            }
+        }
+    }
+    return 0;
+}
+
+static void destroy_caches(bench_case *c)
+{
+    for (int k = 0; k < NFB_MAX_THREADS; ++k) {
+        nf_table_cache_destroy(c->caches[k]);
+        c->caches[k] = NULL;
+    }
+}
+
 /* Measures one case into *r: re-measured while other processes disturb it (the quietest
  * attempt is kept), then its outputs checked. -1 on any failure, already reported. */
 static int run_case(const case_env *e, int op, size_t batch, int threads, result *r)
@@ -590,6 +643,10 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
             return -1;
         c.guide = guide;
     }
+    if (op == OP_TABLE_FIND && fill_caches(&c) != 0) {
+        destroy_caches(&c);
+        return -1;
+    }
     clear_outputs(e->d);
     /* Re-measure when other processes were busy; keep the quietest. */
     result best = *r;
@@ -613,6 +670,7 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
     }
     nf_model_destroy(train_model);
     nf_guide_destroy(guide);
+    destroy_caches(&c);
     if (bad || check_outputs(&c, name) != 0)
         return -1;
     best.attempts = attempt <= o->retries ? attempt + 1 : attempt;

@@ -39,7 +39,8 @@ enum {
     OP_VERTEX_CALLS = 8, /* the same questions as three calls: prepare, sample, pdf     */
     OP_TABLE_BUILD = 9,  /* nf_table_build from a prepared point (table.h)                */
     OP_TABLE_VERTEX = 10, /* a vertex from a built table: nf_table_sample + nf_table_pdf   */
-    OP_COUNT = 11
+    OP_TABLE_FIND = 11,   /* nf_table_cache_find of a cell whose table is built           */
+    OP_COUNT = 12
 };
 #define OP_MASK_ALL ((1 << OP_COUNT) - 1)
 #define OP_MASK_BATCHED ((1 << OP_BATCHED_COUNT) - 1)

@@ -34,13 +34,15 @@ void bench_data_free(bench_data *d)
     free(d->out_pdf2);
     free(d->points);
     free(d->tables);
+    free(d->walls);
     memset(d, 0, sizeof *d);
 }
 
 size_t bench_data_bytes(const bench_data *d)
 {
-    /* 14 floats an input: u 2, dir 3, light_dir 3, weight 1, out_dir 3, out_pdf 1, out_pdf2 1 */
-    return d->n * (sizeof(nf_context) + 14 * sizeof(float)) +
+    /* 14 floats an input: u 2, dir 3, light_dir 3, weight 1, out_dir 3, out_pdf 1, out_pdf2 1;
+     * and a wall context */
+    return d->n * (2 * sizeof(nf_context) + 14 * sizeof(float)) +
            NFB_POINT_RING * (sizeof(nf_shading_point) + sizeof(nf_direction_table));
 }
 
@@ -61,8 +63,9 @@ int bench_data_alloc(bench_data *d, size_t n, const nf_config *cfg)
         64, (NFB_POINT_RING * sizeof *d->points + 63u) / 64u * 64u);
     d->tables = (nf_direction_table *)aligned_alloc(
         64, (NFB_POINT_RING * sizeof *d->tables + 63u) / 64u * 64u);
+    d->walls = (nf_context *)malloc(n * sizeof *d->walls);
     if (!d->ctx || !d->u || !d->dir || !d->light_dir || !d->weight || !d->out_dir ||
-        !d->out_pdf || !d->out_pdf2 || !d->points || !d->tables) {
+        !d->out_pdf || !d->out_pdf2 || !d->points || !d->tables || !d->walls) {
         bench_data_free(d);
         return -1;
     }
@@ -89,6 +92,20 @@ int bench_data_alloc(bench_data *d, size_t n, const nf_config *cfg)
     uint64_t rng_light = 0x11647D1Bu;
     for (size_t i = 0; i < n; ++i)
         rng_unit_vector(&rng_light, d->light_dir + 3 * i);
+    /* The walls of a box, the bounds' faces: a renderer's surfaces, 6 x 16 x 16 cells of the
+     * cache's default grid, each context on a face at a uniform point, its normal inward. */
+    uint64_t rng_walls = 0x3A115u;
+    for (size_t i = 0; i < n; ++i) {
+        nf_context *c = &d->walls[i];
+        memset(c, 0, sizeof *c);
+        const int axis = (int)(rng_float(&rng_walls) * 3.0f) % 3;
+        const int far = rng_float(&rng_walls) < 0.5f;
+        for (int a = 0; a < 3; ++a) {
+            float lo = cfg->bounds_min[a], hi = cfg->bounds_max[a];
+            c->position[a] = a == axis ? (far ? hi : lo) : lo + (hi - lo) * rng_float(&rng_walls);
+        }
+        c->normal[axis] = c->wo[axis] = far ? -1.0f : 1.0f;
+    }
     return 0;
 }
 
@@ -178,6 +195,7 @@ double flops_per_sample(const preset_info *pi, int op)
     case OP_TABLE_BUILD: /* a density per cell: the flow's arithmetic, the table's aside */
         return NF_TABLE_CELLS * direction;
     case OP_TABLE_VERTEX: /* no network */
+    case OP_TABLE_FIND:
         return 0.0;
     default:
         return pi->flops_sparse;

@@ -35,6 +35,7 @@ typedef struct bench_data {
     float *out_pdf2;  /* n, the densities of light_dir (point-pdf, vertex) */
     nf_shading_point *points; /* NFB_POINT_RING, 64-byte aligned, prepared per preset */
     nf_direction_table *tables; /* NFB_POINT_RING, built from points per preset        */
+    nf_context *walls; /* n contexts on the faces of cfg's bounds, facing in: table-find's */
 } bench_data;
 
 /* n random inputs inside cfg's bounds (the same for every run); dir and the points are
