@@ -49,9 +49,12 @@ static float nf_table_direction(const nf_direction_table *t, float r, float phi,
     const float *f = t->frame_;
     for (int a = 0; a < 3; ++a)
         d[a] = s * cp * f[a] + s * sp * f[3 + a] + c * f[6 + a];
-    float len = sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    /* |d|^2 is 1 within about 1e-6 (an orthonormal frame, s^2 + c^2 = 1, the sine and cosine
+     * within 3e-7): one Newton step of 1 / sqrt about 1 leaves 1e-12, below float rounding,
+     * without the square root and division on the draw's path. */
+    const float scale = 1.5f - 0.5f * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
     for (int a = 0; a < 3; ++a)
-        d[a] /= len;
+        d[a] *= scale;
     return t->medium_ ? 1.0f : c;
 }
 
@@ -66,9 +69,11 @@ static float nf_table_share(const float *row, uint32_t j)
 static float nf_table_density(const nf_direction_table *t, uint32_t i, uint32_t j, float c)
 {
     const float *row = t->rows_[i];
-    double cell = (double)row[0] * (double)nf_table_share(row, j) * NF_TABLE_CELLS;
-    double p = t->medium_ ? cell / (4.0 * NF_PI) : cell * (double)c / NF_PI;
-    return (float)(p > FLT_MAX ? FLT_MAX : p < FLT_MIN ? FLT_MIN : p);
+    /* at most NF_TABLE_CELLS / pi for masses and shares in [0, 1] */
+    const float cell = row[0] * nf_table_share(row, j) * (float)NF_TABLE_CELLS;
+    const float p =
+        t->medium_ ? cell * (float)(1.0 / (4.0 * NF_PI)) : cell * c * (float)(1.0 / NF_PI);
+    return p > FLT_MAX ? FLT_MAX : p < FLT_MIN ? FLT_MIN : p;
 }
 
 static nf_status nf_table_usable(const char *fn, const nf_model *m, const nf_direction_table *t)

@@ -107,7 +107,9 @@ static void test_sample_density_is_the_tables(void **state)
             float u[2] = {nft_rng_float(&r), nft_rng_float(&r)}, dir[3], p, q;
             assert_int_equal(nf_table_sample(m, &t, u, dir, &p), NF_OK);
             assert_int_equal(nf_table_pdf(m, &t, dir, &q), NF_OK);
-            assert_true(fabs(nft_length3f(dir) - 1.0) < 1e-5);
+            /* unit to float rounding (about 1e-7): the draw's normalization is one Newton
+             * step, exact only for a length already within 1e-3 of 1 */
+            assert_true(fabs(nft_length3f(dir) - 1.0) < 1e-6);
             if (k < 3) { /* above the horizon, and nothing below it */
                 float cos_n = (dir[0] * n[0] + dir[1] * n[1] + dir[2] * n[2]) /
                               (float)nft_length3f(n);
