@@ -40,7 +40,7 @@
  *   table-build   nf_table_build (nisflow/table.h) from the ring's points, into a table on
  *                 the calling thread's stack.
  *   table-vertex  a guided vertex from tables built outside the timed region (a ring of 256,
- *                 one per ring point, 576 KiB: a renderer's cells are more and colder):
+ *                 one per ring point, 544 KiB: a renderer's cells are more and colder):
  *                 nf_table_sample with a new u and nf_table_pdf of another direction.
  *   table-find    nf_table_cache_find (build = 0) of a context on the faces of the model's
  *                 bounds, inward normals (a box's walls: 1,536 cells of the default grid),
