@@ -62,7 +62,13 @@ int volume_grid_parse(const unsigned char *b, size_t size, const char *name, con
     if (channels != 1 && channels != 3)
         return tr_fail(err, "%s: a grid of %ld channels is not supported (1 or 3)", name,
                        (long)channels);
-    uint64_t count = (uint64_t)n[0] * (uint64_t)n[1] * (uint64_t)n[2] * (uint64_t)channels;
+    /* In steps, each below 2^64: the whole product of four sizes can wrap (2^25 x 2^25 x 2^24
+     * is 2^74, which wrapped to 0 and passed for an empty file's worth of values). */
+    uint64_t count = (uint64_t)n[0] * (uint64_t)n[1]; /* < 2^62 */
+    if (count <= VOLUME_GRID_MAX_VALUES)
+        count *= (uint64_t)n[2]; /* < 2^59 */
+    if (count <= VOLUME_GRID_MAX_VALUES)
+        count *= (uint64_t)channels;
     if (count > VOLUME_GRID_MAX_VALUES)
         return tr_fail(err, "%s: the grid's %ld x %ld x %ld x %ld values are more than the %u "
                        "it may hold", name, (long)n[0], (long)n[1], (long)n[2],

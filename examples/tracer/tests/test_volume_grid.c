@@ -73,6 +73,13 @@ static void test_bad_files(void **state)
     put_u32(bytes + 8, 1u << 15);
     put_u32(bytes + 12, 1u << 15);
     expect_vol_error(ok, "more than the", NULL);
+    /* 2^25 x 2^25 x 2^24 values, 2^74, which a product of all four sizes wraps to 0: the
+     * header alone then looked like a whole file (found by fuzz_volume_grid) */
+    vol_bytes(bytes, 2, 2, 2, 1, v);
+    put_u32(bytes + 8, 1u << 25);
+    put_u32(bytes + 12, 1u << 25);
+    put_u32(bytes + 16, 1u << 24);
+    expect_vol_error(48, "more than the", NULL);
     v[1] = NAN;
     vol_bytes(bytes, 2, 2, 2, 1, v);
     expect_vol_error(ok, "the density of cell (1, 0, 0), channel 0, is nan", NULL);
