@@ -46,6 +46,9 @@
  *                 bounds, inward normals (a box's walls: 1,536 cells of the default grid),
  *                 from each thread's cache in which every wall's table was built before the
  *                 timing; a find without a table ends the case.
+ *   cell-vertex   a guided vertex as a renderer with a cache pays it: table-find's find, then
+ *                 table-vertex's two calls on the table it found. The tables are the walls'
+ *                 (3.3 MiB a thread), not a ring that stays in the caches.
  *
  * With T threads, each thread processes its own contiguous 1/T of every batch and the figure
  * is throughput: wall time divided by the total samples. The main thread is worker 0; T - 1
@@ -102,7 +105,8 @@ typedef struct bench_case {
     float *grad_sum;
     size_t param_count;
     thread_result res[NFB_MAX_THREADS];
-    nf_table_cache *caches[NFB_MAX_THREADS]; /* table-find: each thread's, its walls built */
+    nf_table_cache *caches[NFB_MAX_THREADS]; /* table-find, cell-vertex: each thread's, its
+                                              * walls built */
 } bench_case;
 
 /* Samples in one unit of work: a batch, or a stream of NFB_STREAM calls with n = 1. */
@@ -124,6 +128,21 @@ static void record_failure(thread_result *r, nf_status st, const char *fn)
     r->status = st;
     r->fn = fn;
     snprintf(r->message, sizeof r->message, "%s", nf_last_error_message());
+}
+
+/* A vertex from table t: a draw with input i's u and the density of its light direction; the
+ * failing function in *fn. */
+static nf_status table_vertex(const nf_model *m, const nf_direction_table *t, const bench_data *d,
+                              size_t i, const char **fn)
+{
+    nf_status st = nf_table_sample(m, t, d->u + 2 * i, d->out_dir + 3 * i, d->out_pdf + i);
+    if (st != NF_OK) {
+        *fn = "nf_table_sample";
+        return st;
+    }
+    if ((st = nf_table_pdf(m, t, d->light_dir + 3 * i, d->out_pdf2 + i)) != NF_OK)
+        *fn = "nf_table_pdf";
+    return st;
 }
 
 /* The shading-point ops on inputs [lo, hi): hi - lo calls (of each function) with n = 1.
@@ -197,34 +216,28 @@ static void point_range(bench_case *c, thread_result *r, size_t lo, size_t hi)
         for (size_t i = lo; i < hi && st == NF_OK; ++i)
             st = nf_table_build(m, &d->points[i % NFB_POINT_RING], &table);
         break;
-    case OP_TABLE_FIND: {
+    case OP_TABLE_FIND:
+    case OP_CELL_VERTEX: {
         nf_table_cache *cache = c->caches[r - c->res]; /* the calling thread's */
         for (size_t i = lo; i < hi; ++i) {
             const nf_direction_table *t = NULL;
             if ((st = nf_table_cache_find(cache, m, d->walls + i, 0, &t)) != NF_OK || !t) {
                 fn = "nf_table_cache_find";
                 if (st == NF_OK) { /* every wall's table was built before the timing */
-                    fprintf(stderr, "nf_bench: table-find: a wall's cell had no table\n");
+                    fprintf(stderr, "nf_bench: %s: a wall's cell had no table\n", OP_NAME[c->op]);
                     st = NF_ERROR_INVALID_ARGUMENT;
                 }
                 break;
             }
+            if (c->op == OP_CELL_VERTEX && (st = table_vertex(m, t, d, i, &fn)) != NF_OK)
+                break;
         }
         break;
     }
     case OP_TABLE_VERTEX:
-        for (size_t i = lo; i < hi; ++i) {
-            const nf_direction_table *t = &d->tables[i % NFB_POINT_RING];
-            if ((st = nf_table_sample(m, t, d->u + 2 * i, d->out_dir + 3 * i, d->out_pdf + i)) !=
-                NF_OK) {
-                fn = "nf_table_sample";
+        for (size_t i = lo; i < hi; ++i)
+            if ((st = table_vertex(m, &d->tables[i % NFB_POINT_RING], d, i, &fn)) != NF_OK)
                 break;
-            }
-            if ((st = nf_table_pdf(m, t, d->light_dir + 3 * i, d->out_pdf2 + i)) != NF_OK) {
-                fn = "nf_table_pdf";
-                break;
-            }
-        }
         break;
     default:
         break;
@@ -515,12 +528,12 @@ static int check_outputs(const bench_case *c, const char *preset)
     const char *dir_fn = op == OP_SAMPLE                                  ? "nf_sample"
                          : op == OP_POINT_SAMPLE || op == OP_VERTEX_CALLS ? "nf_point_sample"
                          : op == OP_VERTEX       ? "nf_point_sample_and_pdf"
-                         : op == OP_TABLE_VERTEX ? "nf_table_sample"
-                                                 : NULL;
+                         : op == OP_TABLE_VERTEX || op == OP_CELL_VERTEX ? "nf_table_sample"
+                                                                        : NULL;
     const char *pdf_fn = op == OP_PDF ? "nf_pdf" : dir_fn;
     const char *pdf2_fn = op == OP_POINT_PDF || op == OP_VERTEX_CALLS ? "nf_point_pdf"
                           : op == OP_VERTEX                           ? "nf_point_sample_and_pdf"
-                          : op == OP_TABLE_VERTEX                     ? "nf_table_pdf"
+                          : op == OP_TABLE_VERTEX || op == OP_CELL_VERTEX ? "nf_table_pdf"
                                                                       : NULL;
     size_t covered = c->cursor * unit_samples(c);
     if (covered > d->n)
@@ -536,7 +549,7 @@ static int check_outputs(const bench_case *c, const char *preset)
             what = "density";
         } else if (pdf2_fn && !valid_density(d->out_pdf2[i]) &&
                    /* a surface table's density is 0 below the horizon */
-                   !(op == OP_TABLE_VERTEX && d->out_pdf2[i] == 0.0f)) {
+                   !((op == OP_TABLE_VERTEX || op == OP_CELL_VERTEX) && d->out_pdf2[i] == 0.0f)) {
             fn = pdf2_fn;
             what = "density";
         }
@@ -554,8 +567,9 @@ static int check_outputs(const bench_case *c, const char *preset)
 
 /* ---- One case, and a preset's cases ------------------------------------------------------ */
 
-/* table-find's caches, one a thread, every wall's cell built (8,192 tables of room for the
- * 1,536 cells, so that no bucket of 8 fills), outside the timing. -1 on failure, reported. */
+/* table-find's and cell-vertex's caches, one a thread, every wall's cell built (8,192 tables of
+ * room for the 1,536 cells, so that no bucket of 8 fills), outside the timing. -1 on failure,
+ * reported. */
 static int fill_caches(bench_case *c)
 {
     nf_table_cache_config cfg;
@@ -571,7 +585,7 @@ static int fill_caches(bench_case *c)
                               "nf_table_cache_find") != 0)
                 return -1;
             if (!t) {
-                fprintf(stderr, "nf_bench: table-find: a bucket of the cache filled\n");
+                fprintf(stderr, "nf_bench: a bucket of the walls' cache filled\n");
                 return -1;
             }
         }
@@ -643,7 +657,7 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
             return -1;
         c.guide = guide;
     }
-    if (op == OP_TABLE_FIND && fill_caches(&c) != 0) {
+    if ((op == OP_TABLE_FIND || op == OP_CELL_VERTEX) && fill_caches(&c) != 0) {
         destroy_caches(&c);
         return -1;
     }
@@ -676,7 +690,8 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
     best.attempts = attempt <= o->retries ? attempt + 1 : attempt;
     *r = best;
     /* What one "sample" of the figure is: a call of n = 1, or a vertex of three calls. */
-    const int vertex = op == OP_VERTEX || op == OP_VERTEX_CALLS || op == OP_TABLE_VERTEX;
+    const int vertex = op == OP_VERTEX || op == OP_VERTEX_CALLS || op == OP_TABLE_VERTEX ||
+                       op == OP_CELL_VERTEX;
     const char *unit = vertex ? "vertex" : op_is_point(op) ? "call" : "sample";
     const char *units = vertex ? "vertices" : op_is_point(op) ? "calls" : "samples";
     fprintf(stderr,

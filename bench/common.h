@@ -40,7 +40,8 @@ enum {
     OP_TABLE_BUILD = 9,  /* nf_table_build from a prepared point (table.h)                */
     OP_TABLE_VERTEX = 10, /* a vertex from a built table: nf_table_sample + nf_table_pdf   */
     OP_TABLE_FIND = 11,   /* nf_table_cache_find of a cell whose table is built           */
-    OP_COUNT = 12
+    OP_CELL_VERTEX = 12,  /* a vertex from a cache: table-find, then table-vertex's calls */
+    OP_COUNT = 13
 };
 #define OP_MASK_ALL ((1 << OP_COUNT) - 1)
 #define OP_MASK_BATCHED ((1 << OP_BATCHED_COUNT) - 1)

@@ -28,7 +28,8 @@
 const char *const OP_NAME[OP_COUNT] = {"sample",    "pdf",          "train",
                                        "guide",     "prepare",      "point-sample",
                                        "point-pdf", "vertex",       "vertex-calls",
-                                       "table-build", "table-vertex", "table-find"};
+                                       "table-build", "table-vertex", "table-find",
+                                       "cell-vertex"};
 const char *const PRESET_NAME[2] = {"small", "large"};
 
 /* ---- Command line ------------------------------------------------------------------------ */
@@ -43,7 +44,8 @@ static void usage(FILE *f)
             "                             all): sample, pdf, train, guide; the shading-point ops\n"
             "                             prepare, point-sample, point-pdf, vertex,\n"
             "                             vertex-calls, table-build, table-vertex,\n"
-            "                             table-find; point (those eight); all\n"
+            "                             table-find, cell-vertex; point (those nine);\n"
+            "                             all\n"
             "  --reps N                   timed repetitions, median reported (default 7)\n"
             "  --min-rep-ms X             minimum length of one repetition (default 50)\n"
             "  --prior NAME               cosine (default), uniform-direction,\n"
@@ -70,7 +72,8 @@ static void usage(FILE *f)
             "prepare + point-sample + point-pdf, per vertex), table-build (nf_table_build\n"
             "from a prepared point), table-vertex (nf_table_sample + nf_table_pdf of another\n"
             "direction on a built table, per vertex), table-find (nf_table_cache_find of a\n"
-            "cell on the walls of the model's bounds whose table is built).\n",
+            "cell on the walls of the model's bounds whose table is built), cell-vertex (that\n"
+            "find, then table-vertex's two calls on the table it found, per vertex).\n",
             NFB_STREAM);
 }
 

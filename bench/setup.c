@@ -196,6 +196,7 @@ double flops_per_sample(const preset_info *pi, int op)
         return NF_TABLE_CELLS * direction;
     case OP_TABLE_VERTEX: /* no network */
     case OP_TABLE_FIND:
+    case OP_CELL_VERTEX:
         return 0.0;
     default:
         return pi->flops_sparse;

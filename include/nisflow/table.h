@@ -152,8 +152,12 @@ NF_API void nf_table_cache_destroy(nf_table_cache *c);
  * missing table is built first (about one nf_table_build; renderers that time their passes
  * can time this call alone and leave one-time builds out), or *table is NULL when the cell's
  * bucket is full. *table is valid until a find with another model or new parameters, or the
- * cache's destruction. Errors (*table NULL): NF_ERROR_INVALID_ARGUMENT (NULL, a bad context,
- * a medium context), NF_ERROR_STALE or NF_ERROR_NUMERIC from the build. Never allocates. */
+ * cache's destruction. A find that hits starts the loads of its table's cache lines (a
+ * prefetch, where the compiler has one), so that nf_table_sample and nf_table_pdf right after
+ * wait once for a table that is not in the processor's caches, not twice; a hit whose table is
+ * not used pays for those loads. Errors (*table NULL): NF_ERROR_INVALID_ARGUMENT (NULL, a bad
+ * context, a medium context), NF_ERROR_STALE or NF_ERROR_NUMERIC from the build. Never
+ * allocates. */
 NF_API nf_status nf_table_cache_find(nf_table_cache *c, const nf_model *m, const nf_context *ctx,
                                      int build, const nf_direction_table **table);
 
