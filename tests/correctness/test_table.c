@@ -52,6 +52,17 @@ static nf_context medium_at(nft_rng *r)
     return c;
 }
 
+/* Run k's context: a random surface for the first `surfaces` runs, then a medium. */
+static nf_context context_of_run(nft_rng *r, int k, int surfaces)
+{
+    nf_context ctx;
+    if (k < surfaces)
+        nft_random_context(r, &ctx);
+    else
+        ctx = medium_at(r);
+    return ctx;
+}
+
 /* ---- a distribution --------------------------------------------------------------------------- */
 
 static void test_table_is_a_distribution(void **state)
@@ -62,13 +73,8 @@ static void test_table_is_a_distribution(void **state)
     nft_rng_seed(&r, 3u, 1u);
     enum { SURFACES = 3, RUNS = SURFACES + 1 };
     for (int k = 0; k < RUNS; ++k) {
-        nf_context ctx;
-        if (k < SURFACES)
-            nft_random_context(&r, &ctx);
-        else
-            ctx = medium_at(&r);
-        nf_direction_table t;
-        t = nft_table_at(m, &ctx);
+        const nf_context ctx = context_of_run(&r, k, SURFACES);
+        const nf_direction_table t = nft_table_at(m, &ctx);
         table_fn f = {m, &t};
         char name[32];
         snprintf(name, sizeof name, "table_%d", k);
@@ -91,16 +97,11 @@ static void test_sample_density_is_the_tables(void **state)
     nf_model *m = nft_random_model();
     nft_rng r;
     nft_rng_seed(&r, 5u, 1u);
-    enum { N = 4000 };
+    enum { N = 4000, SURFACES = 3 };
     size_t edge = 0;
-    for (int k = 0; k < 4; ++k) {
-        nf_context ctx;
-        if (k < 3)
-            nft_random_context(&r, &ctx);
-        else
-            ctx = medium_at(&r);
-        nf_direction_table t;
-        t = nft_table_at(m, &ctx);
+    for (int k = 0; k < SURFACES + 1; ++k) {
+        const nf_context ctx = context_of_run(&r, k, SURFACES);
+        const nf_direction_table t = nft_table_at(m, &ctx);
         float n[3];
         memcpy(n, ctx.normal, sizeof n);
         for (int i = 0; i < N; ++i) {
@@ -110,7 +111,7 @@ static void test_sample_density_is_the_tables(void **state)
             /* unit to float rounding (about 1e-7): the draw's normalization is one Newton
              * step, exact only for a length already within 1e-3 of 1 */
             assert_true(fabs(nft_length3f(dir) - 1.0) < 1e-6);
-            if (k < 3) { /* above the horizon, and nothing below it */
+            if (k < SURFACES) { /* above the horizon, and nothing below it */
                 float cos_n = (dir[0] * n[0] + dir[1] * n[1] + dir[2] * n[2]) /
                               (float)nft_length3f(n);
                 assert_true(cos_n > -1e-6f);
@@ -141,11 +142,9 @@ static void test_table_follows_the_flow(void **state)
     nft_rng r;
     nft_rng_seed(&r, 9u, 1u);
     nf_context ctx;
-    nft_random_context(&r, &ctx);
-    nf_direction_table t;
-    t = nft_table_at(m, &ctx);
     nf_shading_point p;
-    assert_int_equal(nf_point_prepare(m, &ctx, NULL, &p), NF_OK);
+    nft_random_point(m, &r, &ctx, &p);
+    const nf_direction_table t = nft_table_at(m, &ctx);
     /* The cells' centres in the library's frame about the unit normal (Duff et al. 2017,
      * "Building an Orthonormal Basis, Revisited", as src/kernels/prior.h builds it). */
     double len = nft_length3f(ctx.normal), nn[3], tb[3], bb[3];

@@ -41,6 +41,14 @@ static const nf_direction_table *find(nf_table_cache *c, const nf_model *m, cons
     return t;
 }
 
+static void expect_stats(const nf_table_cache *c, uint64_t finds, uint64_t builds, uint64_t full)
+{
+    const nf_table_cache_stats s = nft_cache_stats(c);
+    assert_int_equal(s.finds, finds);
+    assert_int_equal(s.builds, builds);
+    assert_int_equal(s.full, full);
+}
+
 static void test_a_cell_is_built_once(void **state)
 {
     (void)state;
@@ -60,11 +68,7 @@ static void test_a_cell_is_built_once(void **state)
     nf_context centre = nft_context(0.375f, 0.625f, 0.265625f, 0, 0, 1, 0, 0, 1);
     nf_direction_table expect = nft_table_at(m, &centre);
     assert_int_equal(memcmp(&expect, ta, sizeof expect), 0);
-    nf_table_cache_stats s;
-    assert_int_equal(nf_table_cache_get_stats(c, &s), NF_OK);
-    assert_int_equal(s.finds, 4);
-    assert_int_equal(s.builds, 1);
-    assert_int_equal(s.full, 0);
+    expect_stats(c, 4, 1, 0);
     /* Another position cell, another normal cell: other tables. */
     nf_context far = nft_context(0.80f, 0.60f, 0.26f, 0.05f, -0.1f, 1.0f, 0.3f, 0.2f, 0.9f);
     nf_context tilted = nft_context(0.30f, 0.60f, 0.26f, 0.9f, 0.0f, 1.0f, 0.3f, 0.2f, 0.9f);
@@ -110,11 +114,7 @@ static void test_a_full_bucket_builds_nothing(void **state)
         assert_ptr_equal(find(c, m, &a, 0), ta);
     }
     assert_int_equal(memcmp(&kept, ta, sizeof kept), 0);
-    nf_table_cache_stats s;
-    assert_int_equal(nf_table_cache_get_stats(c, &s), NF_OK);
-    assert_int_equal(s.finds, 7);
-    assert_int_equal(s.builds, 1);
-    assert_int_equal(s.full, 3);
+    expect_stats(c, 7, 1, 3);
     nf_table_cache_destroy(c);
     nf_model_destroy(m);
 }
@@ -135,9 +135,7 @@ static void test_new_parameters_rebuild(void **state)
     assert_null(find(c, other, &a, 0)); /* another model: forgotten too */
     t = find(c, other, &a, 1);
     assert_int_equal(nf_table_sample(other, t, u, dir, &pdf), NF_OK);
-    nf_table_cache_stats s;
-    assert_int_equal(nf_table_cache_get_stats(c, &s), NF_OK);
-    assert_int_equal(s.builds, 3);
+    assert_int_equal(nft_cache_stats(c).builds, 3);
     nf_table_cache_destroy(c);
     nf_model_destroy(m);
     nf_model_destroy(other);

@@ -344,6 +344,22 @@ nf_direction_table nft_table_at(const nf_model *m, const nf_context *ctx)
     return t;
 }
 
+void nft_random_point(const nf_model *m, nft_rng *r, nf_context *ctx, nf_shading_point *p)
+{
+    nft_random_context(r, ctx);
+    if (nf_point_prepare(m, ctx, NULL, p) != NF_OK)
+        fail_msg("nft_random_point: %s", nf_last_error_message());
+}
+
+nf_table_cache_stats nft_cache_stats(const nf_table_cache *c)
+{
+    nf_table_cache_stats s;
+    memset(&s, 0, sizeof s); /* cmocka's fail_msg is not declared noreturn */
+    if (nf_table_cache_get_stats(c, &s) != NF_OK)
+        fail_msg("nft_cache_stats: %s", nf_last_error_message());
+    return s;
+}
+
 int nft_setup_model(void **state)
 {
     *state = nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE);

@@ -116,6 +116,11 @@ nf_model *nft_random_model(void);
 /* The table (nisflow/table.h) of a point prepared at ctx. Fails the test with the library's
  * message on a refusal. */
 nf_direction_table nft_table_at(const nf_model *m, const nf_context *ctx);
+/* A surface context drawn from r (nft_random_context) and m's point prepared there. Fails the
+ * test with the library's message on a refusal. */
+void nft_random_point(const nf_model *m, nft_rng *r, nf_context *ctx, nf_shading_point *p);
+/* Cache c's statistics (nf_table_cache_get_stats). Fails the test on a refusal. */
+nf_table_cache_stats nft_cache_stats(const nf_table_cache *c);
 /* cmocka fixtures: nft_setup_model puts nft_make_model(NF_PRESET_SMALL, NF_PRIOR_COSINE) in
  * *state, nft_teardown_model destroys it after the test, whatever the test did. A test
  * registered with NFT_WITH_MODEL(test) begins `nf_model *m = *state;` and does not destroy it. */
