@@ -203,7 +203,7 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         float rr = depth >= kRrDepth ? 1.0f / q : 1.0f;
         bool from_flow = go_on && uni(rng) < g;
         float u[2] = {uni(rng), uni(rng)}, wi[3], p_flow = 0.0f, p_flow_l = 0.0f;
-        Vec dir = sample_cosine(n, u[0], u[1]), wl;
+        Vec dir{}, wl; // the BSDF's direction, drawn below where the flow does not draw
         float p_light = sample_light(x, uni(rng), uni(rng), &wl), wl3[3] = {wl.x, wl.y, wl.z};
         float cos_l = dot(n, wl);
         bool lit = p_light > 0.0f && cos_l > 0.0f; // the light sample contributes
@@ -220,6 +220,8 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
             from_flow = flow_mis = ask_dir = ask_light = false;
         }
         out.guided += ask_dir || ask_light;
+        if (go_on && !from_flow)
+            dir = sample_cosine(n, u[0], u[1]);
         nf_status st = NF_OK;
         if (tab) { // the cell's table: a draw or the density of the BSDF's direction, the light's
             if (from_flow)
