@@ -528,12 +528,12 @@ static int check_outputs(const bench_case *c, const char *preset)
     const char *dir_fn = op == OP_SAMPLE                                  ? "nf_sample"
                          : op == OP_POINT_SAMPLE || op == OP_VERTEX_CALLS ? "nf_point_sample"
                          : op == OP_VERTEX       ? "nf_point_sample_and_pdf"
-                         : op == OP_TABLE_VERTEX || op == OP_CELL_VERTEX ? "nf_table_sample"
-                                                                        : NULL;
+                         : op_is_table_vertex(op) ? "nf_table_sample"
+                                                  : NULL;
     const char *pdf_fn = op == OP_PDF ? "nf_pdf" : dir_fn;
     const char *pdf2_fn = op == OP_POINT_PDF || op == OP_VERTEX_CALLS ? "nf_point_pdf"
                           : op == OP_VERTEX                           ? "nf_point_sample_and_pdf"
-                          : op == OP_TABLE_VERTEX || op == OP_CELL_VERTEX ? "nf_table_pdf"
+                          : op_is_table_vertex(op)                    ? "nf_table_pdf"
                                                                       : NULL;
     size_t covered = c->cursor * unit_samples(c);
     if (covered > d->n)
@@ -549,7 +549,7 @@ static int check_outputs(const bench_case *c, const char *preset)
             what = "density";
         } else if (pdf2_fn && !valid_density(d->out_pdf2[i]) &&
                    /* a surface table's density is 0 below the horizon */
-                   !((op == OP_TABLE_VERTEX || op == OP_CELL_VERTEX) && d->out_pdf2[i] == 0.0f)) {
+                   !(op_is_table_vertex(op) && d->out_pdf2[i] == 0.0f)) {
             fn = pdf2_fn;
             what = "density";
         }
@@ -657,7 +657,7 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
             return -1;
         c.guide = guide;
     }
-    if ((op == OP_TABLE_FIND || op == OP_CELL_VERTEX) && fill_caches(&c) != 0) {
+    if (op_finds_walls(op) && fill_caches(&c) != 0) {
         destroy_caches(&c);
         return -1;
     }
@@ -690,8 +690,7 @@ static int run_case(const case_env *e, int op, size_t batch, int threads, result
     best.attempts = attempt <= o->retries ? attempt + 1 : attempt;
     *r = best;
     /* What one "sample" of the figure is: a call of n = 1, or a vertex of three calls. */
-    const int vertex = op == OP_VERTEX || op == OP_VERTEX_CALLS || op == OP_TABLE_VERTEX ||
-                       op == OP_CELL_VERTEX;
+    const int vertex = op == OP_VERTEX || op == OP_VERTEX_CALLS || op_is_table_vertex(op);
     const char *unit = vertex ? "vertex" : op_is_point(op) ? "call" : "sample";
     const char *units = vertex ? "vertices" : op_is_point(op) ? "calls" : "samples";
     fprintf(stderr,

@@ -58,6 +58,18 @@ static inline int op_is_point(int op)
     return op >= OP_BATCHED_COUNT;
 }
 
+/* The ops that draw and evaluate from tables (their outputs a table's, zero below a horizon). */
+static inline int op_is_table_vertex(int op)
+{
+    return op == OP_TABLE_VERTEX || op == OP_CELL_VERTEX;
+}
+
+/* The ops that find walls' tables in each thread's cache, filled before the timing. */
+static inline int op_finds_walls(int op)
+{
+    return op == OP_TABLE_FIND || op == OP_CELL_VERTEX;
+}
+
 /* What the command line asked for (nf_bench.c's parse_args). */
 typedef struct options {
     int quick;
