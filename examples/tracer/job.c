@@ -245,6 +245,11 @@ static int load_scene(job *j, tr_error *err)
     if (!s->has_lights && ranks_rank() == 0)
         fprintf(stderr, "%s: warning: the scene has no emitters (no area light, no "
                 "environment): the image will be black\n", name);
+    if (s->upgraded && ranks_rank() == 0)
+        printf("format     version %d.%d.%d, upgraded in memory as Mitsuba 3 does\n",
+               s->upgraded_from[0], s->upgraded_from[1], s->upgraded_from[2]);
+    for (int i = 0; i < s->nwarnings && ranks_rank() == 0; ++i)
+        fprintf(stderr, "%s: warning: %s\n", name, s->warnings[i]);
     if (s->media_ignored && ranks_rank() == 0)
         fprintf(stderr, "%s: warning: the scene's media are ignored: the path integrator "
                 "renders none, as in Mitsuba 3 (<integrator type=\"volpath\"> renders them)\n",

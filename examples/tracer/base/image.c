@@ -293,14 +293,18 @@ int image_write_png(const image *img, const char *path, float exposure, tr_error
     return 1;
 }
 
-int image_load_ldr(const char *path, int srgb, image *img, tr_error *err)
+int image_load_ldr(const char *path, int srgb, image *img, image *alpha, tr_error *err)
 {
     int w = 0, h = 0, n = 0;
     img->data = NULL;
-    unsigned char *bytes = stbi_load(path, &w, &h, &n, 3); /* always 3 channels back */
+    if (alpha)
+        alpha->data = NULL;
+    unsigned char *bytes = stbi_load(path, &w, &h, &n, 4); /* always 4 channels back */
     if (!bytes)
         return tr_fail(err, "%s: cannot load the image: %s", path, stbi_failure_reason());
-    if (!image_alloc(img, w, h, err)) {
+    int with_alpha = alpha && (n == 2 || n == 4);
+    if (!image_alloc(img, w, h, err) || (with_alpha && !image_alloc(alpha, w, h, err))) {
+        image_free(img);
         stbi_image_free(bytes);
         return 0;
     }
@@ -308,9 +312,13 @@ int image_load_ldr(const char *path, int srgb, image *img, tr_error *err)
     float table[256];
     for (int i = 0; i < 256; ++i)
         table[i] = srgb ? srgb_to_linear((float)i / 255.0f) : (float)i / 255.0f;
-    size_t count = (size_t)w * (size_t)h * 3u;
+    size_t count = (size_t)w * (size_t)h;
     for (size_t i = 0; i < count; ++i)
-        img->data[i] = table[bytes[i]];
+        for (int c = 0; c < 3; ++c) {
+            img->data[3 * i + c] = table[bytes[4 * i + c]];
+            if (with_alpha) /* alpha is linear in every format stb reads */
+                alpha->data[3 * i + c] = (float)bytes[4 * i + 3] / 255.0f;
+        }
     stbi_image_free(bytes);
     return 1;
 }

@@ -38,8 +38,10 @@ int image_write_png(const image *img, const char *path, float exposure, tr_error
 
 /* Loads an 8-bit image (JPEG, PNG, ...) as linear float RGB. With srgb != 0 the values are
  * decoded with the sRGB curve (Mitsuba's default for bitmaps, raw=false); otherwise they are
- * divided by 255. Grey and grey+alpha images become grey RGB; alpha is dropped. */
-int image_load_ldr(const char *path, int srgb, image *img, tr_error *err);
+ * divided by 255. Grey and grey+alpha images become grey RGB. When `alpha` is not NULL and
+ * the file has an alpha channel, *alpha gets it (linear, the same value in R, G and B);
+ * otherwise alpha->data is NULL. */
+int image_load_ldr(const char *path, int srgb, image *img, image *alpha, tr_error *err);
 
 /* Reduces `src` by an integer factor in x and y (src width = factor * dst width, same for
  * height) by averaging each factor x factor block: a box-filtered reference at a lower

@@ -1,6 +1,7 @@
 /*
  * bsdf.h - the materials of the scene format: diffuse, conductor, roughconductor,
- * dielectric, plastic and roughplastic, each optionally two-sided.
+ * dielectric, plastic and roughplastic, each optionally two-sided and optionally masked
+ * (an opacity texture, applied when rays are traced).
  *
  * All directions are local to the shading frame (normal = +z) and point away from the
  * surface: wo towards the previous path vertex (the camera side), wi towards the light.
@@ -47,6 +48,10 @@ typedef struct bsdf {
     int nonlinear;               /* plastics                                            */
     float fdr_int;               /* plastics: diffuse Fresnel reflectance inside        */
     float specular_weight;       /* plastics: s / (s + d) with the textures' means      */
+    const texture *opacity;      /* mask: the chance that a ray meets the surface (its
+                                  * texture_eval_opacity); elsewhere a ray passes through
+                                  * as if nothing were there (scene.c's alpha test). NULL:
+                                  * opaque. Everything below sees only the opaque part  */
 } bsdf;
 
 /* Fills the derived fields (fdr_int, specular_weight) once the parameters are set. */

@@ -36,6 +36,9 @@ int mesh_load_obj(const char *path, mesh *m, tr_error *err);
  * cube [-1,1]^3 with outward normals, and a sphere tessellated into triangles (64 x 128)
  * with exact vertex normals. */
 int mesh_make_rectangle(mesh *m, tr_error *err);
+/* Mitsuba's disk: radius 1 in the z = 0 plane around the origin, normal +z, as a fan of
+ * triangles with the unit disk's area. */
+int mesh_make_disk(mesh *m, tr_error *err);
 int mesh_make_cube(mesh *m, tr_error *err);
 int mesh_make_sphere(mesh *m, vec3 center, float radius, tr_error *err);
 
@@ -47,7 +50,8 @@ void mesh_transform(mesh *m, const mat4 *to_world);
 /* Final clean-up before rendering: drops degenerate triangles, then either discards vertex
  * normals (face_normals: flat shading) or, when the file had none, computes them (each
  * vertex gets the angle-weighted average of its faces' normals, as Mitsuba does). With
- * flip, every normal and the winding are reversed (Mitsuba's flip_normals). */
+ * flip, every normal and the winding are reversed (Mitsuba's flip_normals). A mesh with no
+ * triangle of non-zero area is left with ntris == 0 and succeeds: the caller decides. */
 int mesh_finish(mesh *m, int face_normals, int flip, tr_error *err);
 
 void mesh_free(mesh *m);

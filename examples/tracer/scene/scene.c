@@ -5,6 +5,7 @@
 #include "scene.h"
 
 #include <assert.h>
+#include <stdarg.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -37,7 +38,28 @@ void scene_free(scene *s)
     distrib1d_free(&s->lights);
     free(s->light_shape);
     free(s->path);
+    for (int i = 0; i < s->nwarnings; ++i)
+        free(s->warnings[i]);
+    free(s->warnings);
     memset(s, 0, sizeof *s);
+}
+
+int scene_warn(scene *s, const char *fmt, ...)
+{
+    char text[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(text, sizeof text, fmt, ap);
+    va_end(ap);
+    char **grown = realloc(s->warnings, (size_t)(s->nwarnings + 1) * sizeof *grown);
+    if (!grown)
+        return 0;
+    s->warnings = grown;
+    size_t n = strlen(text) + 1;
+    if (!(s->warnings[s->nwarnings] = malloc(n)))
+        return 0;
+    memcpy(s->warnings[s->nwarnings++], text, n);
+    return 1;
 }
 
 void scene_set_resolution(scene *s, int width, int height)
@@ -116,6 +138,79 @@ static double environment_mean_luminance(const environment *env)
     return wsum > 0.0 ? env->scale * sum / wsum : 0.0;
 }
 
+/* ---- Masks -------------------------------------------------------------------------------- */
+
+static uint64_t mix64(uint64_t x)
+{
+    x ^= x >> 30;
+    x *= 0xbf58476d1ce4e5b9ull;
+    x ^= x >> 27;
+    x *= 0x94d049bb133111ebull;
+    return x ^ (x >> 31);
+}
+
+/* Field k of ray or hit i in Embree's structure-of-arrays packets (RTCRayN, RTCHitN: N
+ * values of each field of RTCRay and RTCHit in turn); the C API has no accessors. */
+static float soa_float(const void *packet, unsigned n, unsigned k, unsigned i)
+{
+    float f;
+    memcpy(&f, (const char *)packet + (k * n + i) * sizeof f, sizeof f);
+    return f;
+}
+
+static unsigned soa_uint(const void *packet, unsigned n, unsigned k, unsigned i)
+{
+    unsigned u;
+    memcpy(&u, (const char *)packet + (k * n + i) * sizeof u, sizeof u);
+    return u;
+}
+
+static uint32_t float_bits(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
+
+/* The mask BSDF as an alpha test: a ray meets a masked surface with the probability of its
+ * opacity and otherwise goes on as if it were not there, camera rays, scattered rays and
+ * shadow rays alike. The random number is a hash of the ray and the triangle, so that the
+ * test needs no state and the same ray always gets the same answer (pbrt-v4 does the same);
+ * over the renderer's random rays it is uniform, which keeps every estimate unbiased.
+ * Mitsuba 3 treats the transparent part as a null BSDF instead (a delta event of the path,
+ * opaque to shadow rays): the same image, other noise. */
+static void opacity_filter(const struct RTCFilterFunctionNArguments *args)
+{
+    const shape *sh = args->geometryUserPtr;
+    for (unsigned i = 0; i < args->N; ++i) {
+        if (!args->valid[i])
+            continue;
+        const unsigned prim = soa_uint(args->hit, args->N, 5, i);
+        const float b1 = soa_float(args->hit, args->N, 3, i), b2 = soa_float(args->hit, args->N, 4, i);
+        const mesh *m = &sh->m;
+        float u = b1, v = b2;
+        if (m->uv) {
+            const uint32_t *id = m->idx + 3 * prim;
+            const float b0 = 1.0f - b1 - b2;
+            u = b0 * m->uv[2 * id[0]] + b1 * m->uv[2 * id[1]] + b2 * m->uv[2 * id[2]];
+            v = b0 * m->uv[2 * id[0] + 1] + b1 * m->uv[2 * id[1] + 1] + b2 * m->uv[2 * id[2] + 1];
+        }
+        const float a = texture_eval_opacity(sh->opacity, u, v);
+        if (a >= 1.0f)
+            continue;
+        uint64_t h = mix64(((uint64_t)float_bits(soa_float(args->ray, args->N, 0, i)) << 32) ^
+                           float_bits(soa_float(args->ray, args->N, 1, i)));
+        h = mix64(h ^ ((uint64_t)float_bits(soa_float(args->ray, args->N, 2, i)) << 32) ^
+                  float_bits(soa_float(args->ray, args->N, 4, i)));
+        h = mix64(h ^ ((uint64_t)float_bits(soa_float(args->ray, args->N, 5, i)) << 32) ^
+                  float_bits(soa_float(args->ray, args->N, 6, i)));
+        h = mix64(h ^ prim);
+        const float xi = (float)(h >> 40) * (1.0f / 16777216.0f);
+        if (!(xi < a))
+            args->valid[i] = 0;
+    }
+}
+
 int scene_finalize(scene *s, tr_error *err)
 {
     /* Bounds. */
@@ -191,6 +286,12 @@ int scene_finalize(scene *s, tr_error *err)
                                    sizeof(vec3), m->nverts);
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->idx, 0,
                                    3 * sizeof(uint32_t), m->ntris);
+        s->shapes[i].opacity = s->bsdfs[s->shapes[i].bsdf].opacity;
+        if (s->shapes[i].opacity) {
+            rtcSetGeometryUserData(g, &s->shapes[i]);
+            rtcSetGeometryIntersectFilterFunction(g, opacity_filter);
+            rtcSetGeometryOccludedFilterFunction(g, opacity_filter);
+        }
         rtcCommitGeometry(g);
         rtcAttachGeometryByID(s->rtc, g, (unsigned)i);
         rtcReleaseGeometry(g);

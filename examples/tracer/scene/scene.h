@@ -38,6 +38,8 @@ typedef struct shape {
                                  * a ray crossing it unchanged                              */
     int media_boundary;         /* names an interior or exterior medium                    */
     int null_surface;           /* the null BSDF: rays pass straight through               */
+    const texture *opacity;     /* its material's mask (bsdf.opacity), for the alpha test;
+                                 * NULL: opaque                                             */
 } shape;
 
 typedef enum env_kind { ENV_NONE, ENV_CONSTANT, ENV_ENVMAP } env_kind;
@@ -64,6 +66,11 @@ typedef struct scene {
     int volumetric;             /* the integrator is volpath, which renders media; path
                                  * (Mitsuba 3's default) ignores them, as Mitsuba's does   */
     int media_ignored;          /* the scene names media that path ignores (nf_tracer says so) */
+    int upgraded;               /* the file's version was < 2.0.0 (scene_upgrade.c)          */
+    int upgraded_from[3];       /* that version                                            */
+    char **warnings;            /* what the loader left out and why ("file:line: ..."), for
+                                 * the program to print; owned                              */
+    int nwarnings;
 
     shape *shapes;
     int nshapes;
@@ -118,6 +125,8 @@ int scene_load(const char *path, scene *s, tr_error *err);
 /* The same from a string; relative file names are resolved against `dir`. For tests. */
 int scene_load_string(const char *xml, const char *dir, scene *s, tr_error *err);
 void scene_free(scene *s);
+/* Appends a warning (a copy of the formatted text); returns 0 when out of memory. */
+int scene_warn(scene *s, const char *fmt, ...) TR_PRINTF(2, 3);
 
 /* Sets the output resolution and the camera's field of view for it. */
 void scene_set_resolution(scene *s, int width, int height);

@@ -139,6 +139,8 @@ static int load_shape_geometry(loader *L, xml_node *n, const char *type, mesh *m
         ok = mesh_make_rectangle(m, &e);
     else if (!strcmp(type, "cube"))
         ok = mesh_make_cube(m, &e);
+    else if (!strcmp(type, "disk"))
+        ok = mesh_make_disk(m, &e);
     else if (!strcmp(type, "sphere")) {
         vec3 center = v3(0.0f, 0.0f, 0.0f);
         float radius;
@@ -150,7 +152,7 @@ static int load_shape_geometry(loader *L, xml_node *n, const char *type, mesh *m
             return fail_at(L, n, "the radius must be > 0");
         ok = mesh_make_sphere(m, center, radius, &e);
     } else
-        return fail_at(L, n, "unsupported shape type '%s' (ply, obj, rectangle, cube, sphere)",
+        return fail_at(L, n, "unsupported shape type '%s' (ply, obj, rectangle, disk, cube, sphere)",
                        type);
     return ok || fail_at(L, n, "%s", e.msg);
 }
@@ -208,6 +210,8 @@ static int place_shape(loader *L, xml_node *n, const char *type, shape *sh,
     }
     if (!mesh_finish(&sh->m, face_normals, flip, &e))
         return fail_at(L, n, "%s", e.msg);
+    if (sh->m.ntris == 0)
+        return 1; /* parse_shape skips it */
     /* Which side of a boundary a ray is on is only defined for a closed surface. The
      * built-in sphere is closed by construction (its seam's vertices differ by a float
      * rounding, which a check by position would call open). */
@@ -257,6 +261,17 @@ static int parse_shape(loader *L, xml_node *n)
     int ok = parse_shape_children(L, n, &sh) &&
              place_shape(L, n, type, &sh, &to_world, face_normals, flip) &&
              shape_material(L, n, &sh);
+    if (ok && sh.m.ntris == 0) {
+        /* Mitsuba 3 loads such a mesh and never hits it; we leave it out and say so. */
+        const char *file = xml_attr(n, "type");
+        xml_node *f;
+        if (find_prop(L, n, "filename", &f) && f && xml_attr(f, "value"))
+            file = xml_attr(f, "value");
+        mesh_free(&sh.m);
+        return scene_warn(L->s, "%s:%d: skipped the shape '%s': it has no triangle of "
+                          "non-zero area", L->file, n->line, file) ||
+               fail_at(L, n, "out of memory");
+    }
     shape *grown = ok ? realloc(L->s->shapes, (size_t)(L->s->nshapes + 1) * sizeof *grown) : NULL;
     if (!grown) {
         mesh_free(&sh.m);
@@ -273,6 +288,7 @@ static int parse_film(loader *L, xml_node *film)
 {
     const char *type = plugin_type(L, film);
     const char *ignored;
+    int flag;
     film->used = 1;
     if (!type || !check_plugin_attrs(L, film))
         return 0;
@@ -283,7 +299,11 @@ static int parse_film(loader *L, xml_node *film)
         /* Output formats: we always write float RGB EXR (and a PNG preview). */
         !get_string(L, film, "file_format", NULL, &ignored) ||
         !get_string(L, film, "pixel_format", NULL, &ignored) ||
-        !get_string(L, film, "component_format", NULL, &ignored))
+        !get_string(L, film, "component_format", NULL, &ignored) ||
+        /* Mitsuba 3 accepts both and draws no banner; our box filter has no edges to
+         * treat. */
+        !get_bool(L, film, "banner", 0, &flag) ||
+        !get_bool(L, film, "high_quality_edges", 0, &flag))
         return 0;
     if (L->s->width <= 0 || L->s->height <= 0 || L->s->width > 65536 || L->s->height > 65536)
         return fail_at(L, film, "bad film size %d x %d", L->s->width, L->s->height);
@@ -447,7 +467,7 @@ static int load_tree(loader *L, xml_node *root)
     static const char *const default_attrs[] = {"name", "value", NULL};
     if (strcmp(root->name, "scene"))
         return fail_at(L, root, "the root element must be <scene>");
-    if (!check_attrs(L, root, scene_attrs))
+    if (!check_attrs(L, root, scene_attrs) || !scene_upgrade(L, root))
         return 0;
     root->used = 1;
     s->max_depth = -1;

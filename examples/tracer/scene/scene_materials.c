@@ -1,5 +1,5 @@
 /*
- * scene_materials.c - textures (bitmap, checkerboard) and BSDFs (diffuse, twosided,
+ * scene_materials.c - textures (bitmap, checkerboard) and BSDFs (diffuse, twosided, mask,
  * conductor, roughconductor, dielectric, plastic, roughplastic) from their XML elements,
  * with Mitsuba 3's parameter names and defaults.
  */
@@ -93,7 +93,7 @@ const texture *parse_texture(loader *L, xml_node *n)
         size_t len = strlen(path);
         int ok = len > 4 && !strcasecmp(path + len - 4, ".exr")
                      ? image_read_exr(path, &t->bitmap, &e)
-                     : image_load_ldr(path, !raw, &t->bitmap, &e);
+                     : image_load_ldr(path, !raw, &t->bitmap, &t->alpha, &e);
         if (!ok) {
             t->kind = TEX_CONSTANT;
             fail_at(L, n, "%s", e.msg);
@@ -242,6 +242,25 @@ int nested_bsdf(loader *L, xml_node *c, int *index)
     return 1;
 }
 
+/* The one material inside a twosided or a mask. Other children (the mask's opacity) are
+ * left for the caller. */
+static int wrapped_bsdf(loader *L, xml_node *n, const char *type, int *inner)
+{
+    *inner = -1;
+    for (int i = 0; i < n->nchildren; ++i) {
+        xml_node *c = n->children[i];
+        const char *role = xml_attr(c, "name");
+        if (strcmp(c->name, "bsdf") && (strcmp(c->name, "ref") || (role && !strcmp(role, "opacity"))))
+            continue;
+        if (*inner >= 0)
+            return fail_at(L, c, "%s takes one material%s", type,
+                           type[0] == 't' ? " (two sides that differ are not supported)" : "");
+        if (!nested_bsdf(L, c, inner))
+            return 0;
+    }
+    return *inner >= 0 || fail_at(L, n, "%s needs a nested <bsdf> or <ref>", type);
+}
+
 int parse_bsdf(loader *L, xml_node *n, int *index)
 {
     const char *type = plugin_type(L, n);
@@ -253,24 +272,23 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
     int ok = 1;
     float int_ior, ext_ior;
     if (!strcmp(type, "twosided")) {
-        int inner = -1;
-        for (int i = 0; i < n->nchildren && ok; ++i) {
-            xml_node *c = n->children[i];
-            if (strcmp(c->name, "bsdf") && strcmp(c->name, "ref"))
-                continue;
-            if (inner >= 0)
-                return fail_at(L, c, "twosided takes one material (two sides that differ are "
-                               "not supported)");
-            ok = nested_bsdf(L, c, &inner);
-        }
-        if (!ok)
+        int inner;
+        if (!wrapped_bsdf(L, n, type, &inner))
             return 0;
-        if (inner < 0)
-            return fail_at(L, n, "twosided needs a nested <bsdf> or <ref>");
         b = L->s->bsdfs[inner];
         if (bsdf_transmits(&b))
             return fail_at(L, n, "a twosided dielectric makes no sense");
         b.twosided = 1;
+    } else if (!strcmp(type, "mask")) {
+        int inner;
+        const texture *opacity;
+        if (!wrapped_bsdf(L, n, type, &inner) ||
+            !get_texture(L, n, "opacity", rgb_gray(0.5f), &opacity))
+            return 0;
+        b = L->s->bsdfs[inner];
+        if (b.type == BSDF_NULL)
+            return fail_at(L, n, "a mask over the null material is the null material");
+        b.opacity = opacity;
     } else if (!strcmp(type, "diffuse")) {
         b.type = BSDF_DIFFUSE;
         ok = get_texture(L, n, "reflectance", rgb_gray(0.5f), &b.diffuse);
@@ -299,8 +317,8 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
     } else if (!strcmp(type, "null")) {
         b.type = BSDF_NULL; /* the invisible boundary of a medium (render/vertex.c) */
     } else {
-        return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, conductor, "
-                       "roughconductor, dielectric, plastic, roughplastic, null)", type);
+        return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, mask, "
+                       "conductor, roughconductor, dielectric, plastic, roughplastic, null)", type);
     }
     if (!ok || !check_all_used(L, n))
         return 0;

@@ -6,6 +6,7 @@
  *   scene_materials.c  textures and BSDFs
  *   scene_media.c      participating media and the closed shapes that bound them
  *   scene_load.c       shapes, emitters, sensor, integrator, $parameters, the whole scene
+ *   scene_upgrade.c    files older than version 2.0.0, rewritten as Mitsuba 3 does
  *
  * Every element is either interpreted or refused: each function that consumes an element
  * marks the children it used, and check_all_used() turns any child left over into an error
@@ -119,5 +120,12 @@ int nested_medium(loader *L, xml_node *c, int *index);
  * exactly two of its triangles. Returns 0 with an error on element n naming the first open
  * edge otherwise. */
 int check_closed(loader *L, const xml_node *n, const mesh *m);
+
+/* ---- scene_upgrade.c ----------------------------------------------------------------------- */
+
+/* When the root's version is < 2.0.0, rewrites the tree in place as Mitsuba 3's loader does
+ * (camelCase names to snake_case, and the renames listed in scene_upgrade.c) and records
+ * the version in the scene. A missing version is read as today's. */
+int scene_upgrade(loader *L, xml_node *root);
 
 #endif /* TRACER_SCENE_XML_H */

@@ -40,14 +40,13 @@ static int wrap(int i, int n, int clamp)
     return i < 0 ? i + n : i;
 }
 
-static rgb texel(const texture *t, int x, int y)
+static rgb texel(const texture *t, const image *b, int x, int y)
 {
-    const image *b = &t->bitmap;
     const float *p = image_pixel(b, wrap(x, b->width, t->clamp), wrap(y, b->height, t->clamp));
     return rgb_make(p[0], p[1], p[2]);
 }
 
-rgb texture_eval(const texture *t, float u0, float v0)
+static rgb eval_image(const texture *t, const image *b, float u0, float v0)
 {
     if (t->kind == TEX_CONSTANT)
         return t->value;
@@ -65,23 +64,37 @@ rgb texture_eval(const texture *t, float u0, float v0)
         u -= floorf(u);
         v -= floorf(v);
     }
-    float x = u * (float)t->bitmap.width - 0.5f, y = v * (float)t->bitmap.height - 0.5f;
-    x = fminf(fmaxf(x, -2.0f), (float)t->bitmap.width + 1.0f);
-    y = fminf(fmaxf(y, -2.0f), (float)t->bitmap.height + 1.0f);
+    float x = u * (float)b->width - 0.5f, y = v * (float)b->height - 0.5f;
+    x = fminf(fmaxf(x, -2.0f), (float)b->width + 1.0f);
+    y = fminf(fmaxf(y, -2.0f), (float)b->height + 1.0f);
     float fx = floorf(x), fy = floorf(y);
     int ix = (int)fx, iy = (int)fy;
     if (t->nearest)
-        return texel(t, (int)floorf(x + 0.5f), (int)floorf(y + 0.5f));
+        return texel(t, b, (int)floorf(x + 0.5f), (int)floorf(y + 0.5f));
     float ax = x - fx, ay = y - fy;
-    rgb c00 = texel(t, ix, iy), c10 = texel(t, ix + 1, iy);
-    rgb c01 = texel(t, ix, iy + 1), c11 = texel(t, ix + 1, iy + 1);
+    rgb c00 = texel(t, b, ix, iy), c10 = texel(t, b, ix + 1, iy);
+    rgb c01 = texel(t, b, ix, iy + 1), c11 = texel(t, b, ix + 1, iy + 1);
     rgb top = rgb_add(rgb_scale(c00, 1.0f - ax), rgb_scale(c10, ax));
     rgb bottom = rgb_add(rgb_scale(c01, 1.0f - ax), rgb_scale(c11, ax));
     return rgb_add(rgb_scale(top, 1.0f - ay), rgb_scale(bottom, ay));
 }
 
+rgb texture_eval(const texture *t, float u, float v)
+{
+    return eval_image(t, &t->bitmap, u, v);
+}
+
+float texture_eval_opacity(const texture *t, float u, float v)
+{
+    float a = t->kind == TEX_BITMAP && t->alpha.data ? eval_image(t, &t->alpha, u, v).r
+                                                     : rgb_luminance(texture_eval(t, u, v));
+    return a > 0.0f ? (a < 1.0f ? a : 1.0f) : 0.0f; /* NaN: transparent */
+}
+
 void texture_free(texture *t)
 {
-    if (t->kind == TEX_BITMAP)
+    if (t->kind == TEX_BITMAP) {
         image_free(&t->bitmap);
+        image_free(&t->alpha);
+    }
 }

@@ -16,6 +16,8 @@ typedef struct texture {
     rgb value;          /* TEX_CONSTANT                                        */
     rgb color0, color1; /* TEX_CHECKERBOARD                                    */
     image bitmap;       /* TEX_BITMAP, linear RGB                              */
+    image alpha;        /* TEX_BITMAP from a file with alpha: the alpha channel as
+                         * grey RGB; data NULL otherwise                       */
     int nearest;        /* bitmap: nearest-neighbour instead of bilinear       */
     int clamp;          /* bitmap: clamp to the edge instead of repeating      */
     float uv[2][3];     /* to_uv: (u', v') = uv * (u, v, 1)                     */
@@ -27,6 +29,9 @@ void texture_init_constant(texture *t, rgb value);
 /* Sets t->mean from the texture's contents; call after filling a bitmap or checkerboard. */
 void texture_update_mean(texture *t);
 rgb texture_eval(const texture *t, float u, float v);
+/* A value in [0, 1] for the mask BSDF's opacity: a bitmap's alpha channel where its file has
+ * one, else the luminance of texture_eval, clamped. */
+float texture_eval_opacity(const texture *t, float u, float v);
 void texture_free(texture *t);
 
 #endif /* TRACER_TEXTURE_H */

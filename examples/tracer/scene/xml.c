@@ -203,3 +203,46 @@ int xml_set_attr(xml_node *node, int i, const char *value)
     node->attrs[2 * i + 1] = v;
     return 1;
 }
+
+int xml_set_name(xml_node *node, const char *name)
+{
+    char *v = copy_string(name);
+    if (!v)
+        return 0;
+    free(node->name);
+    node->name = v;
+    return 1;
+}
+
+xml_node *xml_add_child(xml_node *parent, const char *name, const char *const *attrs)
+{
+    int n = 0;
+    while (attrs && attrs[2 * n])
+        ++n;
+    xml_node *node = calloc(1, sizeof *node);
+    xml_node **grown = realloc(parent->children, (size_t)(parent->nchildren + 1) * sizeof *grown);
+    if (grown)
+        parent->children = grown;
+    if (!node || !grown) {
+        free(node);
+        return NULL;
+    }
+    node->name = copy_string(name);
+    node->attrs = calloc((size_t)(2 * n + 1), sizeof(char *));
+    node->nattrs = node->attrs ? n : 0;
+    node->line = parent->line;
+    node->parent = parent;
+    parent->children[parent->nchildren++] = node;
+    int ok = node->name && node->attrs;
+    for (int i = 0; ok && i < 2 * n; ++i)
+        ok = (node->attrs[i] = copy_string(attrs[i])) != NULL;
+    return ok ? node : NULL; /* on failure the half-made child stays linked, for xml_free */
+}
+
+void xml_remove_child(xml_node *parent, int i)
+{
+    xml_free(parent->children[i]);
+    for (int k = i + 1; k < parent->nchildren; ++k)
+        parent->children[k - 1] = parent->children[k];
+    --parent->nchildren;
+}

@@ -30,5 +30,12 @@ void xml_free(xml_node *root);
 const char *xml_attr(const xml_node *node, const char *name);
 /* Replaces the value of attribute i (the old string is freed; the new one is copied). */
 int xml_set_attr(xml_node *node, int i, const char *value);
+/* Renames the element (the old name is freed). Returns 0 when out of memory. */
+int xml_set_name(xml_node *node, const char *name);
+/* Appends a new child <name a0="v0" ...> (attrs: NULL-terminated name, value pairs) at the
+ * parent's line; returns it, or NULL when out of memory. */
+xml_node *xml_add_child(xml_node *parent, const char *name, const char *const *attrs);
+/* Removes and frees child i. */
+void xml_remove_child(xml_node *parent, int i);
 
 #endif /* TRACER_XML_H */

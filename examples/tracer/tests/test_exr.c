@@ -188,7 +188,7 @@ static void test_png_preview(void **state)
     tmp_path(path, sizeof path, "preview.png");
     assert_true(image_write_png(&a, path, 0.0f, &err));
     /* Read it back raw (no sRGB decoding): 8-bit codes / 255. */
-    if (!image_load_ldr(path, 0, &b, &err))
+    if (!image_load_ldr(path, 0, &b, NULL, &err))
         fail_msg("%s", err.msg);
     assert_int_equal(b.width, 3);
     assert_float_equal(b.data[0], 1.0f, 1e-6f);

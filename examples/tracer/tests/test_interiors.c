@@ -1,0 +1,265 @@
+/*
+ * test_interiors.c - what Bitterli's interiors need of the loader: files of scene version
+ * < 2.0.0 upgraded as Mitsuba 3 upgrades them, the mask BSDF (an alpha test, also from a
+ * PNG's alpha channel), the disk shape, meshes with no usable triangle skipped with a
+ * warning, and the two shipped interiors loading as they were distributed.
+ */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <cmocka.h>
+#include <stb_image_write.h>
+
+#include "nf_test_main.h"
+
+#include "mesh.h"
+#include "scene.h"
+#include "scene_errors.h"
+
+#define OLD_SENSOR                                                                               \
+    "<sensor type=\"perspective\"><float name=\"fov\" value=\"40\"/>"                            \
+    "<transform name=\"toWorld\"><lookAt origin=\"0, 0, 5\" target=\"0, 0, 0\" up=\"0, 1, 0\"/>" \
+    "</transform><film type=\"hdrfilm\"><integer name=\"width\" value=\"8\"/>"                   \
+    "<integer name=\"height\" value=\"8\"/><boolean name=\"banner\" value=\"false\"/></film>"   \
+    "</sensor>\n"
+#define SENSOR                                                                                   \
+    "<sensor type=\"perspective\"><float name=\"fov\" value=\"40\"/><film type=\"hdrfilm\">"   \
+    "<integer name=\"width\" value=\"8\"/><integer name=\"height\" value=\"8\"/></film>"         \
+    "</sensor>\n"
+
+static void load(const char *xml, scene *s)
+{
+    tr_error err;
+    if (!scene_load_string(xml, TRACER_TEST_TMP_DIR, s, &err))
+        fail_msg("%s", err.msg);
+}
+
+/* ---- Version 0.5 files ------------------------------------------------------------------------ */
+
+static const char *const old_scene =
+    "<scene version=\"0.5.0\">\n"
+    "<integrator type=\"path\"><integer name=\"maxDepth\" value=\"7\"/></integrator>\n" OLD_SENSOR
+    "<bsdf type=\"diffuse\" id=\"_wall\"><rgb name=\"diffuseReflectance\" value=\"0.2\"/></bsdf>\n"
+    "<bsdf type=\"roughplastic\" id=\"floor\"><float name=\"intIOR\" value=\"1.7\"/>"
+    "<texture name=\"diffuseReflectance\" type=\"checkerboard\"><float name=\"uscale\" value=\"4\"/>"
+    "<float name=\"voffset\" value=\"0.5\"/></texture></bsdf>\n"
+    "<shape type=\"rectangle\"><ref id=\"_wall\"/></shape>\n"
+    "<shape type=\"cube\"><ref id=\"floor\"/><boolean name=\"flipNormals\" value=\"true\"/></shape>\n"
+    "</scene>\n";
+
+static void test_version_0_5_is_upgraded(void **state)
+{
+    (void)state;
+    scene s;
+    load(old_scene, &s);
+    assert_true(s.upgraded);
+    assert_int_equal(s.upgraded_from[1], 5);
+    assert_int_equal(s.max_depth, 7); /* maxDepth -> max_depth */
+    /* A diffuse's diffuse_reflectance is its reflectance; the reserved id "_wall" was
+     * renamed in its definition and its reference alike. */
+    const bsdf *wall = &s.bsdfs[s.shapes[0].bsdf], *floor = &s.bsdfs[s.shapes[1].bsdf];
+    assert_int_equal(wall->type, BSDF_DIFFUSE);
+    assert_float_equal(wall->diffuse->value.g, 0.2f, 0.0f);
+    assert_float_equal(floor->ior, 1.7f / 1.000277f, 1e-6f); /* intIOR -> int_ior */
+    /* uscale 4 and voffset 0.5 became to_uv: u' = 4 u, v' = v + 0.5. */
+    assert_float_equal(floor->diffuse->uv[0][0], 4.0f, 0.0f);
+    assert_float_equal(floor->diffuse->uv[1][2], 0.5f, 0.0f);
+    assert_float_equal(floor->diffuse->uv[0][2], 0.0f, 0.0f);
+    scene_free(&s);
+}
+
+static void test_version_2_is_not_upgraded(void **state)
+{
+    (void)state;
+    /* The same names in a file of today's format are unknown parameters. */
+    char xml[4096];
+    snprintf(xml, sizeof xml, "%s", old_scene);
+    memcpy(strstr(xml, "0.5.0"), "2.0.0", 5);
+    expect_error(xml, "<string>:2:", "unsupported parameter 'maxDepth'", NULL);
+    expect_error("<scene version=\"0.5\"/>", "the version must be three numbers", NULL);
+    expect_error("<scene version=\"1.x.0\"/>", "the version must be three numbers", NULL);
+}
+
+/* ---- The mask BSDF ------------------------------------------------------------------------------ */
+
+/* Of n rays crossing a masked unit square, how many it stops (scene_occluded) and how many
+ * meet it (scene_intersect). */
+static void count_blocked(const scene *s, int n, int *occluded, int *met)
+{
+    *occluded = *met = 0;
+    for (int i = 0; i < n; ++i) {
+        /* Origins spread over the square's middle, all directions straight down -z. */
+        float x = -0.5f + (float)(i % 97) / 97.0f, y = -0.5f + (float)(i / 97 % 89) / 89.0f;
+        ray r = {v3(x, y, 1.0f + 1e-3f * (float)(i / 8633)), v3(0.0f, 0.0f, -1.0f), 3.0f};
+        hit h;
+        *occluded += scene_occluded(s, &r);
+        *met += scene_intersect(s, &r, &h);
+    }
+}
+
+static void test_mask_constant_opacity(void **state)
+{
+    (void)state;
+    scene s;
+    load("<scene version=\"3.0.0\">" SENSOR
+         "<shape type=\"rectangle\"><bsdf type=\"mask\"><float name=\"opacity\" value=\"0.3\"/>"
+         "<bsdf type=\"diffuse\"/></bsdf></shape></scene>",
+         &s);
+    assert_non_null(s.shapes[0].opacity);
+    assert_int_equal(s.bsdfs[s.shapes[0].bsdf].type, BSDF_DIFFUSE);
+    const int n = 40000;
+    int occluded, met;
+    count_blocked(&s, n, &occluded, &met);
+    /* Binomial(40000, 0.3): standard deviation 92, so 5 sigma is +-460 (+-0.0115). */
+    assert_true(fabs(occluded / (double)n - 0.3) < 0.0115);
+    assert_true(fabs(met / (double)n - 0.3) < 0.0115);
+    scene_free(&s);
+}
+
+static void test_mask_from_png_alpha(void **state)
+{
+    (void)state;
+    /* A 2 x 1 RGBA image: left texel opaque red, right texel transparent white. */
+    char png[1024];
+    const unsigned char texels[8] = {255, 0, 0, 255, 255, 255, 255, 0};
+    snprintf(png, sizeof png, "%s/leaf.png", TRACER_TEST_TMP_DIR);
+    assert_true(stbi_write_png(png, 2, 1, 4, texels, 8));
+    scene s;
+    load("<scene version=\"3.0.0\">" SENSOR
+         "<shape type=\"rectangle\"><bsdf type=\"mask\"><texture type=\"bitmap\" name=\"opacity\">"
+         "<string name=\"filename\" value=\"leaf.png\"/><string name=\"filter_type\" value=\"nearest\"/>"
+         "</texture><bsdf type=\"diffuse\"/></bsdf></shape></scene>",
+         &s);
+    const texture *t = s.shapes[0].opacity;
+    assert_non_null(t);
+    /* Alpha, not the colour's luminance (the white texel would be opaque, the red one 0.2). */
+    assert_float_equal(texture_eval_opacity(t, 0.25f, 0.5f), 1.0f, 0.0f);
+    assert_float_equal(texture_eval_opacity(t, 0.75f, 0.5f), 0.0f, 0.0f);
+    /* The rectangle's u runs along x: rays through its left half stop, the right half is
+     * clear. Half the rays of count_blocked cross each side (x - (-0.5) < 0.5 or not). */
+    int occluded, met;
+    count_blocked(&s, 8633, &occluded, &met);
+    assert_int_equal(occluded, met);
+    assert_true(fabs(occluded / 8633.0 - 0.5) < 0.02); /* 97 columns: 48 or 49 of them */
+    scene_free(&s);
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"mask\"/></shape></scene>",
+                 "mask needs a nested <bsdf> or <ref>", NULL);
+}
+
+/* ---- The disk ------------------------------------------------------------------------------------- */
+
+static void test_disk(void **state)
+{
+    (void)state;
+    mesh m;
+    tr_error err;
+    assert_true(mesh_make_disk(&m, &err));
+    double area = 0.0;
+    for (uint32_t t = 0; t < m.ntris; ++t) {
+        const uint32_t *i = m.idx + 3 * t;
+        vec3 c = v3_cross(v3_sub(m.p[i[1]], m.p[i[0]]), v3_sub(m.p[i[2]], m.p[i[0]]));
+        area += 0.5 * v3_length(c);
+        assert_true(c.z > 0.0f); /* facing +z, as Mitsuba's disk */
+    }
+    /* The area is the unit disk's (float vertices: 1e-5 relative). */
+    assert_true(fabs(area / 3.14159265358979 - 1.0) < 1e-5);
+    for (uint32_t i = 0; i < m.nverts; ++i) {
+        assert_float_equal(m.p[i].z, 0.0f, 0.0f);
+        assert_true(v3_length(m.p[i]) < 1.001f);
+    }
+    mesh_free(&m);
+    /* An emitting disk of radius 0.5 (scale) is one light of area pi / 4. */
+    scene s;
+    load("<scene version=\"3.0.0\">" SENSOR
+         "<shape type=\"disk\"><transform name=\"to_world\"><scale value=\"0.5\"/></transform>"
+         "<emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape></scene>",
+         &s);
+    double lit = 0.0;
+    for (uint32_t t = 0; t < s.shapes[0].m.ntris; ++t)
+        lit += s.shapes[0].tri_area[t];
+    assert_true(fabs(lit / (3.14159265358979 / 4.0) - 1.0) < 1e-5);
+    scene_free(&s);
+}
+
+/* ---- Meshes without area --------------------------------------------------------------------------- */
+
+static void test_mesh_without_area_is_skipped(void **state)
+{
+    (void)state;
+    char obj[1024];
+    snprintf(obj, sizeof obj, "%s/flat.obj", TRACER_TEST_TMP_DIR);
+    FILE *f = fopen(obj, "wb");
+    assert_non_null(f);
+    fputs("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", f); /* three points on a line */
+    fclose(f);
+    scene s;
+    load("<scene version=\"3.0.0\">" SENSOR
+         "<shape type=\"obj\"><string name=\"filename\" value=\"flat.obj\"/></shape>\n"
+         "<shape type=\"rectangle\"/></scene>",
+         &s);
+    assert_int_equal(s.nshapes, 1);
+    assert_int_equal(s.nwarnings, 1);
+    assert_non_null(strstr(s.warnings[0], "<string>:2: skipped the shape 'flat.obj'"));
+    scene_free(&s);
+}
+
+/* ---- The shipped interiors, as Bitterli distributes them ------------------------------------------ */
+
+static void load_shipped(const char *name, scene *s)
+{
+    char path[1024];
+    tr_error err;
+    snprintf(path, sizeof path, "%s/%s/scene.xml", TRACER_SCENES_DIR, name);
+    if (!scene_load(path, s, &err))
+        fail_msg("%s", err.msg);
+}
+
+static void test_living_room(void **state)
+{
+    (void)state;
+    scene s;
+    load_shipped("living-room", &s);
+    assert_true(s.upgraded);
+    assert_int_equal(s.width, 1280);
+    assert_int_equal(s.max_depth, 65);
+    assert_int_equal(s.env.kind, ENV_ENVMAP);
+    assert_int_equal(s.nwarnings, 0);
+    int masked = 0;
+    for (int i = 0; i < s.nshapes; ++i)
+        masked += s.shapes[i].opacity != NULL && s.shapes[i].opacity->alpha.data != NULL;
+    assert_true(masked >= 1); /* the plant's leaves, by leaf.png's alpha */
+    scene_free(&s);
+}
+
+static void test_modern_hall(void **state)
+{
+    (void)state;
+    scene s;
+    load_shipped("modern-hall", &s);
+    assert_true(s.upgraded);
+    int disks = 0, emitters = 0;
+    for (int i = 0; i < s.nshapes; ++i) {
+        disks += s.shapes[i].m.ntris == 64;
+        emitters += s.shapes[i].emissive;
+    }
+    assert_int_equal(disks, 5);
+    assert_int_equal(emitters, 13);
+    scene_free(&s);
+}
+
+NFT_TEST_MAIN(
+    cmocka_unit_test(test_version_0_5_is_upgraded),
+    cmocka_unit_test(test_version_2_is_not_upgraded),
+    cmocka_unit_test(test_mask_constant_opacity),
+    cmocka_unit_test(test_mask_from_png_alpha),
+    cmocka_unit_test(test_disk),
+    cmocka_unit_test(test_mesh_without_area_is_skipped),
+    cmocka_unit_test(test_living_room),
+    cmocka_unit_test(test_modern_hall),
+)
