@@ -33,10 +33,14 @@ void bsdf_point_init(bsdf_point *bp, const bsdf *b, float u, float v)
 
 int bsdf_has_smooth_part(const bsdf *b)
 {
-    return b->type != BSDF_CONDUCTOR && b->type != BSDF_DIELECTRIC && b->type != BSDF_NULL;
+    return b->type != BSDF_CONDUCTOR && b->type != BSDF_DIELECTRIC &&
+           b->type != BSDF_THINDIELECTRIC && b->type != BSDF_NULL;
 }
 
-int bsdf_transmits(const bsdf *b) { return b->type == BSDF_DIELECTRIC; }
+int bsdf_transmits(const bsdf *b)
+{
+    return b->type == BSDF_DIELECTRIC || b->type == BSDF_THINDIELECTRIC;
+}
 
 /* ---- Pieces shared by several materials ----------------------------------------------- */
 
@@ -155,6 +159,23 @@ int bsdf_sample_dir(const bsdf_point *bp, vec3 wo, float u_lobe, float u0, float
             /* Radiance is compressed into a smaller solid angle on the denser side. */
             s->weight = rgb_scale(bp->transmission, eta_ti * eta_ti);
             s->pdf = 1.0f - f;
+        }
+        return s->pdf > 0.0f;
+    }
+    if (b->type == BSDF_THINDIELECTRIC) {
+        /* Mitsuba's thindielectric: the sheet reflects R + T R T + T R^3 T + ... = 2R / (1 + R)
+         * of the light, from either side, and lets the rest through unbent. */
+        float r = fresnel_dielectric(fabsf(wo.z), b->ior, NULL, NULL);
+        r = 2.0f * r / (1.0f + r);
+        s->delta = 1;
+        if (u_lobe < r) {
+            s->wi = v3(-wo.x, -wo.y, wo.z);
+            s->weight = bp->specular;
+            s->pdf = r;
+        } else {
+            s->wi = v3_neg(wo);
+            s->weight = bp->transmission;
+            s->pdf = 1.0f - r;
         }
         return s->pdf > 0.0f;
     }

@@ -1,7 +1,7 @@
 /*
  * bsdf.h - the materials of the scene format: diffuse, conductor, roughconductor,
- * dielectric, plastic and roughplastic, each optionally two-sided and optionally masked
- * (an opacity texture, applied when rays are traced).
+ * dielectric, thindielectric, plastic and roughplastic, each optionally two-sided and
+ * optionally masked (an opacity texture, applied when rays are traced).
  *
  * All directions are local to the shading frame (normal = +z) and point away from the
  * surface: wo towards the previous path vertex (the camera side), wi towards the light.
@@ -29,6 +29,8 @@ typedef enum bsdf_type {
     BSDF_CONDUCTOR,      /* smooth: a delta reflection                         */
     BSDF_ROUGHCONDUCTOR,
     BSDF_DIELECTRIC,     /* smooth: delta reflection and refraction            */
+    BSDF_THINDIELECTRIC, /* a thin sheet: delta reflection, and transmission straight
+                          * through, with the sheet's internal reflections summed  */
     BSDF_PLASTIC,        /* delta coating over a diffuse base                  */
     BSDF_ROUGHPLASTIC,   /* microfacet coating over a diffuse base             */
     BSDF_NULL            /* no surface: the boundary of a medium. The integrator passes
@@ -40,9 +42,9 @@ typedef struct bsdf {
     int twosided;
     const texture *diffuse;      /* diffuse: reflectance; plastics: diffuse_reflectance */
     const texture *specular;     /* specular_reflectance (conductors, dielectric, plastics) */
-    const texture *transmission; /* dielectric: specular_transmittance                  */
+    const texture *transmission; /* dielectrics: specular_transmittance                 */
     rgb eta, k;                  /* conductors: complex index relative to the outside   */
-    float ior;                   /* dielectric, plastics: int_ior / ext_ior             */
+    float ior;                   /* dielectrics, plastics: int_ior / ext_ior            */
     mf_type distribution;        /* rough types                                         */
     float alpha;                 /* rough types: roughness (Mitsuba's alpha)            */
     int nonlinear;               /* plastics                                            */

@@ -247,3 +247,16 @@ int mesh_finish(mesh *m, int face_normals, int flip, tr_error *err)
     }
     return 1;
 }
+
+void mesh_uv_at(const mesh *m, uint32_t tri, float b1, float b2, float *u, float *v)
+{
+    if (!m->uv) {
+        *u = b1;
+        *v = b2;
+        return;
+    }
+    const uint32_t *id = m->idx + 3 * tri;
+    const float b0 = 1.0f - b1 - b2;
+    *u = b0 * m->uv[2 * id[0]] + b1 * m->uv[2 * id[1]] + b2 * m->uv[2 * id[2]];
+    *v = b0 * m->uv[2 * id[0] + 1] + b1 * m->uv[2 * id[1] + 1] + b2 * m->uv[2 * id[2] + 1];
+}

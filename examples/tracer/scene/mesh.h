@@ -53,6 +53,9 @@ void mesh_transform(mesh *m, const mat4 *to_world);
  * flip, every normal and the winding are reversed (Mitsuba's flip_normals). A mesh with no
  * triangle of non-zero area is left with ntris == 0 and succeeds: the caller decides. */
 int mesh_finish(mesh *m, int face_normals, int flip, tr_error *err);
+/* Texture coordinates at barycentrics (b1, b2) of triangle `tri`; without any in the file,
+ * (b1, b2) themselves, as Mitsuba does. */
+void mesh_uv_at(const mesh *m, uint32_t tri, float b1, float b2, float *u, float *v);
 
 void mesh_free(mesh *m);
 

@@ -186,15 +186,10 @@ static void opacity_filter(const struct RTCFilterFunctionNArguments *args)
         if (!args->valid[i])
             continue;
         const unsigned prim = soa_uint(args->hit, args->N, 5, i);
-        const float b1 = soa_float(args->hit, args->N, 3, i), b2 = soa_float(args->hit, args->N, 4, i);
-        const mesh *m = &sh->m;
-        float u = b1, v = b2;
-        if (m->uv) {
-            const uint32_t *id = m->idx + 3 * prim;
-            const float b0 = 1.0f - b1 - b2;
-            u = b0 * m->uv[2 * id[0]] + b1 * m->uv[2 * id[1]] + b2 * m->uv[2 * id[2]];
-            v = b0 * m->uv[2 * id[0] + 1] + b1 * m->uv[2 * id[1] + 1] + b2 * m->uv[2 * id[2] + 1];
-        }
+        const float b1 = soa_float(args->hit, args->N, 3, i);
+        const float b2 = soa_float(args->hit, args->N, 4, i);
+        float u, v;
+        mesh_uv_at(&sh->m, prim, b1, b2, &u, &v);
         const float a = texture_eval_opacity(sh->opacity, u, v);
         if (a >= 1.0f)
             continue;
@@ -405,14 +400,7 @@ void scene_surface(const scene *s, const hit *h, const ray *r, surface *out)
     } else {
         out->ns = out->ng;
     }
-    if (m->uv) {
-        out->u = b0 * m->uv[2 * id[0]] + h->b1 * m->uv[2 * id[1]] + h->b2 * m->uv[2 * id[2]];
-        out->v = b0 * m->uv[2 * id[0] + 1] + h->b1 * m->uv[2 * id[1] + 1] +
-                 h->b2 * m->uv[2 * id[2] + 1];
-    } else {
-        out->u = h->b1; /* Mitsuba's texture coordinates for meshes without any */
-        out->v = h->b2;
-    }
+    mesh_uv_at(m, h->prim, h->b1, h->b2, &out->u, &out->v);
 }
 
 /* ---- Environment ---------------------------------------------------------------------------- */

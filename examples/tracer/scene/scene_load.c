@@ -152,8 +152,8 @@ static int load_shape_geometry(loader *L, xml_node *n, const char *type, mesh *m
             return fail_at(L, n, "the radius must be > 0");
         ok = mesh_make_sphere(m, center, radius, &e);
     } else
-        return fail_at(L, n, "unsupported shape type '%s' (ply, obj, rectangle, disk, cube, sphere)",
-                       type);
+        return fail_at(L, n, "unsupported shape type '%s' (ply, obj, rectangle, disk, cube, "
+                       "sphere)", type);
     return ok || fail_at(L, n, "%s", e.msg);
 }
 
@@ -235,6 +235,13 @@ static int shape_material(loader *L, xml_node *n, shape *sh)
         sh->bsdf = L->s->nbsdfs;
         L->s->bsdfs[L->s->nbsdfs++] = b;
     }
+    /* A masked shape is missing from the rays that pass it by: light sampling, which aims
+     * at the whole emitter, and the media walk, which counts boundary crossings, would
+     * both disagree with them. */
+    if (L->s->bsdfs[sh->bsdf].opacity && sh->emissive)
+        return fail_at(L, n, "a shape with a mask material cannot emit");
+    if (L->s->bsdfs[sh->bsdf].opacity && sh->media_boundary)
+        return fail_at(L, n, "a shape with a mask material cannot bound a medium");
     if (L->s->bsdfs[sh->bsdf].type == BSDF_NULL) {
         if (sh->emissive)
             return fail_at(L, n, "a shape with the null material cannot emit");

@@ -1,7 +1,7 @@
 /*
  * scene_materials.c - textures (bitmap, checkerboard) and BSDFs (diffuse, twosided, mask,
- * conductor, roughconductor, dielectric, plastic, roughplastic) from their XML elements,
- * with Mitsuba 3's parameter names and defaults.
+ * conductor, roughconductor, dielectric, thindielectric, plastic, roughplastic) from their
+ * XML elements, with Mitsuba 3's parameter names and defaults.
  */
 #include <math.h>
 #include <stdio.h>
@@ -250,7 +250,8 @@ static int wrapped_bsdf(loader *L, xml_node *n, const char *type, int *inner)
     for (int i = 0; i < n->nchildren; ++i) {
         xml_node *c = n->children[i];
         const char *role = xml_attr(c, "name");
-        if (strcmp(c->name, "bsdf") && (strcmp(c->name, "ref") || (role && !strcmp(role, "opacity"))))
+        const int opacity_ref = !strcmp(c->name, "ref") && role && !strcmp(role, "opacity");
+        if (strcmp(c->name, "bsdf") && (strcmp(c->name, "ref") || opacity_ref))
             continue;
         if (*inner >= 0)
             return fail_at(L, c, "%s takes one material%s", type,
@@ -298,8 +299,8 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
     } else if (!strcmp(type, "roughconductor")) {
         b.type = BSDF_ROUGHCONDUCTOR;
         ok = get_conductor(L, n, &b) && get_roughness(L, n, &b);
-    } else if (!strcmp(type, "dielectric")) {
-        b.type = BSDF_DIELECTRIC;
+    } else if (!strcmp(type, "dielectric") || !strcmp(type, "thindielectric")) {
+        b.type = type[0] == 'd' ? BSDF_DIELECTRIC : BSDF_THINDIELECTRIC;
         ok = get_ior(L, n, "int_ior", 1.5046f, &int_ior) &&
              get_ior(L, n, "ext_ior", 1.000277f, &ext_ior) &&
              get_texture(L, n, "specular_reflectance", rgb_gray(1.0f), &b.specular) &&
@@ -318,11 +319,12 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
         b.type = BSDF_NULL; /* the invisible boundary of a medium (render/vertex.c) */
     } else {
         return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, mask, "
-                       "conductor, roughconductor, dielectric, plastic, roughplastic, null)", type);
+                       "conductor, roughconductor, dielectric, thindielectric, plastic, "
+                       "roughplastic, null)", type);
     }
     if (!ok || !check_all_used(L, n))
         return 0;
-    if ((b.type == BSDF_DIELECTRIC || b.type == BSDF_PLASTIC || b.type == BSDF_ROUGHPLASTIC) &&
+    if ((bsdf_transmits(&b) || b.type == BSDF_PLASTIC || b.type == BSDF_ROUGHPLASTIC) &&
         fabsf(b.ior - 1.0f) < 1e-6f)
         return fail_at(L, n, "int_ior equals ext_ior: the interface would be invisible");
     bsdf_prepare(&b);

@@ -1,6 +1,7 @@
 /*
- * scene_errors.h - the tracer tests' check of a refused scene, shared by test_scene.c and
- * test_limits.c: include it after <cmocka.h> and "scene.h".
+ * scene_errors.h - the tracer tests' check of a refused scene and their load of a shipped
+ * one, shared by test_scene.c, test_limits.c and test_interiors.c: include it after
+ * <cmocka.h>, <stdio.h> and "scene.h".
  */
 #ifndef TRACER_TEST_SCENE_ERRORS_H
 #define TRACER_TEST_SCENE_ERRORS_H
@@ -34,6 +35,16 @@ static void expect_error(const char *xml, ...)
     va_end(ap);
     if (lacks)
         fail_msg("error message\n  %s\nlacks '%s'", err.msg, lacks);
+}
+
+/* Loads examples/scenes/<name>/scene.xml, failing the test with the loader's message. */
+static inline void load_shipped(const char *name, scene *s)
+{
+    char path[1024];
+    tr_error err;
+    snprintf(path, sizeof path, "%s/%s/scene.xml", TRACER_SCENES_DIR, name);
+    if (!scene_load(path, s, &err))
+        fail_msg("%s", err.msg);
 }
 
 #endif /* TRACER_TEST_SCENE_ERRORS_H */

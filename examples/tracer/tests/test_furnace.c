@@ -3,7 +3,8 @@
  * on and every prior.
  *
  * A corner (floor and two walls) with a sphere in it, all white (albedo 1) two-sided
- * diffuse, and a glass sphere, under a constant environment of radiance 1: the radiance leaving every surface
+ * diffuse, a glass sphere, a thin glass sheet and a half-transparent white leaf (a mask),
+ * under a constant environment of radiance 1: the radiance leaving every surface
  * is exactly 1, so every pixel's expectation is 1, however many bounces a path takes and
  * however its directions were sampled. Any bias of the mixture density, of its use in MIS,
  * of the delta/non-delta bookkeeping or of Russian roulette shows up as a mean != 1. (An
@@ -58,6 +59,13 @@ static const char *furnace_xml(const char *environment)
          * on the way out), and takes the delta paths. */
         "<shape type=\"sphere\"><point name=\"center\" value=\"-0.5, -0.7, 0.2\"/><float name=\"radius\" value=\"0.25\"/>"
         "<bsdf type=\"dielectric\"/></shape>\n"
+        /* A thin glass sheet (reflects or passes unbent, losslessly) and a white leaf of
+         * opacity 0.5 (the mask's alpha test lets half the rays through) conserve it too. */
+        "<shape type=\"rectangle\"><transform name=\"to_world\"><scale value=\"0.3\"/><rotate x=\"1\" angle=\"-60\"/>"
+        "<translate x=\"0.35\" y=\"-0.25\" z=\"0.1\"/></transform><bsdf type=\"thindielectric\"/></shape>\n"
+        "<shape type=\"rectangle\"><transform name=\"to_world\"><scale value=\"0.35\"/><rotate y=\"1\" angle=\"40\"/>"
+        "<translate x=\"-0.3\" y=\"0.1\"/></transform><bsdf type=\"mask\"><float name=\"opacity\" value=\"0.5\"/>"
+        "<ref id=\"white\"/></bsdf></shape>\n"
         "%s\n"
         "</scene>\n", SIZE, SIZE, environment);
     return xml;

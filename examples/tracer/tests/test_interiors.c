@@ -1,7 +1,7 @@
 /*
  * test_interiors.c - what Bitterli's interiors need of the loader: files of scene version
  * < 2.0.0 upgraded as Mitsuba 3 upgrades them, the mask BSDF (an alpha test, also from a
- * PNG's alpha channel), the disk shape, meshes with no usable triangle skipped with a
+ * PNG's alpha channel), the thin dielectric, the disk shape, meshes with no usable triangle skipped with a
  * warning, and the two shipped interiors loading as they were distributed.
  */
 #include <math.h>
@@ -150,6 +150,56 @@ static void test_mask_from_png_alpha(void **state)
     expect_error("<scene version=\"3.0.0\">" SENSOR
                  "<shape type=\"rectangle\"><bsdf type=\"mask\"/></shape></scene>",
                  "mask needs a nested <bsdf> or <ref>", NULL);
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"mask\"><bsdf type=\"diffuse\"/></bsdf>"
+                 "<emitter type=\"area\"><rgb name=\"radiance\" value=\"1\"/></emitter></shape></scene>",
+                 "a shape with a mask material cannot emit", NULL);
+}
+
+/* ---- The thin dielectric ------------------------------------------------------------------------ */
+
+static void test_thin_dielectric(void **state)
+{
+    (void)state;
+    scene s;
+    load("<scene version=\"3.0.0\">" SENSOR
+         "<shape type=\"rectangle\"><bsdf type=\"thindielectric\">"
+         "<float name=\"int_ior\" value=\"1.5\"/><float name=\"ext_ior\" value=\"1\"/>"
+         "<rgb name=\"specular_transmittance\" value=\"0.5, 0.6, 0.7\"/></bsdf></shape></scene>",
+         &s);
+    const bsdf *b = &s.bsdfs[s.shapes[0].bsdf];
+    assert_int_equal(b->type, BSDF_THINDIELECTRIC);
+    assert_true(bsdf_transmits(b));
+    assert_false(bsdf_has_smooth_part(b));
+    bsdf_point bp;
+    bsdf_point_init(&bp, b, 0.5f, 0.5f);
+    /* At normal incidence one face reflects R = ((1.5 - 1) / 2.5)^2 = 0.04 and the sheet
+     * 2R / (1 + R) = 0.076923, from either side. The lobe numbers are stratified, so the
+     * reflected share is that probability within 1 / n, plus the float Fresnel's rounding:
+     * 1e-4 allows both and is far from the single face's 0.04. */
+    for (int side = 0; side < 2; ++side) {
+        const vec3 wo = v3(0.0f, 0.0f, side ? -1.0f : 1.0f);
+        const int n = 100000;
+        int reflected = 0;
+        for (int i = 0; i < n; ++i) {
+            bsdf_sample smp;
+            assert_true(bsdf_sample_dir(&bp, wo, ((float)i + 0.5f) / (float)n, 0.3f, 0.7f, &smp));
+            assert_true(smp.delta);
+            if (smp.wi.z * wo.z > 0.0f) {
+                ++reflected;
+                assert_float_equal(smp.weight.g, 1.0f, 0.0f); /* specular_reflectance 1 */
+            } else {
+                assert_float_equal(smp.wi.z, -wo.z, 0.0f); /* straight through, unbent */
+                assert_float_equal(smp.weight.b, 0.7f, 1e-6f);
+            }
+        }
+        assert_true(fabs(reflected / (double)n - 0.076923) < 1e-4);
+    }
+    scene_free(&s);
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"twosided\"><bsdf type=\"thindielectric\"/>"
+                 "</bsdf></shape></scene>",
+                 "a twosided dielectric makes no sense", NULL);
 }
 
 /* ---- The disk ------------------------------------------------------------------------------------- */
@@ -211,14 +261,6 @@ static void test_mesh_without_area_is_skipped(void **state)
 
 /* ---- The shipped interiors, as Bitterli distributes them ------------------------------------------ */
 
-static void load_shipped(const char *name, scene *s)
-{
-    char path[1024];
-    tr_error err;
-    snprintf(path, sizeof path, "%s/%s/scene.xml", TRACER_SCENES_DIR, name);
-    if (!scene_load(path, s, &err))
-        fail_msg("%s", err.msg);
-}
 
 static void test_living_room(void **state)
 {
@@ -258,6 +300,7 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_version_2_is_not_upgraded),
     cmocka_unit_test(test_mask_constant_opacity),
     cmocka_unit_test(test_mask_from_png_alpha),
+    cmocka_unit_test(test_thin_dielectric),
     cmocka_unit_test(test_disk),
     cmocka_unit_test(test_mesh_without_area_is_skipped),
     cmocka_unit_test(test_living_room),

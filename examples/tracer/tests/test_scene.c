@@ -27,14 +27,6 @@ static uint64_t triangle_count(const scene *s)
     return n;
 }
 
-static void load_shipped(const char *name, scene *s)
-{
-    char path[1024];
-    tr_error err;
-    snprintf(path, sizeof path, "%s/%s/scene.xml", TRACER_SCENES_DIR, name);
-    if (!scene_load(path, s, &err))
-        fail_msg("%s", err.msg);
-}
 
 /* ---- The shipped scenes ----------------------------------------------------------------- */
 
