@@ -11,11 +11,22 @@
 #                                      and writes its page to out/equal-time-smoke/ only
 #
 # Environment: NF_EQ_BUDGETS (seconds, default "10 30"), NF_EQ_SEEDS (default "1 2 3"),
-# NF_EQ_SCENES, NF_EQ_REFERENCE_SECONDS (default 240 per scene), NF_EQ_ABLATION_BUDGET
-# (default 30), NF_EQ_THREADS (default 2), NF_EQ_OUT (default out/equal-time).
+# NF_EQ_SCENES (a scene of examples/scenes at its size below, or SCENE@WxH at another size),
+# NF_EQ_REFERENCE_SECONDS (default 240 per scene), NF_EQ_ABLATION_BUDGET (default 30),
+# NF_EQ_ABLATION_SCENES (default veach-ajar; empty: no ablation), NF_EQ_THREADS (default 2),
+# NF_EQ_OUT (default out/equal-time), NF_EQ_PAGE and NF_EQ_PLOTS (default the page and plots
+# of the scenes' set: docs/equal-time.md, or docs/equal-time-interiors.md when every scene
+# is an interior), NF_EQ_TEMPLATE (default the page's).
+#
+# The interiors, at 1080p-like sizes and two budgets (run time in their page):
+#   NF_EQ_SCENES="living-room modern-hall living-room@640x360 modern-hall@512x512" \
+#   NF_EQ_BUDGETS="30 120" NF_EQ_REFERENCE_SECONDS=900 NF_EQ_ABLATION_SCENES= \
+#   ./scripts/equal-time.sh
 #
 # References: each scene rendered once, unguided, for NF_EQ_REFERENCE_SECONDS with a seed no
-# run uses, cached in $NF_EQ_OUT/references/ (delete them to render again). Runs are cached
+# run uses, cached in $NF_EQ_OUT/references/ (delete them to render again). An entry whose
+# size divides another entry's of the same scene by an integer factor uses that entry's
+# reference, box-downsampled by nf_compare: one render serves both sizes. Runs are cached
 # in $NF_EQ_OUT/runs/ the same way: a run whose log is complete is not run again, so an
 # interrupted study resumes. Runs are one at a time, each with NF_EQ_THREADS threads: the
 # machine should be otherwise idle. Not part of CI (CI runs --smoke).
@@ -34,7 +45,19 @@ THREADS=${NF_EQ_THREADS:-2}
 OUT=${NF_EQ_OUT:-out/equal-time}
 PAGE=docs/equal-time.md
 PLOTS=docs/equal-time
-ABLATION_SCENES=${NF_EQ_ABLATION_SCENES:-veach-ajar}
+ABLATION_SCENES=${NF_EQ_ABLATION_SCENES-veach-ajar}
+TEMPLATE=${NF_EQ_TEMPLATE:-scripts/study/equal-time.md.in}
+INTERIORS=1
+for entry in $SCENES; do
+    case ${entry%@*} in living-room|modern-hall) ;; *) INTERIORS=0 ;; esac
+done
+if [ "$INTERIORS" = 1 ] && [ -z "${NF_EQ_PAGE:-}" ]; then
+    PAGE=docs/equal-time-interiors.md
+    PLOTS=docs/equal-time-interiors
+    TEMPLATE=${NF_EQ_TEMPLATE:-scripts/study/equal-time-interiors.md.in}
+fi
+PAGE=${NF_EQ_PAGE:-$PAGE}
+PLOTS=${NF_EQ_PLOTS:-$PLOTS}
 if [ "$SMOKE" = 1 ]; then
     BUDGETS=2
     SEEDS=1
@@ -43,6 +66,7 @@ if [ "$SMOKE" = 1 ]; then
     ABLATION_BUDGET=2
     ABLATION_SCENES=cornell-box
     OUT=out/equal-time-smoke
+    TEMPLATE=scripts/study/equal-time.md.in
     PAGE=$OUT/equal-time.md
     PLOTS=$OUT/plots
 fi
@@ -58,7 +82,18 @@ done
 declare -A SIZE=([cornell-box]="--width 256 --height 256"
                  [veach-ajar]="--width 320 --height 180"
                  [veach-bidir]="--width 256 --height 256"
-                 [statue]="--width 256 --height 256")
+                 [statue]="--width 256 --height 256"
+                 [living-room]="--width 320 --height 180"
+                 [modern-hall]="--width 256 --height 256")
+
+# An entry's scene and its size: SCENE, or SCENE@WxH.
+scene_of() { echo "${1%@*}"; }
+size_of() {
+    case $1 in
+        *@*) local wh=${1#*@}; echo "--width ${wh%x*} --height ${wh#*x}" ;;
+        *) echo "${SIZE[$1]}" ;;
+    esac
+}
 
 # The guided tracer as the study runs it: the tracer's defaults, which are the library's guide
 # defaults (nisflow/guide.h) and the best configuration this study found.
@@ -102,32 +137,60 @@ run() {
     rm -f "$log.tmp"
 }
 
-for scene in $SCENES; do
-    ref=$OUT/references/$scene.exr
+# The entry whose reference serves $1: the largest entry of the same scene whose width and
+# height are the same integer multiple of $1's (possibly $1 itself).
+reference_entry() {
+    local best=$1 bw bh w h ew eh e
+    read -r _ w _ h <<< "$(size_of "$1")"
+    bw=$w
+    for e in $SCENES; do
+        [ "$(scene_of "$e")" = "$(scene_of "$1")" ] || continue
+        read -r _ ew _ eh <<< "$(size_of "$e")"
+        if [ $((ew % w)) = 0 ] && [ $((eh % h)) = 0 ] && [ $((ew / w)) = $((eh / h)) ] &&
+            [ "$ew" -gt "$bw" ]; then
+            best=$e
+            bw=$ew
+        fi
+    done
+    echo "$best"
+}
+
+for entry in $SCENES; do
+    scene=$(scene_of "$entry")
+    ref=$OUT/references/$entry.exr
+    [ "$(reference_entry "$entry")" = "$entry" ] || continue
     if [ ! -f "$ref" ]; then
-        echo "reference: $scene, unguided, ${REF_SECONDS} s"
+        echo "reference: $entry, unguided, ${REF_SECONDS} s"
         t0=$(date +%s)
-        "$TRACER" --scene "examples/scenes/$scene/scene.xml" ${SIZE[$scene]} --no-guiding \
+        "$TRACER" --scene "examples/scenes/$scene/scene.xml" $(size_of "$entry") --no-guiding \
             --threads "$THREADS" --seed 999 --time-budget "$REF_SECONDS" \
-            --out "$OUT/references/$scene" > "$OUT/references/$scene.log.tmp" 2>&1
-        tr '\r' '\n' < "$OUT/references/$scene.log.tmp" | grep -v '^\s*$' \
-            > "$OUT/references/$scene.log"
-        rm -f "$OUT/references/$scene.log.tmp" "$OUT/references/$scene.png"
-        echo "reference_seconds $(( $(date +%s) - t0 ))" >> "$OUT/references/$scene.log"
+            --out "$OUT/references/$entry" > "$OUT/references/$entry.log.tmp" 2>&1
+        tr '\r' '\n' < "$OUT/references/$entry.log.tmp" | grep -v '^\s*$' \
+            > "$OUT/references/$entry.log"
+        rm -f "$OUT/references/$entry.log.tmp" "$OUT/references/$entry.png"
+        echo "reference_seconds $(( $(date +%s) - t0 ))" >> "$OUT/references/$entry.log"
+    fi
+done
+for entry in $SCENES; do
+    big=$(reference_entry "$entry")
+    if [ "$big" != "$entry" ] && [ ! -f "$OUT/references/$entry.exr" ]; then
+        cp "$OUT/references/$big.exr" "$OUT/references/$entry.exr"
+        echo "reference_of $big" > "$OUT/references/$entry.log"
     fi
 done
 
-for scene in $SCENES; do
+for entry in $SCENES; do
+    scene=$(scene_of "$entry")
     for budget in $BUDGETS; do
         for seed in $SEEDS; do
             for method in pt guided; do
                 opts=$GUIDED
                 [ "$method" = pt ] && opts=--no-guiding
-                name=$scene-$budget-$seed-$method
+                name=$entry-$budget-$seed-$method
                 echo "run: $name"
                 run "$OUT/runs/$name.log" --scene "examples/scenes/$scene/scene.xml" \
-                    ${SIZE[$scene]} --threads "$THREADS" --seed "$seed" \
-                    --time-budget "$budget" --reference "$OUT/references/$scene.exr" \
+                    $(size_of "$entry") --threads "$THREADS" --seed "$seed" \
+                    --time-budget "$budget" --reference "$OUT/references/$entry.exr" \
                     --out "$OUT/runs/$name" $opts
             done
         done
@@ -152,7 +215,9 @@ for scene in $ABLATION_SCENES; do
     done
 done
 
-python3 scripts/study/equal_time.py --out "$OUT" --page "$PAGE" --plots "$PLOTS" \
+NF_EQ_REFERENCE_SECONDS=$REF_SECONDS python3 scripts/study/equal_time.py --out "$OUT" \
+    --page "$PAGE" --plots "$PLOTS" \
+    --template "$TEMPLATE" \
     --budgets "$BUDGETS" --seeds "$SEEDS" --scenes "$SCENES" --ablation-budget "$ABLATION_BUDGET" \
     --guided "$GUIDED" --threads "$THREADS"
 rm -f "$OUT"/runs/*.png

@@ -11,10 +11,20 @@ import subprocess
 import sys
 
 SCENE_SIZE = {"cornell-box": "256 x 256", "veach-ajar": "320 x 180",
+              "living-room": "320 x 180", "modern-hall": "256 x 256",
               "veach-bidir": "256 x 256", "statue": "256 x 256"}
 
 
 COMPARE = "build/examples/nf_compare"
+
+
+def scene_label(entry):
+    """A scene of the study as the tables name it: "veach-ajar 320 x 180"; an entry
+    SCENE@WxH is that scene at that size."""
+    if "@" in entry:
+        scene, size = entry.split("@")
+        return f"{scene} {size.replace('x', ' x ')}"
+    return f"{entry} {SCENE_SIZE.get(entry, '')}".strip()
 
 
 def precise_errors(image, reference):
@@ -83,7 +93,7 @@ def cell(values):
 def main():
     ap = argparse.ArgumentParser()
     for name in ("out", "page", "plots", "budgets", "seeds", "scenes", "ablation-budget",
-                 "guided", "threads"):
+                 "guided", "threads", "template"):
         ap.add_argument("--" + name, required=True)
     a = ap.parse_args()
     budgets = [b for b in a.budgets.split()]
@@ -120,7 +130,7 @@ def main():
             passes = (f"{statistics.mean([r.get('train_passes', 0) for r in gd]):.0f}, "
                       f"{statistics.mean([r.get('render_passes', 0) for r in gd]):.0f} "
                       f"({statistics.mean([r.get('render_passes', 0) for r in pt]):.0f})")
-            table.append(f"| {scene} {SCENE_SIZE.get(scene, '')} | {b} s | {cell(rel[1])} | "
+            table.append(f"| {scene_label(scene)} | {b} s | {cell(rel[1])} | "
                          f"{cell(rel[0])} | **{ratio_rel:.2f}** | {cell(mape[1])} | "
                          f"{cell(mape[0])} | {ratio_mape:.2f} | {passes} |")
     with open(os.path.join(a.out, "results.csv"), "w") as f:
@@ -143,7 +153,7 @@ def main():
                         v = [r[key] for r in rs] or [float("nan")]
                         line += [statistics.mean(v), min(v), max(v)]
                 f.write(" ".join(str(x) for x in line) + "\n")
-        png = os.path.join(a.plots, f"{scene}.png")
+        png = os.path.join(a.plots, f"{scene.replace('@', '-')}.png")
         gp = f"""set terminal pngcairo size 900,360 font ",10"
 set output "{png}"
 set multiplot layout 1,2 title "{scene}: error against wall time ({a.threads} threads; mean and range of {len(seeds)} seeds)"
@@ -217,7 +227,12 @@ unset multiplot
             continue
         m = re.search(r"(\d+) render passes", text)
         s = re.search(r"^reference_seconds (\d+)", text, re.M)
-        refs.append(f"| {scene} | {SCENE_SIZE.get(scene, '')} | {m.group(1) if m else '?'} | "
+        o = re.search(r"^reference_of (\S+)", text, re.M)
+        if o:
+            refs.append(f"| {scene} | {scene_label(scene)} | {scene_label(o.group(1))}'s, "
+                        "box-downsampled | |")
+            continue
+        refs.append(f"| {scene} | {scene_label(scene)} | {m.group(1) if m else '?'} | "
                     f"{s.group(1) if s else '?'} |")
 
     cpu = "unknown CPU"
@@ -242,7 +257,7 @@ unset multiplot
             if name.endswith(".log"):
                 m = re.search(r"^total\s+([0-9.]+) s", open(os.path.join(d, name)).read(), re.M)
                 total += float(m.group(1)) if m else 0.0
-    template = open(os.path.join(os.path.dirname(__file__), "equal-time.md.in")).read()
+    template = open(a.template).read()
     subs = {
         "@TABLE@": "\n".join(table),
         "@PLOTS@": "\n\n".join(plot_lines),
@@ -256,6 +271,10 @@ unset multiplot
         "@THREADS@": a.threads,
         "@SEEDS@": ", ".join(seeds),
         "@BUDGETS@": ", ".join(budgets),
+        "@BUDGETS_WORDS@": " ".join(budgets),
+        "@SCENES_WORDS@": " ".join(scenes),
+        "@REF_SECONDS@": os.environ.get("NF_EQ_REFERENCE_SECONDS", "240"),
+        "@REFERENCES_ROWS@": "\n".join(refs[2:]),
         "@ABLATION_BUDGET@": a.ablation_budget,
     }
     for k, v in subs.items():
