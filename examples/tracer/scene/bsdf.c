@@ -146,32 +146,28 @@ int bsdf_sample_dir(const bsdf_point *bp, vec3 wo, float u_lobe, float u0, float
                     bsdf_sample *s)
 {
     const bsdf *b = bp->b;
-    if (b->type == BSDF_DIELECTRIC) {
-        float cos_t, eta_ti;
-        float f = fresnel_dielectric(wo.z, b->ior, &cos_t, &eta_ti);
-        s->delta = 1;
-        if (u_lobe < f) {
-            s->wi = v3(-wo.x, -wo.y, wo.z);
-            s->weight = bp->specular;
-            s->pdf = f;
+    if (bsdf_transmits(b)) {
+        /* A delta pair: the mirror direction with probability r, else the transmitted one. */
+        float r, cos_t = 0.0f, eta_ti = 1.0f;
+        if (b->type == BSDF_DIELECTRIC) {
+            r = fresnel_dielectric(wo.z, b->ior, &cos_t, &eta_ti);
         } else {
-            s->wi = v3_normalize(v3(-eta_ti * wo.x, -eta_ti * wo.y, cos_t));
-            /* Radiance is compressed into a smaller solid angle on the denser side. */
-            s->weight = rgb_scale(bp->transmission, eta_ti * eta_ti);
-            s->pdf = 1.0f - f;
+            /* Mitsuba's thindielectric: the sheet reflects R + T R T + T R^3 T + ... =
+             * 2R / (1 + R) of the light, from either side, and lets the rest through
+             * unbent. */
+            r = fresnel_dielectric(fabsf(wo.z), b->ior, NULL, NULL);
+            r = 2.0f * r / (1.0f + r);
         }
-        return s->pdf > 0.0f;
-    }
-    if (b->type == BSDF_THINDIELECTRIC) {
-        /* Mitsuba's thindielectric: the sheet reflects R + T R T + T R^3 T + ... = 2R / (1 + R)
-         * of the light, from either side, and lets the rest through unbent. */
-        float r = fresnel_dielectric(fabsf(wo.z), b->ior, NULL, NULL);
-        r = 2.0f * r / (1.0f + r);
         s->delta = 1;
         if (u_lobe < r) {
             s->wi = v3(-wo.x, -wo.y, wo.z);
             s->weight = bp->specular;
             s->pdf = r;
+        } else if (b->type == BSDF_DIELECTRIC) {
+            s->wi = v3_normalize(v3(-eta_ti * wo.x, -eta_ti * wo.y, cos_t));
+            /* Radiance is compressed into a smaller solid angle on the denser side. */
+            s->weight = rgb_scale(bp->transmission, eta_ti * eta_ti);
+            s->pdf = 1.0f - r;
         } else {
             s->wi = v3_neg(wo);
             s->weight = bp->transmission;
