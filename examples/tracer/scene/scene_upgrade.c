@@ -38,20 +38,27 @@ static int parse_version(const char *text, int v[3])
     return *p == '\0';
 }
 
-/* Mitsuba 3's rule: at each lower-then-upper pair insert '_' and lower the run of capitals
- * that follows ("intIOR" -> "int_ior", "toWorld" -> "to_world"). */
+/* Mitsuba 3's rule, step for step: at each lower-then-upper pair insert '_' and lower the
+ * run of capitals that follows ("intIOR" -> "int_ior", "toWorld" -> "to_world"); the letter
+ * after such a run is not looked at as the start of a pair, as in Mitsuba's loop. */
 static void snake_case(const char *in, char *out, size_t size)
 {
-    size_t o = 0, n = strlen(in);
-    for (size_t i = 0; i < n && o + 2 < size; ++i) {
-        out[o++] = in[i];
-        if (i + 1 < n && islower((unsigned char)in[i]) && isupper((unsigned char)in[i + 1])) {
-            out[o++] = '_';
-            while (i + 1 < n && isupper((unsigned char)in[i + 1]) && o + 1 < size)
-                out[o++] = (char)tolower((unsigned char)in[++i]);
+    snprintf(out, size, "%s", in);
+    size_t n = strlen(out);
+    for (size_t i = 0; i + 1 < n; ++i) {
+        if (!islower((unsigned char)out[i]) || !isupper((unsigned char)out[i + 1]))
+            continue;
+        if (n + 2 > size)
+            break; /* no room for the '_': leave the rest as it is */
+        memmove(out + i + 2, out + i + 1, n - i); /* the tail and its NUL */
+        out[i + 1] = '_';
+        ++n;
+        i += 2;
+        while (i < n && isupper((unsigned char)out[i])) {
+            out[i] = (char)tolower((unsigned char)out[i]);
+            ++i;
         }
     }
-    out[o] = '\0';
 }
 
 static int set_attr(loader *L, xml_node *n, const char *name, const char *value)
