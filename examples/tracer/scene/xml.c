@@ -38,6 +38,42 @@ static void stop(parse_state *st, const char *fmt, const char *arg)
     XML_StopParser(st->parser, XML_FALSE);
 }
 
+/* A new element <name a0="v0" ...> (attrs: NULL-terminated name, value pairs) at `line`,
+ * appended to parent's children (no parent: a root). Returns NULL, with nothing left
+ * allocated, when the element or its place in the parent cannot be had; otherwise the
+ * element, with *complete 0 when a copy of its name or an attribute failed (it stays
+ * linked in, so that xml_free releases it). */
+static xml_node *new_node(xml_node *parent, const char *name, const char *const *attrs,
+                          int line, int *complete)
+{
+    xml_node *node = calloc(1, sizeof *node);
+    if (!node)
+        return NULL;
+    if (parent) {
+        xml_node **grown =
+            realloc(parent->children, (size_t)(parent->nchildren + 1) * sizeof *grown);
+        if (!grown) {
+            free(node);
+            return NULL;
+        }
+        parent->children = grown;
+        parent->children[parent->nchildren++] = node;
+    }
+    node->parent = parent;
+    node->line = line;
+    node->name = copy_string(name);
+    int n = 0;
+    while (attrs && attrs[2 * n])
+        ++n;
+    node->attrs = calloc((size_t)(2 * n + 1), sizeof(char *));
+    node->nattrs = node->attrs ? n : 0;
+    int ok = node->name && node->attrs;
+    for (int i = 0; ok && i < 2 * n; ++i)
+        ok = (node->attrs[i] = copy_string(attrs[i])) != NULL;
+    *complete = ok;
+    return node;
+}
+
 static void XMLCALL on_start(void *user, const XML_Char *name, const XML_Char **attrs)
 {
     parse_state *st = user;
@@ -47,38 +83,17 @@ static void XMLCALL on_start(void *user, const XML_Char *name, const XML_Char **
         stop(st, "a second top-level element <%s>", name);
         return;
     }
-    xml_node *node = calloc(1, sizeof *node);
+    int complete;
+    xml_node *node = new_node(st->current, name, (const char *const *)attrs,
+                              (int)XML_GetCurrentLineNumber(st->parser), &complete);
     if (!node) {
         stop(st, "out of memory at <%s>", name);
         return;
     }
-    node->name = copy_string(name);
-    node->line = (int)XML_GetCurrentLineNumber(st->parser);
-    int n = 0;
-    while (attrs[2 * n])
-        ++n;
-    node->attrs = calloc((size_t)(2 * n + 1), sizeof(char *));
-    node->nattrs = n;
-    int ok = node->name && node->attrs;
-    for (int i = 0; ok && i < 2 * n; ++i)
-        ok = (node->attrs[i] = copy_string(attrs[i])) != NULL;
-    /* Link it in before checking `ok`, so that xml_free releases it in every case. */
-    node->parent = st->current;
-    if (st->current) {
-        xml_node *p = st->current;
-        xml_node **grown = realloc(p->children, (size_t)(p->nchildren + 1) * sizeof *grown);
-        if (!grown) {
-            xml_free(node);
-            stop(st, "out of memory at <%s>", name);
-            return;
-        }
-        p->children = grown;
-        p->children[p->nchildren++] = node;
-    } else {
+    if (!st->current)
         st->root = node;
-    }
     st->current = node;
-    if (!ok)
+    if (!complete)
         stop(st, "out of memory at <%s>", name);
 }
 
@@ -216,27 +231,9 @@ int xml_set_name(xml_node *node, const char *name)
 
 xml_node *xml_add_child(xml_node *parent, const char *name, const char *const *attrs)
 {
-    int n = 0;
-    while (attrs && attrs[2 * n])
-        ++n;
-    xml_node *node = calloc(1, sizeof *node);
-    xml_node **grown = realloc(parent->children, (size_t)(parent->nchildren + 1) * sizeof *grown);
-    if (grown)
-        parent->children = grown;
-    if (!node || !grown) {
-        free(node);
-        return NULL;
-    }
-    node->name = copy_string(name);
-    node->attrs = calloc((size_t)(2 * n + 1), sizeof(char *));
-    node->nattrs = node->attrs ? n : 0;
-    node->line = parent->line;
-    node->parent = parent;
-    parent->children[parent->nchildren++] = node;
-    int ok = node->name && node->attrs;
-    for (int i = 0; ok && i < 2 * n; ++i)
-        ok = (node->attrs[i] = copy_string(attrs[i])) != NULL;
-    return ok ? node : NULL; /* on failure the half-made child stays linked, for xml_free */
+    int complete;
+    xml_node *node = new_node(parent, name, attrs, parent->line, &complete);
+    return node && complete ? node : NULL;
 }
 
 void xml_remove_child(xml_node *parent, int i)

@@ -1,7 +1,7 @@
 /*
- * scene_errors.h - the tracer tests' check of a refused scene and their load of a shipped
- * one, shared by test_scene.c, test_limits.c and test_interiors.c: include it after
- * <cmocka.h>, <stdio.h> and "scene.h".
+ * scene_errors.h - the tracer tests' check of a refused scene, their load of a shipped one
+ * and their scratch files, shared by test_scene.c, test_limits.c and test_interiors.c:
+ * include it after <cmocka.h>, <stdio.h> and "scene.h".
  */
 #ifndef TRACER_TEST_SCENE_ERRORS_H
 #define TRACER_TEST_SCENE_ERRORS_H
@@ -45,6 +45,20 @@ static inline void load_shipped(const char *name, scene *s)
     snprintf(path, sizeof path, "%s/%s/scene.xml", TRACER_SCENES_DIR, name);
     if (!scene_load(path, s, &err))
         fail_msg("%s", err.msg);
+}
+
+/* Writes `size` bytes, or a string, to a new file at `path`. */
+static inline void write_file(const char *path, const void *data, size_t size)
+{
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(data, 1, size, f), size);
+    fclose(f);
+}
+
+static inline void write_text(const char *path, const char *text)
+{
+    write_file(path, text, strlen(text));
 }
 
 #endif /* TRACER_TEST_SCENE_ERRORS_H */

@@ -248,10 +248,7 @@ static void test_mesh_without_area_is_skipped(void **state)
     (void)state;
     char obj[1024];
     snprintf(obj, sizeof obj, "%s/flat.obj", TRACER_TEST_TMP_DIR);
-    FILE *f = fopen(obj, "wb");
-    assert_non_null(f);
-    fputs("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", f); /* three points on a line */
-    fclose(f);
+    write_text(obj, "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n"); /* three points on a line */
     scene s;
     load("<scene version=\"3.0.0\">" SENSOR
          "<shape type=\"obj\"><string name=\"filename\" value=\"flat.obj\"/></shape>\n"

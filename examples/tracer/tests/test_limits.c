@@ -37,19 +37,6 @@
 
 /* ---- Helpers ---------------------------------------------------------------------------- */
 
-static void write_file(const char *path, const void *data, size_t size)
-{
-    FILE *f = fopen(path, "wb");
-    assert_non_null(f);
-    assert_int_equal(fwrite(data, 1, size, f), size);
-    fclose(f);
-}
-
-static void write_text(const char *path, const char *text)
-{
-    write_file(path, text, strlen(text));
-}
-
 #define RANGE "outside the world-space range: coordinates must be finite and within +-1e+09"
 
 /* A film of 8 x 8 and a camera at the origin looking down -z, unless `camera` replaces the

@@ -183,14 +183,6 @@ static void test_defaults_refs_and_transforms(void **state)
     scene_free(&s);
 }
 
-static void write_file(const char *path, const char *text)
-{
-    FILE *f = fopen(path, "wb");
-    assert_non_null(f);
-    fputs(text, f);
-    fclose(f);
-}
-
 static void test_ply_ascii_and_obj(void **state)
 {
     (void)state;
@@ -198,7 +190,7 @@ static void test_ply_ascii_and_obj(void **state)
     tr_error err;
     mesh m;
     snprintf(ply, sizeof ply, "%s/quad_ascii.ply", TRACER_TEST_TMP_DIR);
-    write_file(ply, "ply\nformat ascii 1.0\ncomment a quad\nelement vertex 4\n"
+    write_text(ply, "ply\nformat ascii 1.0\ncomment a quad\nelement vertex 4\n"
                     "property float x\nproperty float y\nproperty float z\n"
                     "property float s\nproperty float t\n"
                     "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
@@ -212,7 +204,7 @@ static void test_ply_ascii_and_obj(void **state)
     mesh_free(&m);
 
     snprintf(obj, sizeof obj, "%s/quad.obj", TRACER_TEST_TMP_DIR);
-    write_file(obj, "# a quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\n"
+    write_text(obj, "# a quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\n"
                     "vt 0 1\nvn 0 0 1\ng quad\nusemtl none\nf 1/1/1 2/2/1 3/3/1 4/4/1\n"
                     "f -4/-4/-1 -2/-2/-1 -1/-1/-1\n");
     if (!mesh_load_obj(obj, &m, &err))
@@ -223,10 +215,10 @@ static void test_ply_ascii_and_obj(void **state)
     mesh_free(&m);
 
     /* Out-of-range indices are errors, not crashes. */
-    write_file(obj, "v 0 0 0\nv 1 0 0\nf 1 2 3\n");
+    write_text(obj, "v 0 0 0\nv 1 0 0\nf 1 2 3\n");
     assert_false(mesh_load_obj(obj, &m, &err));
     assert_non_null(strstr(err.msg, "bad face index on line 3"));
-    write_file(ply, "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+    write_text(ply, "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
                     "property float y\nproperty float z\nelement face 1\n"
                     "property list uchar int vertex_indices\nend_header\n");
     assert_false(mesh_load_ply(ply, &m, &err)); /* truncated data */
