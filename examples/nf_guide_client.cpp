@@ -300,13 +300,13 @@ struct PassCost {
     uint64_t shaded = 0, guided = 0;
 };
 
-// One pass of one path per pixel, rows shared by the threads; a training pass adds its
-// samples to the guide row by row.
+// One pass: path j through pixel nf_pass_pixel(plan, j), chunks of a row's length shared by
+// the threads; a training pass adds its samples to the guide chunk by chunk.
 PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
                      const nf_guide_policy *pol, uint64_t seed, std::vector<float> &rgb,
                      std::vector<float> &moments, std::vector<Tables> &tables)
 {
-    std::atomic<int> next_row{0};
+    std::atomic<int> next_chunk{0}; // of a row's length
     std::atomic<double> cpu{0.0};
     std::atomic<uint64_t> shaded{0}, guided{0};
     auto work = [&](int t) {
@@ -316,25 +316,25 @@ PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guid
         PathOut path;
         double spent = 0.0;
         uint64_t n_shaded = 0, n_guided = 0;
-        for (int y; (y = next_row++) < kHeight;) {
+        for (uint32_t c; (c = uint32_t(next_chunk++)) * kWidth < plan.paths;) {
             double c0 = thread_cpu_seconds(), b0 = tables[size_t(t)].build_cpu;
-            std::mt19937 rng(uint32_t(seed * 1000003u + plan.pass * 7919u + unsigned(y)));
+            std::mt19937 rng(uint32_t(seed * 1000003u + plan.pass * 7919u + c));
             size_t n = 0;
-            for (int x = 0; x < kWidth; ++x) {
-                int i = y * kWidth + x;
-                trace(m, pol, plan.depth, x, y, rng, path,
+            for (uint32_t j = c * kWidth; j < (c + 1) * kWidth && j < plan.paths; ++j) {
+                int i = int(nf_pass_pixel(&plan, j)); // nf: the pixel of the pass's path j
+                trace(m, pol, plan.depth, i % kWidth, i / kWidth, rng, path,
                       plan.todo == NF_TODO_GUIDED ? &tables[size_t(t)] : nullptr); // guide
                 n_shaded += uint64_t(path.shaded);
                 n_guided += uint64_t(path.guided);
-                rgb[3 * i] = rgb[3 * i + 1] = rgb[3 * i + 2] = path.radiance;
+                rgb[3 * j] = rgb[3 * j + 1] = rgb[3 * j + 2] = path.radiance;
                 for (uint32_t k = 0; k < NF_GUIDE_DEPTHS; ++k)
-                    moments[k * kPixels + i] = path.moments[k];
+                    moments[k * plan.paths + j] = path.moments[k];
                 size_t got = 0;
                 if (plan.todo == NF_TODO_TRAIN &&
                     nf_path_training_samples(size_t(path.vertices), path.v, kMaxDepth,    // nf
                                              &ctx[n], &dir[3 * n], &w[n], nullptr, &got) == NF_OK)
                     for (size_t s = 0; s < got; ++s)
-                        key[n + s] = uint64_t(i) * kMaxDepth + s; // guide: one key per sample
+                        key[n + s] = uint64_t(j) * kMaxDepth + s; // guide: one key per sample
                 n += got;
             }
             if (n > 0) // never refused: samples added while a pass trains wait for the next
@@ -392,7 +392,7 @@ Result render(double seconds, uint64_t seed, bool plain)
         return r;
     }
     nf_model_destroy(model); // nf: the guide keeps its own copies
-    std::vector<float> rgb(3 * kPixels), moments(NF_GUIDE_DEPTHS * kPixels);
+    std::vector<float> rgb, moments; // a pass's paths: RGB, and NF_GUIDE_DEPTHS moments each
     std::vector<Tables> tables(kThreads); // guide: each render thread's
     nf_table_cache_config tc;             // nf
     nf_table_cache_config_init(&tc);      // nf
@@ -421,6 +421,8 @@ Result render(double seconds, uint64_t seed, bool plain)
             const nf_model *m = nullptr;
             if (plan.todo != NF_TODO_PLAIN)
                 nf_guide_acquire(guide, &m);                                // nf
+            rgb.resize(3 * size_t(plan.paths));
+            moments.resize(NF_GUIDE_DEPTHS * size_t(plan.paths));
             double t0 = wall_seconds();
             PassCost cost = render_pass(plan, m, guide, &gc.policy, seed, rgb, moments, tables);
             if (plan.todo != NF_TODO_TRAIN) {
@@ -432,8 +434,8 @@ Result render(double seconds, uint64_t seed, bool plain)
             if (trainer.joinable()) // guide: the schedule reads the guide: training is done
                 trainer.join();     // guide
             double mean = 0.0;
-            for (int i = 0; i < kPixels; ++i)
-                mean += rgb[3 * i] / kPixels;
+            for (uint32_t j = 0; j < plan.paths; ++j)
+                mean += rgb[3 * j] / plan.paths;
             r.pass_means.push_back(mean);
             r.ok = nf_schedule_add_pass(sched, &plan, rgb.data(), moments.data(),  // nf
                                         wall_seconds() - t0, cost.cpu, nullptr) == NF_OK; // nf

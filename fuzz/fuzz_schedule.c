@@ -1,20 +1,26 @@
 /*
  * fuzz_schedule.c - libFuzzer target for the schedule (nisflow/schedule.h): a configuration
- * (any bytes for the image's size, the budget and the fixed depth; a guide or none, choosing
- * or not) and a program of calls read from the input: plans at any elapsed time (NaN, Inf,
- * negative, backwards), passes of any pixels and moments (NaN, Inf, negative, huge), forged,
- * stale and repeated plans, any times, and the image at any point.
+ * (any bytes for the image's size, the budget, the fixed depth and the paths of a pass, so
+ * that images are rendered whole or in subsets; a guide or none, choosing or not) and a
+ * program of calls read from the input: plans at any elapsed time (NaN, Inf, negative,
+ * backwards), passes of any radiance and moments (NaN, Inf, negative, huge), forged, stale and
+ * repeated plans, any times, and the image at any point.
  *
  * Invariants (abort, which libFuzzer reports, when broken):
  *   - every call returns NF_OK or a documented error with a message;
  *   - a plan's todo is one of the four and its depth one the guide can render; the passes of
  *     accepted plans are numbered 0, 1, 2, ... ; STOP, once answered, is answered ever after;
  *     a schedule without a guide plans plain passes only;
+ *   - a plan's paths lie in the image (nf_pass_pixel) and are at most pass_paths;
  *   - a refused call changes nothing: a refused nf_schedule_add_pass leaves the plan pending
  *     (the same plan is then accepted with good data), a refused nf_schedule_next leaves
  *     the pass numbering as it was;
+ *   - a path whose radiance or moment is not finite, or whose moment is negative, never
+ *     makes a pass refused: it is left out and counted (nf_schedule_report.dropped; a huge
+ *     finite value whose weighted sum would overflow may be left out too);
  *   - the image is finite and each of its values lies within the range of the values the
- *     accepted passes gave it (the combination has non-negative weights that sum to one).
+ *     accepted passes' paths gave its pixel, or is 0 where none did (the combination has
+ *     non-negative weights that sum to one).
  */
 #include <float.h>
 #include <math.h>
@@ -25,9 +31,12 @@
 
 #include "fuzz_common.h"
 
-#define MAX_SIDE 6
+/* Up to 40 x 40 pixels: beyond a pass of 1,024 paths, so that some images go in subsets. */
+#define MAX_SIDE 40
 #define MAX_PIXELS (MAX_SIDE * MAX_SIDE)
 #define MAX_CALLS 40
+/* A value this large may overflow the image's float sums once weighted: it may be left out. */
+#define RISKY 1e30f
 
 /* Mostly tame floats, sometimes any bit pattern (NaN, Inf, denormals, huge). */
 static float next_float(nf_fuzz_reader *r)
@@ -76,8 +85,9 @@ static const nf_model *shared_model(void)
 typedef struct state {
     size_t pixels;
     uint32_t next_pass; /* the pass number the next accepted plan must have */
-    int pending, stopped, has_guide, passes;
+    int pending, stopped, has_guide;
     nf_pass_plan plan;
+    uint64_t dropped, risky; /* paths that must be left out, and that may be */
     float lo[3 * MAX_PIXELS], hi[3 * MAX_PIXELS];
 } state;
 
@@ -94,24 +104,45 @@ static void check_plan(const state *s, const nf_pass_plan *p, uint32_t fixed_dep
     if (p->todo == NF_TODO_STOP)
         return;
     NF_FUZZ_CHECK(p->pass == s->next_pass, "pass %u, expected %u", p->pass, s->next_pass);
+    NF_FUZZ_CHECK(p->paths >= 1 && p->paths <= MAX_PIXELS, "a pass of %u paths", p->paths);
+    for (uint32_t j = 0; j < p->paths; ++j)
+        NF_FUZZ_CHECK(nf_pass_pixel(p, j) < s->pixels, "path %u outside the image", j);
     if (p->todo != NF_TODO_PLAIN) {
         int ok = fixed_depth ? p->depth == fixed_depth : p->depth < NF_GUIDE_DEPTHS;
         NF_FUZZ_CHECK(ok, "depth %u (fixed %u)", p->depth, fixed_depth);
     }
 }
 
-/* A pass's pixels and moments from the input; *hostile says whether any value must be
- * refused. */
-static void next_pass(nf_fuzz_reader *r, const state *s, float *rgb, float *moments, int *hostile)
+/* A pass's paths (radiance and moments) from the input. */
+static void next_pass(nf_fuzz_reader *r, uint32_t paths, float *rgb, float *moments)
 {
-    *hostile = 0;
-    for (size_t i = 0; i < 3 * s->pixels; ++i) {
+    for (size_t i = 0; i < 3 * (size_t)paths; ++i)
         rgb[i] = next_float(r);
-        *hostile |= !isfinite(rgb[i]);
-    }
-    for (size_t i = 0; i < NF_GUIDE_DEPTHS * s->pixels; ++i) {
+    for (size_t i = 0; i < NF_GUIDE_DEPTHS * (size_t)paths; ++i)
         moments[i] = next_float(r) - (nf_fuzz_byte(r) == 7 ? 10.0f : 0.0f);
-        *hostile |= !(moments[i] >= 0.0f) || !isfinite(moments[i]);
+}
+
+/* An accepted pass into what the program knows: which paths must be left out, and the range
+ * of the values each pixel was given. */
+static void take_pass(state *k, const nf_pass_plan *p, const float *rgb, const float *moments)
+{
+    for (uint32_t j = 0; j < p->paths; ++j) {
+        const float *c = rgb + 3 * (size_t)j;
+        int ok = isfinite(c[0]) && isfinite(c[1]) && isfinite(c[2]);
+        for (unsigned m = 0; moments && m < NF_GUIDE_DEPTHS; ++m) {
+            float v = moments[(size_t)m * p->paths + j];
+            ok = ok && v >= 0.0f && isfinite(v);
+        }
+        k->dropped += !ok;
+        const int image = !p->stride_ || j >= p->measured_; /* measured paths stay out */
+        if (!ok || !image)
+            continue;
+        k->risky += fabsf(c[0]) > RISKY || fabsf(c[1]) > RISKY || fabsf(c[2]) > RISKY;
+        size_t i = nf_pass_pixel(p, j);
+        for (unsigned ch = 0; ch < 3; ++ch) {
+            k->lo[3 * i + ch] = fminf(k->lo[3 * i + ch], c[ch]);
+            k->hi[3 * i + ch] = fmaxf(k->hi[3 * i + ch], c[ch]);
+        }
     }
 }
 
@@ -130,6 +161,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     sc.height = nf_fuzz_byte(&r) % (MAX_SIDE + 1);
     sc.budget = next_double(&r);
     sc.guide_depth = nf_fuzz_byte(&r) % 4 == 0 ? nf_fuzz_byte(&r) % 3 : 0;
+    uint8_t paths = nf_fuzz_byte(&r);
+    if (paths % 4 == 1) /* subsets of the image */
+        sc.pass_paths = 1024;
+    else if (paths % 4 == 2) /* anything: out of range is refused */
+        sc.pass_paths = nf_fuzz_u32(&r) % 4096;
     nf_guide *g = NULL;
     if (flags & 4) {
         nf_guide_config gc;
@@ -145,7 +181,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     nf_status st = nf_schedule_create(g, &sc, &s);
     check_status(st, "nf_schedule_create");
     int valid = sc.magic_ == magic && sc.width >= 1 && sc.height >= 1 && sc.budget > 0.0 &&
-                isfinite(sc.budget);
+                isfinite(sc.budget) && sc.pass_paths >= 1024 && sc.pass_paths <= (1u << 26);
     if (st != NF_OK) {
         NF_FUZZ_CHECK(s == NULL, "a refused create left *out");
         NF_FUZZ_CHECK(!valid || st == NF_ERROR_OUT_OF_MEMORY, "a valid config refused");
@@ -181,42 +217,33 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             k.pending = 1;
             k.next_pass++;
         } else if (op == 1 || op == 2) { /* a pass, maybe with a forged plan */
-            int hostile;
-            next_pass(&r, &k, rgb, moments, &hostile);
+            next_pass(&r, k.pending ? k.plan.paths : (uint32_t)k.pixels, rgb, moments);
             nf_pass_plan p = k.plan;
             uint8_t forge = nf_fuzz_byte(&r) % 8;
             if (forge == 0)
                 p.pass += 1 + nf_fuzz_byte(&r);
             else if (forge == 1)
                 p.todo = (nf_pass_todo)(nf_fuzz_byte(&r) % 5);
+            else if (forge == 2)
+                p.first_ += 1u + nf_fuzz_byte(&r);
             int no_moments = nf_fuzz_byte(&r) % 4 == 0;
             double seconds = nf_fuzz_byte(&r) % 8 == 0 ? next_double(&r) : 0.01;
             double cpu = nf_fuzz_byte(&r) % 8 == 0 ? next_double(&r) : 0.02;
             int bad_time = !(seconds >= 0.0) || !isfinite(seconds) || !(cpu >= 0.0) ||
                            !isfinite(cpu);
-            int forged = forge <= 1 && memcmp(&p, &k.plan, sizeof p) != 0;
+            int forged = forge <= 2 && memcmp(&p, &k.plan, sizeof p) != 0;
             st = nf_schedule_add_pass(s, &p, rgb, no_moments ? NULL : moments, seconds, cpu,
                                       NULL);
             check_status(st, "nf_schedule_add_pass");
-            int must_refuse = !k.pending || forged || bad_time || hostile;
-            if (no_moments) { /* no moments to check: only the pixels decide */
-                int bad_rgb = 0;
-                for (size_t i = 0; i < 3 * k.pixels; ++i)
-                    bad_rgb |= !isfinite(rgb[i]);
-                must_refuse = !k.pending || forged || bad_time || p.todo != NF_TODO_PLAIN ||
-                              bad_rgb;
-            }
+            /* Values never refuse a pass: bad paths are left out. */
+            int must_refuse = !k.pending || forged || bad_time ||
+                              (no_moments && p.todo != NF_TODO_PLAIN);
             NF_FUZZ_CHECK((st != NF_OK) == must_refuse,
-                          "add_pass %s (pending %d, forged %d, hostile %d, times %g %g)",
-                          st == NF_OK ? "accepted" : "refused", k.pending, forged, hostile,
-                          seconds, cpu);
+                          "add_pass %s (pending %d, forged %d, times %g %g)",
+                          st == NF_OK ? "accepted" : "refused", k.pending, forged, seconds, cpu);
             if (st == NF_OK) {
                 k.pending = 0;
-                k.passes++;
-                for (size_t i = 0; i < 3 * k.pixels; ++i) {
-                    k.lo[i] = fminf(k.lo[i], rgb[i]);
-                    k.hi[i] = fmaxf(k.hi[i], rgb[i]);
-                }
+                take_pass(&k, &p, rgb, no_moments ? NULL : moments);
             }
         } else { /* the image */
             nf_schedule_report rep;
@@ -225,14 +252,20 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             NF_FUZZ_CHECK(st == NF_OK, "combine refused");
             NF_FUZZ_CHECK(rep.train_weight >= 0.0 && rep.train_weight <= 1.0,
                           "train weight %g", rep.train_weight);
+            NF_FUZZ_CHECK(rep.dropped >= k.dropped && rep.dropped <= k.dropped + k.risky,
+                          "%llu paths left out, %llu expected (%llu more may be)",
+                          (unsigned long long)rep.dropped, (unsigned long long)k.dropped,
+                          (unsigned long long)k.risky);
             for (size_t i = 0; i < 3 * k.pixels; ++i) {
                 NF_FUZZ_CHECK(isfinite(out[i]), "pixel value %zu is %g", i, (double)out[i]);
-                if (k.passes == 0) {
-                    NF_FUZZ_CHECK(out[i] == 0.0f, "an image without passes: %g", (double)out[i]);
+                if (!(k.lo[i] <= k.hi[i])) { /* no path reached this pixel */
+                    NF_FUZZ_CHECK(out[i] == 0.0f, "a pixel without paths: %g", (double)out[i]);
                     continue;
                 }
-                /* Rounding: the sums run in double, the value is rounded to float. */
+                /* Rounding: float sums of at most MAX_CALLS weighted values. */
                 float slack = 1e-5f * fmaxf(fabsf(k.lo[i]), fabsf(k.hi[i])) + 1e-30f;
+                if (out[i] == 0.0f && fmaxf(fabsf(k.lo[i]), fabsf(k.hi[i])) > RISKY)
+                    continue; /* its only paths may have been left out */
                 NF_FUZZ_CHECK(out[i] >= k.lo[i] - slack && out[i] <= k.hi[i] + slack,
                               "pixel value %zu = %g outside the passes' [%g, %g]", i,
                               (double)out[i], (double)k.lo[i], (double)k.hi[i]);

@@ -3,13 +3,14 @@
  * render next, and taking in the pass that was rendered. What the passes measure is
  * schedule_measure.c, the image schedule_combine.c.
  */
+#include <float.h>
 #include <math.h>
 #include <string.h>
 
 #include "guide_internal.h"
 #include "schedule_internal.h"
 
-/* The largest image: 2^26 pixels, about 80 GB of sums. */
+/* The largest image: 2^26 pixels, 3.2 GB of sums. */
 #define NF_SCHEDULE_MAX_SIDE 65536u
 #define NF_SCHEDULE_MAX_PIXELS ((size_t)1 << 26)
 /* Each kind's first passes are measured after each pass; later, measuring every kind reads a
@@ -27,6 +28,7 @@ void nf_schedule_config_init(nf_schedule_config *sc)
         return;
     memset(sc, 0, sizeof *sc);
     sc->magic_ = NF_SCHEDULE_CONFIG_MAGIC;
+    sc->pass_paths = NF_PASS_PATHS_DEFAULT;
 }
 
 static nf_status nf_schedule_check_config(const nf_schedule_config *sc, const char *fn)
@@ -46,30 +48,62 @@ static nf_status nf_schedule_check_config(const nf_schedule_config *sc, const ch
     if (!(sc->budget > 0.0) || !isfinite(sc->budget))
         return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: budget is %g (finite and > 0)", fn,
                        sc->budget);
+    if (sc->pass_paths < NF_PASS_PATHS_MIN || sc->pass_paths > NF_SCHEDULE_MAX_PIXELS)
+        return nf_fail(NF_ERROR_INVALID_ARGUMENT, "%s: pass_paths is %u (in [%u, %zu])", fn,
+                       sc->pass_paths, NF_PASS_PATHS_MIN, NF_SCHEDULE_MAX_PIXELS);
     return NF_OK;
 }
 
-/* An array of count doubles, zeroed unless `zero` is 0 (an array written before it is read:
- * its pages are then first touched when used, and a short job that fills few training groups
- * never pays for the others). */
-static double *nf_schedule_array_of(nf_schedule *s, size_t count, int zero, int *ok)
+/* Which pixels the passes render: an image that fits a pass whole; a larger one in subsets
+ * of pass_paths less the measured grid, which is at most pass_paths / NF_MEASURE_SHARE pixels
+ * as evenly apart in x and y as the image allows. */
+static nf_pass_layout nf_layout_of(const nf_schedule_config *sc)
 {
-    double *p = NULL;
-    if (*ok && count <= SIZE_MAX / sizeof(double))
-        p = (double *)s->alloc.alloc(s->alloc.user, count * sizeof(double));
+    nf_pass_layout l = {1u, sc->width, sc->height, sc->width * sc->height, 0u};
+    const size_t pixels = (size_t)sc->width * sc->height;
+    if (pixels <= sc->pass_paths)
+        return l;
+    const size_t most = sc->pass_paths / NF_MEASURE_SHARE;
+    while ((size_t)l.grid_width * l.grid_height > most) {
+        l.grid++;
+        l.grid_width = (sc->width + l.grid - 1) / l.grid;
+        l.grid_height = (sc->height + l.grid - 1) / l.grid;
+    }
+    l.measured = l.grid_width * l.grid_height;
+    const size_t subset = sc->pass_paths - l.measured;
+    l.stride = (uint32_t)((pixels + subset - 1) / subset);
+    return l;
+}
+
+uint32_t nf_pass_pixel(const nf_pass_plan *plan, uint32_t j)
+{
+    if (!plan || j >= plan->paths || !plan->grid_width_)
+        return 0u;
+    if (j < plan->measured_)
+        return (j / plan->grid_width_) * plan->grid_ * plan->width_ +
+               (j % plan->grid_width_) * plan->grid_;
+    return plan->first_ + (j - plan->measured_) * plan->stride_;
+}
+
+/* count zeroed elements of `size` bytes. */
+static void *nf_schedule_zeroed(nf_schedule *s, size_t count, size_t size, int *ok)
+{
+    void *p = NULL;
+    if (*ok && count <= SIZE_MAX / size)
+        p = s->alloc.alloc(s->alloc.user, count * size);
     if (!p)
         *ok = 0;
-    else if (zero)
-        memset(p, 0, count * sizeof(double));
+    else
+        memset(p, 0, count * size);
     return p;
 }
 
 static double *nf_schedule_array(nf_schedule *s, size_t count, int *ok)
 {
-    return nf_schedule_array_of(s, count, 1, ok);
+    return (double *)nf_schedule_zeroed(s, count, sizeof(double), ok);
 }
 
-static void nf_schedule_release(nf_schedule *s, double *p)
+static void nf_schedule_release(nf_schedule *s, void *p)
 {
     if (p)
         s->alloc.free(s->alloc.user, p);
@@ -77,16 +111,14 @@ static void nf_schedule_release(nf_schedule *s, double *p)
 
 static void nf_kind_arrays(nf_schedule *s, nf_kind_sums *k, int *ok)
 {
-    k->rgb = nf_schedule_array(s, 3 * s->pixels, ok);
-    k->lum = nf_schedule_array(s, s->pixels, ok);
-    k->sq = nf_schedule_array(s, s->pixels, ok);
+    k->lum = nf_schedule_array(s, s->lay.measured, ok);
+    k->sq = nf_schedule_array(s, s->lay.measured, ok);
     for (unsigned m = 0; m < NF_GUIDE_DEPTHS; ++m)
-        k->m2[m] = nf_schedule_array(s, s->pixels, ok);
+        k->m2[m] = nf_schedule_array(s, s->lay.measured, ok);
 }
 
 static void nf_kind_release(nf_schedule *s, nf_kind_sums *k)
 {
-    nf_schedule_release(s, k->rgb);
     nf_schedule_release(s, k->lum);
     nf_schedule_release(s, k->sq);
     for (unsigned m = 0; m < NF_GUIDE_DEPTHS; ++m)
@@ -100,13 +132,13 @@ void nf_schedule_destroy(nf_schedule *s)
     nf_kind_release(s, &s->train);
     for (unsigned k = 0; k < NF_KINDS; ++k)
         nf_kind_release(s, &s->kind[k]);
-    for (unsigned g = 0; g < NF_TRAIN_GROUPS; ++g)
-        nf_schedule_release(s, s->group[g]);
+    for (unsigned a = 0; a < NF_ACCS; ++a)
+        nf_schedule_release(s, s->acc[a]);
     nf_schedule_release(s, s->ref);
     nf_schedule_release(s, s->peakless);
     nf_schedule_release(s, s->pool);
     nf_schedule_release(s, s->pool2);
-    nf_schedule_release(s, s->mean);
+    nf_schedule_release(s, s->lum);
     nf_allocator alloc = s->alloc;
     alloc.free(alloc.user, s);
 }
@@ -129,22 +161,23 @@ nf_status nf_schedule_create(nf_guide *guide, const nf_schedule_config *sc, nf_s
     s->guide = guide;
     s->alloc = alloc;
     s->pixels = (size_t)sc->width * sc->height;
+    s->lay = nf_layout_of(sc);
     int ok = 1;
     nf_kind_arrays(s, &s->train, &ok);
     for (unsigned k = 0; k < NF_KINDS; ++k)
         nf_kind_arrays(s, &s->kind[k], &ok);
-    for (unsigned g = 0; g < NF_TRAIN_GROUPS; ++g) /* nf_groups_add writes a group first */
-        s->group[g] = nf_schedule_array_of(s, 3 * s->pixels, 0, &ok);
-    s->ref = nf_schedule_array(s, s->pixels, &ok);
-    s->peakless = nf_schedule_array(s, s->pixels, &ok);
-    s->pool = nf_schedule_array(s, s->pixels, &ok);
-    s->pool2 = nf_schedule_array(s, s->pixels, &ok);
-    s->mean = nf_schedule_array(s, 3 * s->pixels, &ok);
+    for (unsigned a = 0; a < NF_ACCS; ++a)
+        s->acc[a] = (float *)nf_schedule_zeroed(s, 4 * s->pixels, sizeof(float), &ok);
+    s->ref = nf_schedule_array(s, s->lay.measured, &ok);
+    s->peakless = nf_schedule_array(s, s->lay.measured, &ok);
+    s->pool = nf_schedule_array(s, s->lay.measured, &ok);
+    s->pool2 = nf_schedule_array(s, s->lay.measured, &ok);
+    s->lum = nf_schedule_array(s, s->lay.measured, &ok);
     if (!ok) {
         nf_schedule_destroy(s);
         return nf_fail(NF_ERROR_OUT_OF_MEMORY,
                        "%s: could not allocate the sums of a %u x %u image (about %zu MB)", fn,
-                       sc->width, sc->height, s->pixels * 1200u / 1000000u);
+                       sc->width, sc->height, s->pixels * 48u / 1000000u + 1u);
     }
     const nf_guide_config *gc = guide ? nf_guide_get_config(guide) : NULL;
     s->training = gc && gc->train_fraction > 0.0f;
@@ -152,7 +185,6 @@ nf_status nf_schedule_create(nf_guide *guide, const nf_schedule_config *sc, nf_s
     /* With the choice of passes, two plain passes come first: training measures itself
      * against them (nf_guide_report_training_ratio). */
     s->plain_first = s->training && s->choosing ? 2u : 0u;
-    s->per_group = 1;
     s->rep.ratio = s->rep.depth_ratio = s->rep.train_ratio = NAN;
     s->rep.depth = sc->guide_depth;
     *out = s;
@@ -178,8 +210,22 @@ nf_status nf_schedule_next(nf_schedule *s, double elapsed, const nf_reduce *red,
         return nf_fail(st, "%s: the reduce hook max_f64 failed", fn);
     nf_guide *g = s->guide;
     const uint32_t fixed = s->cfg.guide_depth;
-    nf_pass_plan p = {g ? NF_TODO_GUIDED : NF_TODO_PLAIN, fixed, s->next_pass, g ? 0u : NF_PLAIN,
-                      0u};
+    const nf_pass_layout *l = &s->lay;
+    nf_pass_plan p;
+    memset(&p, 0, sizeof p);
+    p.todo = g ? NF_TODO_GUIDED : NF_TODO_PLAIN;
+    p.depth = fixed;
+    p.pass = s->next_pass;
+    p.kind_ = g ? 0u : NF_PLAIN;
+    /* Each pass the next subset, so that every `stride` passes cover the image once. */
+    p.width_ = s->cfg.width;
+    p.grid_ = l->grid;
+    p.grid_width_ = l->grid_width;
+    p.measured_ = l->measured;
+    p.stride_ = l->stride;
+    p.first_ = l->stride ? s->next_pass % l->stride : 0u;
+    p.paths = l->measured +
+              (l->stride ? (uint32_t)((s->pixels - p.first_ + l->stride - 1) / l->stride) : 0u);
     if (s->stopped) {
         p.todo = NF_TODO_STOP;
         *plan = p;
@@ -212,10 +258,11 @@ nf_status nf_schedule_next(nf_schedule *s, double elapsed, const nf_reduce *red,
         p.kind_ = NF_PLAIN;
     }
     /* Stop before a pass that would overrun (its time: the latest pass of its kind, or of any
-     * kind). A budget too short for a single pass still renders one. */
+     * kind). A budget too short for a single pass still renders one: every pixel has a path. */
     const nf_kind_sums *ks = &s->kind[p.kind_];
     double expect = ks->last_seconds > 0.0 ? ks->last_seconds : s->last_seconds;
-    const int stop = s->next_pass > 0 && elapsed + expect > s->cfg.budget;
+    const uint32_t covered = l->stride ? l->stride : 1u;
+    const int stop = s->next_pass >= covered && elapsed + expect > s->cfg.budget;
     p.measure_ = s->choosing && (ks->n < NF_MEASURE_FIRST_PASSES ||
                                  s->since_measure * NF_MEASURE_EVERY >= s->rep.render_passes);
     /* Nothing failed: the plan takes effect. */
@@ -245,76 +292,81 @@ nf_status nf_schedule_next(nf_schedule *s, double elapsed, const nf_reduce *red,
 
 /* ---- Taking in a pass ----------------------------------------------------------------------- */
 
-static nf_status nf_check_pass(const nf_schedule *s, const float *rgb, const float *moments,
-                               const char *fn)
+/* Whether path j of a pass is usable: its radiance finite, its moments finite and >= 0. */
+static int nf_path_ok(const float *rgb, const float *moments, uint32_t paths, uint32_t j)
 {
-    for (size_t i = 0; i < 3 * s->pixels; ++i)
-        if (!isfinite(rgb[i]))
-            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: pixel %zu (x %zu, y %zu) has rgb[%zu] = %g (finite)", fn, i / 3,
-                           i / 3 % s->cfg.width, i / 3 / s->cfg.width, i, (double)rgb[i]);
-    for (size_t i = 0; moments && i < NF_GUIDE_DEPTHS * s->pixels; ++i)
-        if (!(moments[i] >= 0.0f) || !isfinite(moments[i])) {
-            size_t px = i % s->pixels;
-            return nf_fail(NF_ERROR_INVALID_ARGUMENT,
-                           "%s: pixel %zu (x %zu, y %zu) has moment %zu = %g (finite, >= 0)", fn,
-                           px, px % s->cfg.width, px / s->cfg.width, i / s->pixels,
-                           (double)moments[i]);
-        }
-    return NF_OK;
+    const float *p = rgb + 3 * (size_t)j;
+    if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2]))
+        return 0;
+    for (unsigned m = 0; moments && m < NF_GUIDE_DEPTHS; ++m) {
+        float v = moments[(size_t)m * paths + j];
+        if (!(v >= 0.0f) || !isfinite(v))
+            return 0;
+    }
+    return 1;
 }
 
-/* One pass into a kind's sums; moments NULL: the pass's squared luminance (a plain pass). */
-static void nf_kind_add(nf_kind_sums *k, size_t pixels, const float *rgb, const float *moments)
+/* The pass's measured paths (its first lay.measured) into a kind's sums and their luminance
+ * into s->lum; moments NULL: each path's squared luminance (a plain pass). A path left out
+ * counts as black: every pass must add to every measured pixel. Returns the paths left out. */
+static uint64_t nf_kind_add(nf_schedule *s, nf_kind_sums *k, const float *rgb, const float *moments,
+                            uint32_t paths)
 {
-    for (size_t i = 0; i < pixels; ++i) {
-        const float *p = rgb + 3 * i;
-        double l = ((double)p[0] + p[1] + p[2]) / 3.0;
-        k->rgb[3 * i] += p[0];
-        k->rgb[3 * i + 1] += p[1];
-        k->rgb[3 * i + 2] += p[2];
+    uint64_t dropped = 0;
+    for (uint32_t i = 0; i < s->lay.measured; ++i) {
+        const int ok = nf_path_ok(rgb, moments, paths, i);
+        const float *p = rgb + 3 * (size_t)i;
+        double l = ok ? ((double)p[0] + p[1] + p[2]) / 3.0 : 0.0;
+        dropped += !ok;
+        s->lum[i] = l;
         k->lum[i] += l;
         k->sq[i] += l * l;
-        if (!moments)
-            k->m2[0][i] += (double)(float)(l * l);
-        for (unsigned m = 0; moments && m < NF_GUIDE_DEPTHS; ++m)
-            k->m2[m][i] += moments[m * pixels + i];
+        if (!moments) /* as a float moment would hold it, where a float holds it */
+            k->m2[0][i] += l * l <= FLT_MAX ? (double)(float)(l * l) : l * l;
+        for (unsigned m = 0; ok && moments && m < NF_GUIDE_DEPTHS; ++m)
+            k->m2[m][i] += moments[(size_t)m * paths + i];
     }
     k->n++;
+    return dropped;
 }
 
-/* A training pass into the groups: when all are full, neighbours merge and groups double. */
-static void nf_groups_add(nf_schedule *s, const float *rgb)
+/* The pass's image paths (all of them for a whole image, the subset's otherwise) into an
+ * accumulator with weight w; a path whose weighted value would overflow its pixel's float
+ * sum is left out too. Returns the paths left out. */
+static uint64_t nf_image_add(nf_schedule *s, float *acc, double w, const nf_pass_plan *plan,
+                             const float *rgb, const float *moments)
 {
-    const size_t floats = 3 * s->pixels;
-    if (s->groups > 0 && s->group_count[s->groups - 1] < s->per_group) {
-        double *sum = s->group[s->groups - 1];
-        for (size_t i = 0; i < floats; ++i)
-            sum[i] += rgb[i];
-        s->group_count[s->groups - 1]++;
-        return;
-    }
-    if (s->groups == NF_TRAIN_GROUPS) { /* 32 groups of k become 16 of 2k */
-        double *sum[NF_TRAIN_GROUPS];
-        uint32_t count[NF_TRAIN_GROUPS];
-        for (unsigned i = 0; i < NF_TRAIN_GROUPS / 2; ++i) {
-            double *a = s->group[2 * i], *b = s->group[2 * i + 1];
-            for (size_t j = 0; j < floats; ++j)
-                a[j] += b[j];
-            sum[i] = a;
-            count[i] = s->group_count[2 * i] + s->group_count[2 * i + 1];
-            sum[NF_TRAIN_GROUPS / 2 + i] = b; /* reused by the next groups */
-            count[NF_TRAIN_GROUPS / 2 + i] = 0;
+    uint64_t dropped = 0;
+    for (uint32_t j = s->lay.stride ? s->lay.measured : 0u; j < plan->paths; ++j) {
+        if (!nf_path_ok(rgb, moments, plan->paths, j)) {
+            dropped++;
+            continue;
         }
-        memcpy(s->group, sum, sizeof sum);
-        memcpy(s->group_count, count, sizeof count);
-        s->groups = NF_TRAIN_GROUPS / 2;
-        s->per_group *= 2;
+        const float *p = rgb + 3 * (size_t)j;
+        float *a = acc + 4 * (size_t)nf_pass_pixel(plan, j);
+        float sum[3];
+        for (unsigned c = 0; c < 3; ++c)
+            sum[c] = a[c] + (float)(w * p[c]);
+        if (!isfinite(sum[0]) || !isfinite(sum[1]) || !isfinite(sum[2])) {
+            dropped++; /* a value whose sum overflows a float */
+            continue;
+        }
+        memcpy(a, sum, sizeof sum);
+        a[3] += (float)w;
     }
-    double *sum = s->group[s->groups];
-    for (size_t i = 0; i < floats; ++i)
-        sum[i] = rgb[i];
-    s->group_count[s->groups++] = 1;
+    return dropped;
+}
+
+/* A training pass's weight in the image: its spread's inverse, in the unit of the first
+ * training pass's, kept within 10^6 either way (a black pass has no spread). */
+static double nf_training_weight(nf_schedule *s, double spread)
+{
+    if (!(s->train_unit > 0.0))
+        s->train_unit = spread > 0.0 ? spread : 1.0;
+    double w = spread > 0.0 ? s->train_unit / spread : 1.0;
+    w = fmin(fmax(w, 1e-6), 1e6);
+    s->train_wmax = fmax(s->train_wmax, w);
+    return w;
 }
 
 nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const float *rgb,
@@ -325,8 +377,12 @@ nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const f
     nf_status st = nf_check_pointers(fn, "s", s, "plan", plan, "rgb", rgb, NULL, NULL);
     if (st != NF_OK)
         return st;
-    if (!s->pending || plan->pass != s->plan.pass || plan->todo != s->plan.todo ||
-        plan->kind_ != s->plan.kind_ || plan->depth != s->plan.depth)
+    const nf_pass_plan *q = &s->plan;
+    if (!s->pending || plan->pass != q->pass || plan->todo != q->todo || plan->kind_ != q->kind_ ||
+        plan->depth != q->depth || plan->paths != q->paths || plan->width_ != q->width_ ||
+        plan->grid_ != q->grid_ || plan->grid_width_ != q->grid_width_ ||
+        plan->measured_ != q->measured_ || plan->first_ != q->first_ ||
+        plan->stride_ != q->stride_ || plan->measure_ != q->measure_)
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: the plan of pass %u is not the latest from nf_schedule_next, or was "
                        "added already",
@@ -339,37 +395,47 @@ nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const f
         return nf_fail(NF_ERROR_INVALID_ARGUMENT,
                        "%s: seconds %g and cpu_seconds %g (finite, >= 0)", fn, seconds,
                        cpu_seconds);
-    if ((st = nf_check_pass(s, rgb, moments, fn)) != NF_OK)
-        return st;
     /* The pass's time: the slowest process's wall clock, every process's CPU. */
     if (red && red->max_f64 && (st = red->max_f64(red->user, &seconds, 1)) != NF_OK)
         return nf_fail(st, "%s: the reduce hook max_f64 failed", fn);
     if ((st = nf_schedule_sum(red, &cpu_seconds, 1, fn)) != NF_OK)
         return st;
     s->pending = 0;
-    if (plan->todo == NF_TODO_TRAIN) {
-        nf_groups_add(s, rgb);
-        nf_kind_add(&s->train, s->pixels, rgb, moments);
+    const int train = plan->todo == NF_TODO_TRAIN;
+    nf_kind_sums *ks = train ? &s->train : &s->kind[plan->kind_];
+    uint64_t dropped = nf_kind_add(s, ks, rgb, moments, plan->paths);
+    if (!s->lay.stride) /* the measured paths are the image's: counted there */
+        dropped = 0;
+    double w = 1.0;
+    int acc = plan->kind_ == NF_PLAIN ? NF_ACC_PLAIN : NF_ACC_GUIDED;
+    if (train) {
+        double spread = 0.0;
+        acc = NF_ACC_TRAIN;
         s->rep.train_passes++;
         s->last_seconds = seconds; /* a render pass costs the tracing, not the steps */
         s->rep.train_ratio = NAN;
-        return s->plain_first ? nf_schedule_training_ratio(s, rgb, cpu_seconds, red, fn) : NF_OK;
+        st = nf_schedule_training_pass(s, cpu_seconds, red, &spread, fn);
+        w = nf_training_weight(s, spread);
+    } else {
+        ks->cpu += cpu_seconds;
+        if (plan->pass > 0 && !s->training) {
+            ks->steady_n++;
+            ks->steady_cpu += cpu_seconds;
+        }
+        ks->last_seconds = s->last_seconds = seconds;
+        s->rep.render_passes++;
+        s->rep.render_seconds += seconds;
+        if (!plan->measure_) {
+            nf_schedule_count(s);
+            s->since_measure++;
+        } else {
+            s->since_measure = 0;
+            st = nf_schedule_measure(s, red, fn);
+        }
     }
-    nf_kind_sums *ks = &s->kind[plan->kind_];
-    nf_kind_add(ks, s->pixels, rgb, moments);
-    ks->cpu += cpu_seconds;
-    if (plan->pass > 0 && !s->training) {
-        ks->steady_n++;
-        ks->steady_cpu += cpu_seconds;
-    }
-    ks->last_seconds = s->last_seconds = seconds;
-    s->rep.render_passes++;
-    s->rep.render_seconds += seconds;
-    if (!plan->measure_) {
-        nf_schedule_count(s);
-        s->since_measure++;
-        return NF_OK;
-    }
-    s->since_measure = 0;
-    return nf_schedule_measure(s, red, fn);
+    /* The image takes the pass even when a reduce failed: it is this process's own. */
+    dropped += nf_image_add(s, s->acc[acc], w, plan, rgb, moments);
+    s->dropped += dropped;
+    s->rep.dropped = s->dropped;
+    return st;
 }

@@ -14,15 +14,19 @@
  * guide's candidates: kind c guides up to depth c) and plain passes. */
 #define NF_KINDS (NF_GUIDE_DEPTHS + 1u)
 #define NF_PLAIN NF_GUIDE_DEPTHS
-/* Training passes are kept in at most this many groups of equal size. */
-#define NF_TRAIN_GROUPS 32
 /* The relative variances use this epsilon (nf_guide_pass_variance), as relMSE does. */
 #define NF_SCHEDULE_EPSILON 1e-2
 
-/* The passes of one kind (or the training passes), per pixel. */
+/* A pass's paths at the default: whole images up to this many pixels, larger ones in subsets. */
+#define NF_PASS_PATHS_DEFAULT 131072u
+#define NF_PASS_PATHS_MIN 1024u
+/* At most this share of a subset pass measures (1 / 16: the cost of measuring, stated in
+ * schedule.h). */
+#define NF_MEASURE_SHARE 16u
+
+/* The passes of one kind (or the training passes), per measured pixel. */
 typedef struct nf_kind_sums {
-    double *rgb; /* 3 per pixel: the sums of the passes' RGB                              */
-    double *lum; /* the sums of their luminance                                           */
+    double *lum; /* the sums of the passes' luminance                                     */
     double *sq;  /* the sums of their luminance squared                                   */
     double *
         m2[NF_GUIDE_DEPTHS]; /* the sums of the paths' second moments: [0] plain path
@@ -34,21 +38,36 @@ typedef struct nf_kind_sums {
     double last_seconds; /* the wall-clock seconds of its latest pass (0: none)           */
 } nf_kind_sums;
 
+/* Which pixels a pass renders (nf_pass_pixel): the measured pixels, a grid of grid_width x
+ * grid_height pixels `grid` apart (the whole image when grid is 1 and there is no subset),
+ * then, for images larger than a pass, one of `stride` interleaved subsets of the image. */
+typedef struct nf_pass_layout {
+    uint32_t grid, grid_width, grid_height, measured; /* measured = grid_width x grid_height */
+    uint32_t stride; /* 0: no subset, the measured pixels are the image                 */
+} nf_pass_layout;
+
+/* The image: every pass's radiance in three sums per pixel, each RGB and its weight (4
+ * floats): training passes weighted by their own spread, guided and plain render passes by
+ * their count; weighed against each other when the image is made (schedule_combine.c). */
+enum { NF_ACC_TRAIN = 0, NF_ACC_GUIDED = 1, NF_ACC_PLAIN = 2, NF_ACCS = 3 };
+
 struct nf_schedule {
     nf_schedule_config cfg;
     nf_guide *guide;
     nf_allocator alloc;
     size_t pixels;
+    nf_pass_layout lay;
 
+    /* The measured pixels' sums (lay.measured of each). */
     nf_kind_sums train, kind[NF_KINDS];
-    /* The training passes: group k holds the sum of `per_group` consecutive passes (the
-     * last one possibly fewer). When all are full, neighbours merge and groups double. */
-    double *group[NF_TRAIN_GROUPS];
-    uint32_t group_count[NF_TRAIN_GROUPS], groups, per_group;
-    double *ref;          /* per pixel: the luminance averaged over every pass          */
-    double *peakless;     /* ref with its lone peaks lowered (nf_guide_lower_peaks)      */
-    double *pool, *pool2; /* per pixel: one policy's first and second moments (scratch)  */
-    double *mean;         /* 3 per pixel: the render passes' combined mean (scratch)     */
+    double *ref;          /* per measured pixel: the luminance averaged over every pass  */
+    double *peakless;     /* ref with its lone peaks lowered (nf_guide_lower_peaks)       */
+    double *pool, *pool2; /* per measured pixel: one policy's moments (scratch)           */
+    double *lum;          /* per measured pixel: the pass being added (scratch)           */
+    float *acc[NF_ACCS];  /* every pixel: 4 floats, RGB and weight                         */
+    double train_unit;    /* the first training pass's spread: the unit of their weights */
+    double train_wmax;    /* the largest training pass weight                             */
+    uint64_t dropped;     /* paths left out: not finite, or a negative moment             */
 
     nf_pass_measure measured[NF_KINDS];     /* every kind against ref               */
     nf_pass_measure depth[NF_GUIDE_DEPTHS]; /* the guided kinds against peakless    */
@@ -78,12 +97,14 @@ void nf_schedule_count(nf_schedule *s);
  * Collective. */
 nf_status nf_schedule_measure(nf_schedule *s, const nf_reduce *red, const char *fn);
 
-/* The relative variance of the pass in pool/pool2 against ref, a training pass's ratio to a
- * plain pass reported to the guide (schedule_measure.c). Collective. */
-nf_status nf_schedule_training_ratio(nf_schedule *s, const float *rgb, double cpu,
-                                     const nf_reduce *red, const char *fn);
+/* The training pass in s->lum (its luminance on the measured pixels), already in the sums:
+ * its absolute spread about ref into *spread (its weight in the image: about 0 while ref is
+ * this pass alone), and with the choice of passes its variance x cost over a plain pass's
+ * reported to the guide (schedule_measure.c). Collective. */
+nf_status nf_schedule_training_pass(nf_schedule *s, double cpu, const nf_reduce *red,
+                                    double *spread, const char *fn);
 
-/* ref: each pixel's luminance averaged over every pass. */
+/* ref: each measured pixel's luminance averaged over every pass. */
 void nf_schedule_reference(nf_schedule *s);
 
 /* pool, pool2 from the passes that measure moment m; returns those passes. */

@@ -51,7 +51,7 @@ void nf_schedule_reference(nf_schedule *s)
     double n = s->train.n;
     for (unsigned k = 0; k < NF_KINDS; ++k)
         n += s->kind[k].n;
-    for (size_t i = 0; i < s->pixels; ++i) {
+    for (size_t i = 0; i < s->lay.measured; ++i) {
         double l = s->train.lum[i];
         for (unsigned k = 0; k < NF_KINDS; ++k)
             l += s->kind[k].lum[i];
@@ -81,7 +81,7 @@ uint32_t nf_schedule_pool(nf_schedule *s, uint32_t m)
             from[nk++] = &s->kind[k];
             n += s->kind[k].n;
         }
-    for (size_t i = 0; i < s->pixels; ++i) {
+    for (size_t i = 0; i < s->lay.measured; ++i) {
         double l = s->train.lum[i], m2 = s->train.m2[m][i];
         for (unsigned k = 0; k < nk; ++k) {
             l += from[k]->lum[i];
@@ -116,7 +116,7 @@ static double nf_variance_of(const nf_schedule *s, const double *s1, const doubl
                              const double *ref)
 {
     double v = 0.0;
-    if (nf_guide_pass_variance(s->pixels, s1, s2, n, ref, NF_SCHEDULE_EPSILON, &v) != NF_OK)
+    if (nf_guide_pass_variance(s->lay.measured, s1, s2, n, ref, NF_SCHEDULE_EPSILON, &v) != NF_OK)
         v = 0.0;
     return v;
 }
@@ -130,8 +130,8 @@ nf_status nf_schedule_measure(nf_schedule *s, const nf_reduce *red, const char *
     double v[NF_KINDS + NF_GUIDE_DEPTHS] = {0.0};
     nf_schedule_reference(s);
     /* Under several processes the neighbours another one renders are zero here. */
-    if (nf_guide_lower_peaks(s->cfg.width, s->cfg.height, s->ref, s->peakless) != NF_OK)
-        memcpy(s->peakless, s->ref, s->pixels * sizeof *s->ref); /* finite: never */
+    if (nf_guide_lower_peaks(s->lay.grid_width, s->lay.grid_height, s->ref, s->peakless) != NF_OK)
+        memcpy(s->peakless, s->ref, s->lay.measured * sizeof *s->ref); /* finite: never */
     nf_schedule_count(s);
     /* Every depth from its own passes, the other kinds from the moments of the passes that
      * measure them: their own first passes miss the rare bright paths that rule them. */
@@ -162,24 +162,38 @@ nf_status nf_schedule_measure(nf_schedule *s, const nf_reduce *red, const char *
     return NF_OK;
 }
 
-nf_status nf_schedule_training_ratio(nf_schedule *s, const float *rgb, double cpu,
-                                     const nf_reduce *red, const char *fn)
+nf_status nf_schedule_training_pass(nf_schedule *s, double cpu, const nf_reduce *red,
+                                    double *spread, const char *fn)
 {
     nf_status st = nf_schedule_measure(s, red, fn);
     if (st != NF_OK)
         return st;
-    for (size_t i = 0; i < s->pixels; ++i) { /* the pass alone, in the scratch sums */
-        const float *p = rgb + 3 * i;
-        s->pool[i] = ((double)p[0] + p[1] + p[2]) / 3.0;
-        s->pool2[i] = s->pool[i] * s->pool[i];
+    const size_t n = s->lay.measured;
+    uint32_t passes = s->train.n;
+    for (unsigned k = 0; k < NF_KINDS; ++k)
+        passes += s->kind[k].n;
+    /* Its spread about the reference; about 0 while the reference is this pass alone (an
+     * overestimate: the first pass weighs little). */
+    double sums[2] = {0.0, 0.0};
+    for (size_t i = 0; i < n; ++i) {
+        double d = s->lum[i] - (passes > 1 ? s->ref[i] : 0.0);
+        sums[0] += d * d;
     }
-    double v = nf_variance_of(s, s->pool, s->pool2, 1, s->ref);
-    if ((st = nf_schedule_sum(red, &v, 1, fn)) != NF_OK)
+    /* Its relative variance about the reference, as the choice measures plain passes. */
+    for (size_t i = 0; i < n; ++i) { /* the pass alone, in the scratch sums */
+        s->pool[i] = s->lum[i];
+        s->pool2[i] = s->lum[i] * s->lum[i];
+    }
+    sums[1] = nf_variance_of(s, s->pool, s->pool2, 1, s->ref);
+    if ((st = nf_schedule_sum(red, sums, 2, fn)) != NF_OK)
         return st;
+    *spread = sums[0] / (double)n;
+    if (!s->plain_first)
+        return NF_OK;
     const nf_pass_measure *pm = &s->measured[NF_PLAIN];
     double plain = pm->passes ? pm->variance * pm->seconds / pm->passes : 0.0;
     if (pm->passes < 2 || !(plain > 0.0))
         return NF_OK;
-    s->rep.train_ratio = v * cpu / plain;
+    s->rep.train_ratio = sums[1] * cpu / plain;
     return nf_guide_report_training_ratio(s->guide, s->rep.train_ratio);
 }

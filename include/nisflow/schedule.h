@@ -14,9 +14,15 @@
  *      budget, the held-out loss's patience, or the training passes' ratio to a plain pass);
  *   3. render passes, each guided (to a depth, nf_guide_choose_depth) or plain
  *      (nf_guide_choose_pass), until the next pass would overrun the budget;
- *   4. the image: every pass's radiance, training passes included, by inverse variance (one
- *      weight per kind of render pass, one per group of training passes;
- *      docs/integration.md, "The schedule").
+ *   4. the image: every pass's radiance, training passes included, by inverse variance
+ *      (docs/integration.md, "The schedule").
+ *
+ * A pass is a fixed number of paths, whatever the image: the whole image, one path per pixel,
+ * up to nf_schedule_config.pass_paths pixels (131,072 by default); a larger image is rendered in
+ * interleaved subsets of pixels, one subset a pass, so that training and the choice of passes
+ * go at the same cadence at 1080p as at 320 x 180. A pass's paths are numbered from 0 to
+ * plan.paths - 1 and path j goes through pixel nf_pass_pixel(&plan, j); the arrays handed to
+ * nf_schedule_add_pass are in that order.
  *
  * The loop (docs/integration.md has it with a renderer around it):
  *
@@ -26,7 +32,8 @@
  *     for (;;) {
  *         nf_pass_plan plan;  nf_schedule_next(s, elapsed_seconds, NULL, &plan);
  *         if (plan.todo == NF_TODO_STOP) break;
- *         ... render one pass as plan says into rgb[] and moments[], timing it ...
+ *         for each j < plan.paths: trace a path through pixel nf_pass_pixel(&plan, j)
+ *             into rgb[3 j ..] and moments[m x plan.paths + j], timing the pass
  *         nf_schedule_add_pass(s, &plan, rgb, moments, seconds, cpu_seconds, NULL);
  *         if (plan.todo == NF_TODO_TRAIN) { train (nf_guide_train_pass), publish }
  *     }
@@ -35,27 +42,38 @@
  * The choice functions below (nf_guide_choose_pass, nf_guide_choose_depth and the measures
  * they take) are what the schedule decides with, for a renderer that keeps its own loop.
  *
- * What a pass measures. Every pass writes, per pixel, its RGB radiance and the estimates of
- * the second moments that its paths measured for the kinds it did not render
- * (nf_plain_moment, nf_depth_moment): moments[m x pixels + i] for m < NF_GUIDE_DEPTHS is
- * pixel i's sum over its paths of the moment of candidate m's policy, where candidate 0 is
- * plain path tracing (nf_plain_moment) and candidates 1, 2 guide up to depth m.
- * Plain passes may give NULL (each pixel's squared luminance is used). Luminance here is the
- * mean of R, G and B.
+ * What a pass measures. Every path writes its RGB radiance and the estimates of the second
+ * moments that it measured for the kinds it did not render (nf_plain_moment,
+ * nf_depth_moment): moments[m x plan.paths + j] for m < NF_GUIDE_DEPTHS is path j's moment of
+ * candidate m's policy, where candidate 0 is plain path tracing (nf_plain_moment) and
+ * candidates 1, 2 guide up to depth m. Plain passes may give NULL (each path's squared
+ * luminance is used). Luminance here is the mean of R, G and B. A path whose radiance is not
+ * finite, or whose moment is not finite or negative, is left out and counted
+ * (nf_schedule_report.dropped): one bad path never stops the job. So is a radiance so large
+ * that the image's float sums would overflow (possible beyond 10^32).
+ *
+ * What measuring costs. The schedule measures the kinds of pass on a fixed grid of pixels that
+ * every pass renders: the whole image when it fits a pass; for a larger image, at most
+ * pass_paths / 16 pixels spread over it, whose paths measure and do not enter the image (1/16
+ * of each pass's paths, the price of a measure that does not grow with the image).
  *
  * Processes. With a caller-supplied nf_reduce (guide.h) the schedule spans processes that
- * render disjoint pixels of one image (the other pixels zero): each call below is then
+ * render disjoint pixels of one image (each pixel always the same process's; the entries of a
+ * pass whose pixel another process renders are 0): each call below is then
  * collective, every process calls it in the same order with the same plans, and every
  * process gets the same plans (elapsed is the largest over them). A call refused on one
  * process (bad input) must be made to fail on the others, as for the guide.
  *
- * Memory: everything the schedule object uses is allocated by nf_schedule_create, from the guide's
- * allocator (malloc without a guide): about width x height x 1.2 KB (32 groups of training passes
- * and five kinds of pass, in doubles); nothing later allocates. Thread-safety: one thread drives a
- * schedule (no two calls on it at once); schedules are independent. nf_schedule_next and
- * nf_schedule_add_pass read and change the guide's training state (nf_guide_keep_training,
- * nf_guide_report_training_ratio): no training call of the guide may run during them; render
- * threads may sample and add samples meanwhile. Stack: a few hundred bytes.
+ * Memory: everything the schedule object uses is allocated by nf_schedule_create, from the
+ * guide's allocator (malloc without a guide): 48 bytes a pixel (three weighted sums of RGB
+ * and their weights, in floats: training, guided and plain passes; a pixel's value rounds by
+ * about 2^-24 per pass added) and 240 bytes a measured pixel (every pixel up to pass_paths,
+ * at most pass_paths / 16 beyond): 100 MB at 1920 x 1080, 398 MB at 3840 x 2160; nothing
+ * later allocates. Thread-safety: one thread drives a schedule (no two calls on it at
+ * once); schedules are independent. nf_schedule_next and nf_schedule_add_pass read and
+ * change the guide's training state (nf_guide_keep_training, nf_guide_report_training_ratio):
+ * no training call of the guide may run during them; render threads may sample and add
+ * samples meanwhile. Stack: a few hundred bytes.
  */
 #ifndef NISFLOW_SCHEDULE_H
 #define NISFLOW_SCHEDULE_H
@@ -194,6 +212,10 @@ typedef struct nf_schedule_config {
     uint32_t guide_depth; /* 0: the schedule chooses how deep guided render passes guide
                            * (default); D >= 1: every guided pass, training too, guides up
                            * to depth D (an experiment's fixed depth)                      */
+    uint32_t pass_paths;  /* the paths of a pass, >= 1024: an image of up to this many
+                           * pixels is rendered whole by each pass, a larger one in
+                           * subsets (default 131,072; more for many render threads, so
+                           * that each has enough paths between the passes' joins)          */
 } nf_schedule_config;
 
 /* Fills sc with the defaults (width, height and budget 0: the caller sets them). NULL is
@@ -230,29 +252,41 @@ typedef struct nf_pass_plan {
     uint32_t depth; /* TRAIN and GUIDED: the deepest vertex guided, in segments from the
                      * camera (the first vertex is 1), 0 for every depth                  */
     uint32_t pass;  /* the pass's index from 0: a random stream per pass, say             */
-    uint32_t kind_; /* the schedule's own                                                 */
-    uint32_t measure_;
+    uint32_t paths; /* the pass's paths, one through each of its pixels (nf_pass_pixel);
+                     * at most pass_paths + pass_paths / 16 + 1                          */
+    /* The schedule's own: */
+    uint32_t kind_, measure_;
+    uint32_t width_, grid_, grid_width_, measured_, first_, stride_;
 } nf_pass_plan;
+
+/* The pixel that path j of the pass goes through, j < plan->paths: its index in the image,
+ * row by row (x = index % width, y = index / width). A pixel may have two paths in one pass
+ * (one that measures, one for the image). Returns 0 for j out of range or a NULL plan.
+ * Thread-safe, allocates nothing, O(1). */
+NF_API uint32_t nf_pass_pixel(const nf_pass_plan *plan, uint32_t j);
 
 /* The next pass to render, at `elapsed` (the budget's unit, counted from the job's start).
  * The first pass is always rendered, however short the budget; later, STOP once the next pass
  * (timed as the last pass of its kind, or of any kind) would end after the budget, and STOP
- * ever after. The answer depends only on elapsed, the passes added and the guide's training
- * state: processes that add the same passes get the same plans. Each plan must be added
+ * ever after; an image rendered in subsets is not stopped before every pixel has a path.
+ * The answer depends only on elapsed, the passes added and the guide's training state:
+ * processes that add the same passes get the same plans. Each plan must be added
  * (nf_schedule_add_pass) before the next call: a second call refuses. Errors:
  * NF_ERROR_INVALID_ARGUMENT (NULL, elapsed NaN or negative, a plan not added), a reduce hook's
  * status; the schedule is then unchanged. */
 NF_API nf_status nf_schedule_next(nf_schedule *s, double elapsed, const nf_reduce *red,
                                   nf_pass_plan *plan);
 
-/* Adds the pass that `plan` (the latest from nf_schedule_next) asked for: rgb[3 x pixels]
- * (row by row) and moments (as above; NULL only for a plain pass), seconds its wall-clock time
+/* Adds the pass that `plan` (the latest from nf_schedule_next) asked for: rgb[3 x plan.paths]
+ * and moments[NF_GUIDE_DEPTHS x plan.paths] in path order (as above; NULL only for a plain
+ * pass), seconds its wall-clock time
  * (for a training pass, the rendering only, not the steps), cpu_seconds its CPU time summed
  * over the threads that rendered it (the choice weighs kinds by it; the first pass of the job,
- * and passes before training ended, pay for cold caches and do not decide it). Errors:
- * NF_ERROR_INVALID_ARGUMENT (NULL, a plan not the latest or added twice, a value not finite or
- * a moment negative: the message names the first pixel; times negative or not finite): the
- * schedule is then unchanged and the plan still waits; a reduce hook's status: the pass's
+ * and passes before training ended, pay for cold caches and do not decide it). A path with a
+ * value not finite or a moment negative is left out and counted, not refused. Errors:
+ * NF_ERROR_INVALID_ARGUMENT (NULL, a plan not the latest or added twice, times negative or
+ * not finite): the schedule is then unchanged and the plan still waits; a reduce hook's
+ * status: the pass's
  * times did not reach the other processes (the pass is not added), or its measures did not
  * (the pass is added, the measures are the previous ones): make every process fail. */
 NF_API nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const float *rgb,
@@ -285,6 +319,8 @@ typedef struct nf_schedule_report {
     int stopped_early;   /* training ended before its share of the budget:
                           * the loss or the gain stopped improving           */
     double train_weight; /* the training passes' share of the image, [0, 1]  */
+    uint64_t dropped;    /* paths left out: a value not finite, or a moment
+                          * negative (this process's)                        */
 } nf_schedule_report;
 
 /* The image: every pass added, combined by inverse variance, into rgb[3 x pixels] (this

@@ -47,8 +47,8 @@
 #endif
 
 #define NF_VERSION_MAJOR 0
-#define NF_VERSION_MINOR 8
-#define NF_VERSION_PATCH 1
+#define NF_VERSION_MINOR 9
+#define NF_VERSION_PATCH 0
 
 NF_EXTERN_C_BEGIN
 

@@ -42,7 +42,7 @@ static inline uint64_t rng_mix64(uint64_t z)
 
 /* Purposes keep the streams of different phases apart even for equal indices. */
 enum rng_purpose {
-    RNG_RENDER = 1,   /* a = pass, b = pixel index          */
+    RNG_RENDER = 1,   /* a = pass, b = pixel or path index   */
     RNG_TRAIN = 2,    /* a = iteration, b = path index       */
     RNG_TEST = 3      /* unit tests                          */
 };

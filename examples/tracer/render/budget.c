@@ -31,9 +31,9 @@ typedef struct intake_thread {
     char message[256];
 } intake_thread;
 
-/* The record sink of training passes (render.h): each tile's records become the guide's
- * samples as soon as the tile is traced, on its render thread, while the other tiles are
- * traced; no thread waits for a pass's records to be joined. The keys (the tile, then the
+/* The record sink of training passes (render.h): each chunk's records become the guide's
+ * samples as soon as the chunk is traced, on its render thread, while the other chunks are
+ * traced; no thread waits for a pass's records to be joined. The keys (the chunk, then the
  * record's place in it) sort them as one thread would have traced them, so the guide trains
  * on the same store whatever the number of threads. */
 typedef struct pass_intake {
@@ -42,17 +42,17 @@ typedef struct pass_intake {
     int count;
 } pass_intake;
 
-static void intake_tile(void *user, size_t tile, int thread, const record_buffer *rec)
+static void intake_chunk(void *user, size_t chunk, int thread, const record_buffer *rec)
 {
     pass_intake *in = user;
     intake_thread *it = &in->threads[thread];
     record_arrays *a = &it->arrays;
     if (it->failed || rec->count == 0)
         return;
-    if (rec->out_of_memory || !record_arrays_from(a, rec, (uint64_t)tile << 32)) {
+    if (rec->out_of_memory || !record_arrays_from(a, rec, (uint64_t)chunk << 32)) {
         it->failed = 1;
         snprintf(it->message, sizeof it->message,
-                 "out of memory for the training samples of tile %zu", tile);
+                 "out of memory for the training samples of chunk %zu", chunk);
     } else if (nf_guide_add_samples(in->guide, rec->count, a->key, a->ctx, a->dir, a->weight,
                                     a->points) != NF_OK) {
         it->failed = 1;
@@ -106,8 +106,9 @@ typedef struct budget_job {
     nf_schedule *schedule;
     pass_intake intake;
     render_memory mem; /* the passes' per-thread buffers, kept from pass to pass */
-    image pass;
-    float *moment;
+    float *rgb;        /* the pass's paths: 3 floats each                          */
+    float *moment;     /* and PATH_MOMENTS planes of one float each                */
+    uint32_t paths;    /* the paths they hold                                      */
     training_hooks hooks; /* the ranks' reduce for the schedule */
 } budget_job;
 
@@ -116,7 +117,7 @@ static void job_free(budget_job *j)
     nf_schedule_destroy(j->schedule);
     intake_free(&j->intake);
     render_memory_free(&j->mem);
-    image_free(&j->pass);
+    free(j->rgb);
     free(j->moment);
 }
 
@@ -132,10 +133,7 @@ static int job_start(budget_job *j, tracer *t, nf_guide *guide, const budget_set
     sc.budget = bs->seconds;
     sc.guide_depth = (uint32_t)t->guide_depth; /* --variant guide-depth: every guided pass */
     training_hooks_init(&j->hooks, bs->threads);
-    int ready = image_alloc(img, s->width, s->height, err) &&
-                image_alloc(&j->pass, s->width, s->height, err);
-    j->moment = calloc(PATH_MOMENTS * (size_t)s->width * (size_t)s->height, sizeof *j->moment);
-    ready = ready && (j->moment || tr_fail(err, "out of memory for the pass's moments"));
+    int ready = image_alloc(img, s->width, s->height, err);
     j->intake.guide = guide;
     j->intake.count = bs->threads > 0 ? bs->threads : 1;
     j->intake.threads = calloc((size_t)j->intake.count, sizeof *j->intake.threads);
@@ -151,21 +149,36 @@ static int job_start(budget_job *j, tracer *t, nf_guide *guide, const budget_set
     return ranks_agree(ready, err);
 }
 
-/* Renders the pass that `plan` asks for into j->pass and j->moment, with the guide's newest
+/* j->rgb and j->moment for the plan's paths (a pass's count varies by one between subsets). */
+static int job_buffers(budget_job *j, const nf_pass_plan *plan, tr_error *err)
+{
+    if (plan->paths <= j->paths)
+        return 1;
+    free(j->rgb);
+    free(j->moment);
+    j->rgb = malloc(3 * (size_t)plan->paths * sizeof *j->rgb);
+    j->moment = malloc(PATH_MOMENTS * (size_t)plan->paths * sizeof *j->moment);
+    j->paths = j->rgb && j->moment ? plan->paths : 0;
+    return j->paths || tr_fail(err, "out of memory for a pass of %u paths", plan->paths);
+}
+
+/* Renders the pass that `plan` asks for into j->rgb and j->moment, with the guide's newest
  * published model unless it is plain; a training pass's samples go to the guide meanwhile. */
 static int job_render(budget_job *j, tracer *t, nf_guide *guide, const budget_settings *bs,
                       const nf_pass_plan *plan, budget_report *rep, tr_error *err)
 {
     const nf_model *m = NULL;
+    if (!job_buffers(j, plan, err))
+        return ranks_agree(0, err);
     if (plan->todo != NF_TODO_PLAIN && nf_guide_acquire(guide, &m) != NF_OK)
         return tr_fail(err, "%s", nf_last_error_message());
     const int fixed_depth = t->guide_depth;
     t->model = m; /* every thread of the pass samples this one; NULL: a plain pass */
     t->guide_depth = (int)plan->depth;
-    const record_sink sink = {intake_tile, &j->intake};
-    int rendered = render_pass(t, bs->seed, PASS_STREAM_BASE + plan->pass, bs->threads, &j->pass,
-                               j->moment, plan->todo == NF_TODO_TRAIN ? &sink : NULL, &j->mem,
-                               &rep->stats, err);
+    const record_sink sink = {intake_chunk, &j->intake};
+    int rendered = render_pass(t, bs->seed, PASS_STREAM_BASE + plan->pass, plan, bs->threads,
+                               j->rgb, j->moment, plan->todo == NF_TODO_TRAIN ? &sink : NULL,
+                               &j->mem, &rep->stats, err);
     rendered = rendered && intake_ok(&j->intake, plan->pass, err);
     if (m)
         nf_guide_release(guide, m);
@@ -195,7 +208,7 @@ int render_with_budget(tracer *t, nf_guide *guide, const budget_settings *bs, im
         if (!(ok = job_render(&j, t, guide, bs, &plan, rep, err)))
             break;
         double t1 = now_seconds(), cpu = cpu_seconds() - c0;
-        if (nf_schedule_add_pass(j.schedule, &plan, j.pass.data, j.moment, t1 - t0, cpu, red) !=
+        if (nf_schedule_add_pass(j.schedule, &plan, j.rgb, j.moment, t1 - t0, cpu, red) !=
             NF_OK) {
             ok = tr_fail(err, "%s", nf_last_error_message());
             break;

@@ -1,8 +1,8 @@
 /*
  * render.c - the tracer's one parallel engine (run_job: items on the threads, per-thread
  * counters, reusable per-thread memory, per-item training records joined in item order) and
- * its three kinds of item: an image's tile of spp paths per pixel, a pass's tile of one path
- * per pixel (its records handed to a sink), and a chunk of training paths through random film
+ * its three kinds of item: an image's tile of spp paths per pixel, a chunk of a schedule's
+ * pass (its records handed to a sink), and a chunk of training paths through random film
  * positions.
  */
 #include "render.h"
@@ -190,107 +190,121 @@ int render_image(const tracer *t, int spp, uint64_t seed, uint32_t pass, int thr
                    progress_label, err);
 }
 
-/* ---- A pass: one path per pixel --------------------------------------------------------------- */
+/* ---- A pass: the schedule's paths ---------------------------------------------------------- */
 
-/* One sample per pixel whose training records go to the sink tile by tile. */
+/* One chunk of a pass's paths is one item: as many paths as a tile has pixels. */
+#define PASS_CHUNK (TILE * TILE)
+
+/* The paths of one pass (nisflow/schedule.h: path j through pixel nf_pass_pixel), their
+ * training records going to the sink chunk by chunk. */
 typedef struct pass_job {
     job_common c;
     const record_sink *sink; /* NULL: no records */
-    image *img;
-    float *moment; /* NULL, or PATH_MOMENTS planes of one float per pixel: the paths' second
+    const nf_pass_plan *plan;
+    float *rgb;    /* 3 per path                                                        */
+    float *moment; /* NULL, or PATH_MOMENTS planes of one float per path: the paths' second
                     * moments (trace_paths) */
     uint64_t seed;
-    uint32_t pass;
+    uint32_t stream; /* the pass's random streams */
 } pass_job;
 
-/* One pixel's sample of a pass, written into the pass image (and its moment). */
-static void pass_pixel(pass_job *job, int x, int y, rgb c, const float *moment)
+/* Whether this rank renders pixel i: the rank its tile is dealt to (rank_tile). */
+static int rank_owns(const tracer *t, uint32_t i)
+{
+    if (t->ranks <= 1)
+        return 1;
+    size_t w = (size_t)t->s->width, tiles_x = (w + TILE - 1) / TILE;
+    size_t tile = (i / w / TILE) * tiles_x + i % w / TILE;
+    return tile % (size_t)t->ranks == (size_t)t->rank;
+}
+
+/* Path j's radiance and moments into the pass's arrays. */
+static void pass_path_out(pass_job *job, uint32_t j, rgb c, const float *moment)
 {
     const int finite = rgb_is_finite(c);
     if (!finite) /* as in render_tile: a NaN must not poison the pixel */
         c = rgb_gray(0.0f);
-    float *p = image_pixel(job->img, x, y);
+    float *p = job->rgb + 3 * (size_t)j;
     p[0] = c.r;
     p[1] = c.g;
     p[2] = c.b;
-    if (!job->moment)
-        return;
-    size_t pixels = (size_t)job->img->width * (size_t)job->img->height;
-    size_t i = (size_t)y * (size_t)job->img->width + (size_t)x;
-    for (int k = 0; k < PATH_MOMENTS; ++k)
-        job->moment[k * pixels + i] = finite && isfinite(moment[k]) ? moment[k] : 0.0f;
+    for (int k = 0; job->moment && k < PATH_MOMENTS; ++k)
+        job->moment[(size_t)k * job->plan->paths + j] =
+            finite && moment && isfinite(moment[k]) ? moment[k] : 0.0f;
 }
 
-/* Traces n gathered paths together and writes their pixels (and their records to out). */
+/* Traces n gathered paths together and writes them out (their records to out). */
 static void pass_paths(pass_job *job, int thread, size_t n, rng *r, const float *px,
-                       const float *py, int (*at)[2], record_buffer *out)
+                       const float *py, const uint32_t *at, record_buffer *out)
 {
     rgb c[TRACE_BATCH];
     float m[PATH_MOMENTS * TRACE_BATCH];
     trace_paths(job->c.t, n, r, px, py, c, m, out, &job->c.mem->scratch[thread],
                 &job->c.stats[thread].s);
     for (size_t i = 0; i < n; ++i)
-        pass_pixel(job, at[i][0], at[i][1], c[i], &m[PATH_MOMENTS * i]);
+        pass_path_out(job, at[i], c[i], &m[PATH_MOMENTS * i]);
 }
 
-/* A guided pass traces its tile's paths TRACE_BATCH at a time (trace_paths: the flow's
+/* A guided pass traces its chunk's paths TRACE_BATCH at a time (trace_paths: the flow's
  * questions batched, the same bits and records); an unguided pass traces them one by one. */
-static void pass_tile(void *user, size_t k, int thread)
+static void pass_chunk(void *user, size_t k, int thread)
 {
     pass_job *job = user;
     const scene *s = job->c.t->s;
+    const nf_pass_plan *plan = job->plan;
     record_buffer *out = job->sink ? &job->c.mem->records[thread] : NULL;
-    if (out) { /* the thread's buffer, emptied for this tile; its memory stays */
+    if (out) { /* the thread's buffer, emptied for this chunk; its memory stays */
         out->count = 0;
         out->out_of_memory = 0;
     }
-    int x0, y0;
-    tile_bounds(job->c.t, k, &x0, &y0);
     /* Unguided paths ask nothing: advancing them together would only cost locality. */
     const int batched = trace_paths_pay(job->c.t);
     rng r[TRACE_BATCH];
     float px[TRACE_BATCH], py[TRACE_BATCH];
-    int at[TRACE_BATCH][2];
+    uint32_t at[TRACE_BATCH];
     size_t n = 0;
-    for (int y = y0; y < y0 + TILE && y < s->height; ++y)
-        for (int x = x0; x < x0 + TILE && x < s->width; ++x) {
-            uint64_t pixel = (uint64_t)y * (uint64_t)s->width + (uint64_t)x;
-            rng pr = rng_seed(job->seed, RNG_RENDER, job->pass, pixel);
-            float jx = rng_next(&pr), jy = rng_next(&pr);
-            if (!batched) {
-                float m[PATH_MOMENTS] = {0.0f};
-                rgb c = trace_path_moment(job->c.t, &pr, (float)x + jx, (float)y + jy, out,
-                                          &job->c.stats[thread].s, m);
-                pass_pixel(job, x, y, c, m);
-                continue;
-            }
-            r[n] = pr;
-            px[n] = (float)x + jx;
-            py[n] = (float)y + jy;
-            at[n][0] = x;
-            at[n++][1] = y;
-            if (n == TRACE_BATCH) {
-                pass_paths(job, thread, n, r, px, py, at, out);
-                n = 0;
-            }
+    const uint32_t end = (uint32_t)((k + 1) * PASS_CHUNK < plan->paths ? (k + 1) * PASS_CHUNK
+                                                                        : plan->paths);
+    for (uint32_t j = (uint32_t)(k * PASS_CHUNK); j < end; ++j) {
+        const uint32_t pixel = nf_pass_pixel(plan, j);
+        if (!rank_owns(job->c.t, pixel)) { /* another rank's: zero, for the sum */
+            pass_path_out(job, j, rgb_gray(0.0f), NULL);
+            continue;
         }
+        const int x = (int)(pixel % (uint32_t)s->width), y = (int)(pixel / (uint32_t)s->width);
+        /* Path j's own stream: a pixel may have two paths in one pass. */
+        rng pr = rng_seed(job->seed, RNG_RENDER, job->stream, j);
+        float jx = rng_next(&pr), jy = rng_next(&pr);
+        if (!batched) {
+            float m[PATH_MOMENTS] = {0.0f};
+            rgb c = trace_path_moment(job->c.t, &pr, (float)x + jx, (float)y + jy, out,
+                                      &job->c.stats[thread].s, m);
+            pass_path_out(job, j, c, m);
+            continue;
+        }
+        r[n] = pr;
+        px[n] = (float)x + jx;
+        py[n] = (float)y + jy;
+        at[n++] = j;
+        if (n == TRACE_BATCH) {
+            pass_paths(job, thread, n, r, px, py, at, out);
+            n = 0;
+        }
+    }
     if (n)
         pass_paths(job, thread, n, r, px, py, at, out);
     if (out)
-        job->sink->fn(job->sink->user, rank_tile(job->c.t, k), thread, out);
+        job->sink->fn(job->sink->user, k, thread, out);
 }
 
-int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
-                float *moment, const record_sink *sink, render_memory *mem, path_stats *stats,
-                tr_error *err)
+int render_pass(const tracer *t, uint64_t seed, uint32_t stream, const nf_pass_plan *plan,
+                int threads, float *rgb, float *moment, const record_sink *sink,
+                render_memory *mem, path_stats *stats, tr_error *err)
 {
-    pass_job job = {{0}, sink, img, moment, seed, pass};
-    clear_for_ranks(t, img);
-    if (moment && t->ranks > 1)
-        memset(moment, 0,
-               PATH_MOMENTS * (size_t)img->width * (size_t)img->height * sizeof *moment);
-    return run_job(&job.c, t, tile_count(t), threads, pass_tile, &job, mem, NULL, NULL, stats,
-                   NULL, err);
+    pass_job job = {{0}, sink, plan, rgb, moment, seed, stream};
+    size_t chunks = (plan->paths + (size_t)PASS_CHUNK - 1) / PASS_CHUNK;
+    return run_job(&job.c, t, chunks, threads, pass_chunk, &job, mem, NULL, NULL, stats, NULL,
+                   err);
 }
 
 /* ---- Training paths through random film positions ---------------------------------------- */

@@ -1,9 +1,10 @@
 /*
- * render.h - the two parallel jobs of the tracer: rendering an image (tiles of pixels) and
- * tracing a batch of training paths. Both are deterministic for a given seed whatever the
- * number of threads: every pixel and every training path has its own random stream, and
- * training records are gathered per chunk of paths and concatenated in chunk order (a
- * batch) or handed over tile by tile with the tile's index (a pass).
+ * render.h - the parallel jobs of the tracer: rendering an image (tiles of pixels), a pass of
+ * the library's schedule (its paths, chunk by chunk) and tracing a batch of training paths.
+ * All are deterministic for a given seed whatever the number of threads: every pixel and
+ * every path has its own random stream, and training records are gathered per chunk of paths
+ * and concatenated in chunk order (a batch) or handed over chunk by chunk with the chunk's
+ * index (a pass).
  */
 #ifndef TRACER_RENDER_H
 #define TRACER_RENDER_H
@@ -35,28 +36,28 @@ typedef struct render_memory {
 
 void render_memory_free(render_memory *mem);
 
-/* Where a training pass's records go: fn(user, tile, thread, records) runs on the render
- * thread that traced the tile, once the tile is done, with its records in path order
- * (records->out_of_memory set when some could not be kept). `tile` is the tile's index on the
- * film, the same for any number of threads and on every rank, so that keys made from it
+/* Where a training pass's records go: fn(user, chunk, thread, records) runs on the render
+ * thread that traced the chunk (PASS_CHUNK consecutive paths of the pass), once it is done,
+ * with its records in path order (records->out_of_memory set when some could not be kept).
+ * `chunk` is the same for any number of threads and on every rank, so that keys made from it
  * order the samples as one thread would. fn may run on several threads at once, each with its
  * own `thread` in [0, threads); failures are its own to keep and report. */
 typedef struct record_sink {
-    void (*fn)(void *user, size_t tile, int thread, const record_buffer *records);
+    void (*fn)(void *user, size_t chunk, int thread, const record_buffer *records);
     void *user;
 } record_sink;
 
-/* Renders one path per pixel into img (overwriting it; the scene's resolution; with
- * t->ranks > 1 only this rank's tiles, the others black, as render_image) with the random
- * streams of `pass`. With moment != NULL (PATH_MOMENTS planes of one float per pixel,
- * row-major), each pixel's path also writes its estimates of second moments there, plane k
- * its moment[k] (trace_path_moment).
- * With sink != NULL, the paths record training samples, which go to the sink tile by tile
- * while the pass runs. mem: the memory to reuse, or NULL (allocated for this pass). The
- * passes of a time-budgeted render (budget.h) are these. */
-int render_pass(const tracer *t, uint64_t seed, uint32_t pass, int threads, image *img,
-                float *moment, const record_sink *sink, render_memory *mem, path_stats *stats,
-                tr_error *err);
+/* Renders the paths of the schedule's pass `plan` (nisflow/schedule.h): path j through pixel
+ * nf_pass_pixel(plan, j), with random stream j of `stream`, into rgb[3 j ..] and, with
+ * moment != NULL (PATH_MOMENTS planes of plan->paths floats), its estimates of second moments
+ * into moment[k plan->paths + j] (trace_path_moment). With t->ranks > 1 only the paths through
+ * this rank's tiles (as render_image deals them); the others are 0. With sink != NULL, the
+ * paths record training samples, which go to the sink chunk by chunk while the pass runs.
+ * mem: the memory to reuse, or NULL (allocated for this pass). The passes of a time-budgeted
+ * render (budget.h) are these. */
+int render_pass(const tracer *t, uint64_t seed, uint32_t stream, const nf_pass_plan *plan,
+                int threads, float *rgb, float *moment, const record_sink *sink,
+                render_memory *mem, path_stats *stats, tr_error *err);
 
 /* Traces the training paths first .. first + paths - 1 of iteration `iteration`, each through
  * a uniformly random film position (path j's random stream depends on j alone, so a rank that

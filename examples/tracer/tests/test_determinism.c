@@ -148,22 +148,22 @@ static void assert_same_records(const record_buffer *a, const record_buffer *b)
     }
 }
 
-/* A record sink that keeps each tile's records apart (at most 16 tiles), to compare passes in
- * tile order. */
+/* A record sink that keeps each chunk's records apart (at most 16 chunks), to compare passes
+ * in chunk order. */
 typedef struct tile_parts {
     record_buffer tile[16];
     int out_of_memory;
 } tile_parts;
 
-static void keep_tile(void *user, size_t tile, int thread, const record_buffer *records)
+static void keep_tile(void *user, size_t chunk, int thread, const record_buffer *records)
 {
     (void)thread;
     tile_parts *p = user;
-    if (tile >= 16 || records->out_of_memory || !record_buffer_append(&p->tile[tile], records))
+    if (chunk >= 16 || records->out_of_memory || !record_buffer_append(&p->tile[chunk], records))
         p->out_of_memory = 1;
 }
 
-/* The pass's records in tile order; the parts are freed. */
+/* The pass's records in chunk order; the parts are freed. */
 static void join_tiles(tile_parts *p, record_buffer *out)
 {
     assert_false(p->out_of_memory);
@@ -171,6 +171,22 @@ static void join_tiles(tile_parts *p, record_buffer *out)
         assert_true(record_buffer_append(out, &p->tile[i]));
         record_buffer_free(&p->tile[i]);
     }
+}
+
+/* The first pass of a schedule for a w x h image that fits a pass. */
+static nf_pass_plan whole_image_plan(int w, int h)
+{
+    nf_schedule_config sc;
+    nf_schedule_config_init(&sc);
+    sc.width = (uint32_t)w;
+    sc.height = (uint32_t)h;
+    sc.budget = 1.0;
+    nf_schedule *sched = NULL;
+    nf_pass_plan plan;
+    assert_int_equal(nf_schedule_create(NULL, &sc, &sched), NF_OK);
+    assert_int_equal(nf_schedule_next(sched, 0.0, NULL, &plan), NF_OK);
+    nf_schedule_destroy(sched); /* the plan holds no pointer into it */
+    return plan;
 }
 
 /* One pass rendered three times: one path at a time with the flow asked at shading points
@@ -211,12 +227,16 @@ static void check_batched_pass_in(const char *scene_name, model_prior prior,
           *moment_batched = calloc(PATH_MOMENTS * pixels, sizeof(float));
     assert_non_null(moment_one);
     assert_non_null(moment_batched);
-    assert_true(render_pass(&one_by_one, 7, 3, 2, &one, moment_one, &sink_one, NULL, &st_one,
-                            &err));
-    assert_true(render_pass(&t, 7, 3, 2, &batched, moment_batched, NULL, &mem, &st_batched, &err));
-    assert_true(render_pass(&t, 7, 3, 2, &recorded, NULL, &sink_batched, &mem, &st_recorded,
-                            &err));
-    assert_true(render_pass(&t, 7, 4, 2, &other, NULL, NULL, &mem, NULL, &err));
+    /* A schedule's pass over the whole image: path j through pixel j, into the images. */
+    nf_pass_plan plan = whole_image_plan(s.width, s.height);
+    assert_int_equal(plan.paths, pixels);
+    assert_true(render_pass(&one_by_one, 7, 3, &plan, 2, one.data, moment_one, &sink_one, NULL,
+                            &st_one, &err));
+    assert_true(render_pass(&t, 7, 3, &plan, 2, batched.data, moment_batched, NULL, &mem,
+                            &st_batched, &err));
+    assert_true(render_pass(&t, 7, 3, &plan, 2, recorded.data, NULL, &sink_batched, &mem,
+                            &st_recorded, &err));
+    assert_true(render_pass(&t, 7, 4, &plan, 2, other.data, NULL, NULL, &mem, NULL, &err));
     render_memory_free(&mem);
     join_tiles(&parts_one, &records_one);
     join_tiles(&parts_batched, &records_batched);
