@@ -440,7 +440,8 @@ int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats *st,
     const int smooth = bsdf_has_smooth_part(b);
     const float g = t->model ? t->policy.mixture_prob : 0.0f;
     const int guided = smooth && g > 0.0f && (t->guide_depth == 0 || depth <= t->guide_depth) &&
-                       !(b->type == BSDF_ROUGHCONDUCTOR && b->alpha < t->policy.min_roughness);
+                       !((b->type == BSDF_ROUGHCONDUCTOR || b->type == BSDF_ROUGHDIELECTRIC) &&
+                         b->alpha < t->policy.min_roughness);
     vp->p = sf.p;
     vec3 n = vp->sh.fr.n;
     nf_context *ctx = &vp->q.ctx;

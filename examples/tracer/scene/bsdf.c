@@ -2,9 +2,10 @@
  * bsdf.c - evaluation, sampling and densities of the materials in bsdf.h.
  *
  * The rough types sample microfacet normals from D(h) cos(theta_h) and reflect wo about
- * them. Plastics follow Mitsuba's plastic: a Fresnel-weighted choice between the coating
- * and the diffuse base, whose light is attenuated by Fresnel transmission in and out and
- * by internal reflections. roughplastic uses the same base term with the Fresnel factor of
+ * them; the rough dielectric reflects or refracts (Walter et al. 2007, with Mitsuba's
+ * choice by the Fresnel term at the microfacet). Plastics follow Mitsuba's plastic: a
+ * Fresnel-weighted choice between the coating and the diffuse base, whose light is
+ * attenuated by Fresnel transmission in and out and by internal reflections. roughplastic uses the same base term with the Fresnel factor of
  * the macro-surface (Mitsuba integrates the rough coating's transmittance numerically;
  * this approximation keeps the appearance and stays energy conserving).
  */
@@ -39,7 +40,8 @@ int bsdf_has_smooth_part(const bsdf *b)
 
 int bsdf_transmits(const bsdf *b)
 {
-    return b->type == BSDF_DIELECTRIC || b->type == BSDF_THINDIELECTRIC;
+    return b->type == BSDF_DIELECTRIC || b->type == BSDF_THINDIELECTRIC ||
+           b->type == BSDF_ROUGHDIELECTRIC;
 }
 
 /* ---- Pieces shared by several materials ----------------------------------------------- */
@@ -85,13 +87,103 @@ static rgb microfacet_reflection(const bsdf_point *bp, vec3 wo, vec3 wi)
     return rgb_mul(rgb_scale(f, dg), bp->specular);
 }
 
+/* ---- The rough dielectric: microfacets that reflect and refract ------------------------ */
+
+/* The microfacet normal that turns wo into wi and what the pair needs: for a reflection
+ * (wo and wi on one side) the half vector, for a refraction the generalized one,
+ * normalize(wo + eta wi) with eta = n_wi / n_wo; flipped to the upper side. Returns 0 when no
+ * microfacet does it (wi on the wrong side of m, grazing directions). */
+typedef struct rough_pair {
+    vec3 m;
+    int reflect;
+    float eta;   /* n on wi's side over n on wo's side */
+    float F;     /* Fresnel reflectance at wo . m */
+    float D;     /* the distribution at m */
+    float denom; /* refraction: wo . m + eta wi . m */
+} rough_pair;
+
+static int rough_pair_of(const bsdf *b, vec3 wo, vec3 wi, rough_pair *rp)
+{
+    if (wo.z == 0.0f || wi.z == 0.0f)
+        return 0;
+    rp->reflect = wo.z * wi.z > 0.0f;
+    rp->eta = rp->reflect ? 1.0f : (wo.z > 0.0f ? b->ior : 1.0f / b->ior);
+    vec3 m = v3_add(wo, v3_scale(wi, rp->eta));
+    float len = v3_length(m);
+    if (!(len > 0.0f))
+        return 0;
+    m = v3_scale(m, (m.z < 0.0f ? -1.0f : 1.0f) / len);
+    float cwo = v3_dot(wo, m), cwi = v3_dot(wi, m);
+    /* Each direction on its own side of the microfacet as of the surface (the refraction's
+     * two on opposite sides of m). */
+    if (cwo * wo.z <= 0.0f || cwi * wi.z <= 0.0f)
+        return 0;
+    rp->m = m;
+    rp->F = fresnel_dielectric(cwo, b->ior, NULL, NULL);
+    rp->D = mf_D(b->distribution, b->alpha, m);
+    rp->denom = cwo + rp->eta * cwi;
+    return rp->D > 0.0f && (rp->reflect || rp->denom != 0.0f);
+}
+
+/* f |cos theta_i|: F D G / (4 |cos_o|) reflected, (1 - F) D G |wo.m wi.m| / (|cos_o| denom^2)
+ * refracted (radiance: the (n_wo / n_wi)^2 of the solid angle's compression included). */
+static rgb rough_dielectric_eval(const bsdf_point *bp, vec3 wo, vec3 wi)
+{
+    const bsdf *b = bp->b;
+    rough_pair rp;
+    if (!rough_pair_of(b, wo, wi, &rp))
+        return rgb_gray(0.0f);
+    float G = mf_G(b->distribution, b->alpha, wo, wi, rp.m);
+    if (rp.reflect)
+        return rgb_scale(bp->specular, rp.F * rp.D * G / (4.0f * fabsf(wo.z)));
+    float v = (1.0f - rp.F) * rp.D * G *
+              fabsf(v3_dot(wo, rp.m) * v3_dot(wi, rp.m) / (wo.z * rp.denom * rp.denom));
+    return rgb_scale(bp->transmission, v);
+}
+
+/* The density of rough_dielectric_sample: m ~ D cos, then reflection with probability F. */
+static float rough_dielectric_pdf(const bsdf *b, vec3 wo, vec3 wi)
+{
+    rough_pair rp;
+    if (!rough_pair_of(b, wo, wi, &rp))
+        return 0.0f;
+    float pm = rp.D * rp.m.z;
+    if (rp.reflect)
+        return pm * rp.F / (4.0f * fabsf(v3_dot(wo, rp.m)));
+    return pm * (1.0f - rp.F) * rp.eta * rp.eta * fabsf(v3_dot(wi, rp.m)) /
+           (rp.denom * rp.denom);
+}
+
+/* wi from a microfacet normal m ~ D cos: reflected about it with probability F(wo . m),
+ * refracted through it otherwise. Returns 0 for a microfacet facing away from wo and when
+ * the direction ends on the wrong side of the surface (the mass bsdf_pdf leaves out). */
+static int rough_dielectric_sample(const bsdf *b, vec3 wo, float u_lobe, float u0, float u1,
+                                   vec3 *wi)
+{
+    vec3 m = mf_sample_h(b->distribution, b->alpha, u0, u1);
+    float c = v3_dot(wo, m), cos_t, eta_ti;
+    /* A microfacet that faces away from wo: its Fresnel term would take wo for a ray from
+     * the other side. */
+    if (c * wo.z <= 0.0f)
+        return 0;
+    float F = fresnel_dielectric(c, b->ior, &cos_t, &eta_ti);
+    if (u_lobe < F) {
+        *wi = v3_sub(v3_scale(m, 2.0f * c), wo);
+        return wi->z * wo.z > 0.0f;
+    }
+    *wi = v3_normalize(v3_add(v3_scale(wo, -eta_ti), v3_scale(m, eta_ti * c + cos_t)));
+    return wi->z * wo.z < 0.0f;
+}
+
 /* ---- The three functions of the interface ------------------------------------------------ */
 
 rgb bsdf_eval(const bsdf_point *bp, vec3 wo, vec3 wi)
 {
     const bsdf *b = bp->b;
     rgb zero = rgb_gray(0.0f);
-    if (wo.z <= 0.0f || wi.z <= 0.0f) /* every non-delta lobe here is a reflection */
+    if (b->type == BSDF_ROUGHDIELECTRIC)
+        return rough_dielectric_eval(bp, wo, wi);
+    if (wo.z <= 0.0f || wi.z <= 0.0f) /* every other non-delta lobe is a reflection */
         return zero;
     switch (b->type) {
     case BSDF_DIFFUSE:
@@ -110,6 +202,8 @@ rgb bsdf_eval(const bsdf_point *bp, vec3 wo, vec3 wi)
 float bsdf_pdf(const bsdf_point *bp, vec3 wo, vec3 wi)
 {
     const bsdf *b = bp->b;
+    if (b->type == BSDF_ROUGHDIELECTRIC)
+        return rough_dielectric_pdf(b, wo, wi);
     if (wo.z <= 0.0f || wi.z <= 0.0f)
         return 0.0f;
     switch (b->type) {
@@ -132,7 +226,7 @@ float bsdf_pdf(const bsdf_point *bp, vec3 wo, vec3 wi)
 /* Completes a non-delta sample: density and weight from the full material. */
 static int finish_smooth(const bsdf_point *bp, vec3 wo, bsdf_sample *s)
 {
-    if (s->wi.z <= 0.0f)
+    if (s->wi.z <= 0.0f && bp->b->type != BSDF_ROUGHDIELECTRIC)
         return 0; /* reflected below the surface: the sampler failed */
     s->pdf = bsdf_pdf(bp, wo, s->wi);
     if (!(s->pdf > 0.0f))
@@ -146,6 +240,9 @@ int bsdf_sample_dir(const bsdf_point *bp, vec3 wo, float u_lobe, float u0, float
                     bsdf_sample *s)
 {
     const bsdf *b = bp->b;
+    if (b->type == BSDF_ROUGHDIELECTRIC)
+        return rough_dielectric_sample(b, wo, u_lobe, u0, u1, &s->wi) &&
+               finish_smooth(bp, wo, s);
     if (bsdf_transmits(b)) {
         /* A delta pair: the mirror direction with probability r, else the transmitted one. */
         float r, cos_t = 0.0f, eta_ti = 1.0f;
@@ -266,7 +363,8 @@ static float lobe_specular_probability(const bsdf *b, vec3 wo)
         return 1.0f;
     if (b->type == BSDF_ROUGHPLASTIC)
         return plastic_specular_probability(b, wo.z);
-    return 0.0f; /* diffuse, plastic (its coating is a delta), pure delta materials */
+    return 0.0f; /* diffuse, plastic (its coating is a delta), pure delta materials, the
+                  * rough dielectric (the prior's lobe is a reflection) */
 }
 
 static vec3 safe_wo(vec3 wo)

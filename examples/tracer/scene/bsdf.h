@@ -1,7 +1,7 @@
 /*
  * bsdf.h - the materials of the scene format: diffuse, conductor, roughconductor,
- * dielectric, thindielectric, plastic and roughplastic, each optionally two-sided and
- * optionally masked (an opacity texture, applied when rays are traced).
+ * dielectric, thindielectric, roughdielectric, plastic and roughplastic, each optionally
+ * two-sided and optionally masked (an opacity texture, applied when rays are traced).
  *
  * All directions are local to the shading frame (normal = +z) and point away from the
  * surface: wo towards the previous path vertex (the camera side), wi towards the light.
@@ -15,7 +15,9 @@
  *   bsdf_sample may fail (returns 0): the path then ends, and the failure probability is
  *     exactly the mass missing from bsdf_pdf, which keeps every estimator unbiased.
  * One-sided materials are black when seen from below (wo.z <= 0), as in Mitsuba; the
- * caller flips the frame of two-sided materials so that wo.z > 0.
+ * caller flips the frame of two-sided materials so that wo.z > 0. Dielectrics have two
+ * sides: wo.z < 0 is inside (the side the normal points away from). Transmission carries
+ * radiance: its values are scaled by (n_wo / n_wi)^2, Mitsuba's radiance mode.
  */
 #ifndef TRACER_BSDF_H
 #define TRACER_BSDF_H
@@ -31,6 +33,7 @@ typedef enum bsdf_type {
     BSDF_DIELECTRIC,     /* smooth: delta reflection and refraction            */
     BSDF_THINDIELECTRIC, /* a thin sheet: delta reflection, and transmission straight
                           * through, with the sheet's internal reflections summed  */
+    BSDF_ROUGHDIELECTRIC, /* microfacet reflection and refraction (Walter et al. 2007) */
     BSDF_PLASTIC,        /* delta coating over a diffuse base                  */
     BSDF_ROUGHPLASTIC,   /* microfacet coating over a diffuse base             */
     BSDF_NULL            /* no surface: the boundary of a medium. The integrator passes
@@ -89,7 +92,7 @@ int bsdf_sample_dir(const bsdf_point *bp, vec3 wo, float u_lobe, float u0, float
  * fails to produce a direction: the prior of the flow for --prior bsdf (see bsdf_prior.c).
  * Where the microfacet lobe yields no direction (a back-facing microfacet, a reflection
  * below the surface), the same random numbers drive a cosine lobe, and the density includes
- * that fallback exactly. Pure delta materials get a cosine lobe. wo.z should be > 0 (it is
+ * that fallback exactly. Pure delta materials and the rough dielectric get a cosine lobe. wo.z should be > 0 (it is
  * clamped to a grazing angle otherwise). */
 vec3 bsdf_lobe_sample(const bsdf_point *bp, vec3 wo, float u0, float u1, float *pdf);
 float bsdf_lobe_pdf(const bsdf_point *bp, vec3 wo, vec3 wi);

@@ -1,7 +1,7 @@
 /*
  * scene_materials.c - textures (bitmap, checkerboard) and BSDFs (diffuse, twosided, mask,
- * conductor, roughconductor, dielectric, thindielectric, plastic, roughplastic) from their
- * XML elements, with Mitsuba 3's parameter names and defaults.
+ * conductor, roughconductor, dielectric, thindielectric, roughdielectric, plastic,
+ * roughplastic) from their XML elements, with Mitsuba 3's parameter names and defaults.
  */
 #include <math.h>
 #include <stdio.h>
@@ -306,6 +306,14 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
              get_texture(L, n, "specular_reflectance", rgb_gray(1.0f), &b.specular) &&
              get_texture(L, n, "specular_transmittance", rgb_gray(1.0f), &b.transmission);
         b.ior = ok ? int_ior / ext_ior : 1.0f;
+    } else if (!strcmp(type, "roughdielectric")) {
+        b.type = BSDF_ROUGHDIELECTRIC;
+        ok = get_ior(L, n, "int_ior", 1.5046f, &int_ior) &&
+             get_ior(L, n, "ext_ior", 1.000277f, &ext_ior) &&
+             get_texture(L, n, "specular_reflectance", rgb_gray(1.0f), &b.specular) &&
+             get_texture(L, n, "specular_transmittance", rgb_gray(1.0f), &b.transmission) &&
+             get_roughness(L, n, &b);
+        b.ior = ok ? int_ior / ext_ior : 1.0f;
     } else if (!strcmp(type, "plastic") || !strcmp(type, "roughplastic")) {
         b.type = type[0] == 'p' ? BSDF_PLASTIC : BSDF_ROUGHPLASTIC;
         ok = get_ior(L, n, "int_ior", 1.49f, &int_ior) &&
@@ -319,8 +327,8 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
         b.type = BSDF_NULL; /* the invisible boundary of a medium (render/vertex.c) */
     } else {
         return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, mask, "
-                       "conductor, roughconductor, dielectric, thindielectric, plastic, "
-                       "roughplastic, null)", type);
+                       "conductor, roughconductor, dielectric, thindielectric, "
+                       "roughdielectric, plastic, roughplastic, null)", type);
     }
     if (!ok || !check_all_used(L, n))
         return 0;

@@ -7,7 +7,9 @@
  *     count is the mass missing from the density;
  *   - the sample's weight and pdf equal bsdf_eval / bsdf_pdf at the sampled direction;
  *   - the same chi-square test for the flow's BSDF prior (bsdf_lobe_sample / _pdf), which
- *     must never fail and integrate to one.
+ *     must never fail and integrate to one;
+ *   - the rough dielectric, nearly smooth, is the smooth one: its Fresnel split and the
+ *     radiance a refraction carries.
  *
  * A deliberately wrong density must be rejected (the negative control shows that the test
  * has the power to fail).
@@ -36,7 +38,7 @@
 #define NZ 20  /* bins in cos(theta), edges at -1, -0.9, ..., 0, ..., 1: one edge at the horizon */
 #define NP 40  /* bins in phi */
 #define SUB 10 /* midpoint rule on SUB x SUB points per cell for the expected counts */
-#define CONFIGS 13 /* chi-square tests in this file, for the Sidak correction */
+#define CONFIGS 16 /* chi-square tests in this file, for the Sidak correction */
 #define PI_D 3.14159265358979323846
 
 /* ---- Regularized upper incomplete gamma Q(a, x) (p-value of a chi-square statistic) ---- */
@@ -201,6 +203,7 @@ static void make_material(material *m, bsdf_type type, mf_type dist, float alpha
     m->b.type = type;
     m->b.diffuse = &m->diffuse;
     m->b.specular = &m->specular;
+    m->b.transmission = &m->specular; /* white: the dielectrics' transmittance */
     m->b.distribution = dist;
     m->b.alpha = alpha;
     m->b.eta = rgb_make(0.2f, 0.9f, 1.1f); /* a coloured conductor */
@@ -228,6 +231,9 @@ static const struct fit_case {
     {"roughplastic GGX 0.3, 45 deg", BSDF_ROUGHPLASTIC, MF_GGX, 0.3f, 45.0f, 0},
     {"roughplastic Beckmann 0.5, 70 deg", BSDF_ROUGHPLASTIC, MF_BECKMANN, 0.5f, 70.0f, 0},
     {"plastic (diffuse base), 60 deg", BSDF_PLASTIC, MF_GGX, 0.0f, 60.0f, 0},
+    {"roughdielectric GGX 0.3, 30 deg", BSDF_ROUGHDIELECTRIC, MF_GGX, 0.3f, 30.0f, 0},
+    {"roughdielectric Beckmann 0.5, 70 deg", BSDF_ROUGHDIELECTRIC, MF_BECKMANN, 0.5f, 70.0f, 0},
+    {"roughdielectric GGX 0.2, inside, 140 deg", BSDF_ROUGHDIELECTRIC, MF_GGX, 0.2f, 140.0f, 0},
     {"prior: roughconductor GGX 0.3, 75 deg", BSDF_ROUGHCONDUCTOR, MF_GGX, 0.3f, 75.0f, 1},
     {"prior: roughconductor Beckmann 0.5, 40 deg", BSDF_ROUGHCONDUCTOR, MF_BECKMANN, 0.5f, 40.0f,
      1},
@@ -300,6 +306,72 @@ static void test_sample_weight_is_f_cos_over_pdf(void **state)
     }
 }
 
+/* The rough dielectric from both sides: each sample's weight is f |cos| / pdf and its density
+ * the one bsdf_pdf recomputes, for reflections and refractions alike. */
+static void test_rough_dielectric_weights(void **state)
+{
+    (void)state;
+    rng r = rng_seed(98, RNG_TEST, 1, 0);
+    for (int dist = 0; dist < 2; ++dist) {
+        material m;
+        make_material(&m, BSDF_ROUGHDIELECTRIC, dist ? MF_GGX : MF_BECKMANN, 0.25f);
+        int seen[2] = {0, 0};
+        for (int i = 0; i < 20000; ++i) {
+            vec3 wo = sample_cosine_hemisphere(rng_next(&r), rng_next(&r));
+            if (i & 1)
+                wo.z = -wo.z; /* inside */
+            bsdf_sample s;
+            if (!bsdf_sample_dir(&m.bp, wo, rng_next(&r), rng_next(&r), rng_next(&r), &s))
+                continue;
+            assert_false(s.delta);
+            float pdf = bsdf_pdf(&m.bp, wo, s.wi);
+            rgb f = bsdf_eval(&m.bp, wo, s.wi);
+            /* The same float arithmetic: equal to rounding. */
+            assert_float_equal(s.pdf, pdf, 1e-5f * pdf);
+            assert_float_equal(s.weight.g, f.g / pdf, 1e-4f * fmaxf(s.weight.g, 1e-6f));
+            seen[s.wi.z * wo.z < 0.0f]++;
+        }
+        assert_true(seen[0] > 1000 && seen[1] > 1000);
+    }
+}
+
+/* Nearly smooth (alpha 1e-3), the rough dielectric is the smooth one: at 30 degrees from
+ * outside and inside, the reflected share is the Fresnel reflectance (within 5 standard
+ * errors of 20,000 draws) and a refraction carries (n_wo / n_wi)^2 of the radiance on
+ * average (the solid angle's compression: 1 / 1.5^2 entering, 1.5^2 leaving; 0.5 %: a draw's
+ * weight moves by tan(30 deg) times its microfacet's tilt, of mean 0, and GGX's long tail
+ * tilts a few of them by 1e-2). */
+static void test_rough_dielectric_smooth_limit(void **state)
+{
+    (void)state;
+    rng r = rng_seed(97, RNG_TEST, 1, 0);
+    material m;
+    make_material(&m, BSDF_ROUGHDIELECTRIC, MF_GGX, 1e-3f);
+    for (int side = 0; side < 2; ++side) {
+        float t = 30.0f * PI_F / 180.0f;
+        vec3 wo = v3(sinf(t), 0.0f, side ? -cosf(t) : cosf(t));
+        float F = fresnel_dielectric(wo.z, m.b.ior, NULL, NULL);
+        float want = side ? m.b.ior * m.b.ior : 1.0f / (m.b.ior * m.b.ior);
+        const int n = 20000;
+        int reflected = 0, refracted = 0;
+        double sum[2] = {0.0, 0.0};
+        for (int i = 0; i < n; ++i) {
+            bsdf_sample s;
+            if (!bsdf_sample_dir(&m.bp, wo, rng_next(&r), rng_next(&r), rng_next(&r), &s))
+                continue;
+            const int through = s.wi.z * wo.z < 0.0f;
+            reflected += !through;
+            refracted += through;
+            sum[through] += s.weight.g;
+        }
+        assert_float_equal(sum[0] / reflected, 1.0, 0.005);
+        assert_float_equal(sum[1] / refracted, want, 0.005 * want);
+        double share = (double)reflected / n, se = sqrt(F * (1.0 - F) / n);
+        assert_true(fabs(share - F) < 5.0 * se + 1e-9);
+        assert_true(reflected + refracted > n * 99 / 100); /* nearly every draw succeeds */
+    }
+}
+
 static void test_energy_is_conserved(void **state)
 {
     (void)state;
@@ -339,6 +411,8 @@ static void test_energy_is_conserved(void **state)
 NFT_TEST_MAIN(
     cmocka_unit_test(test_chi2_fits),
     cmocka_unit_test(test_chi2_detects_a_wrong_density),
+    cmocka_unit_test(test_rough_dielectric_weights),
+    cmocka_unit_test(test_rough_dielectric_smooth_limit),
     cmocka_unit_test(test_sample_weight_is_f_cos_over_pdf),
     cmocka_unit_test(test_energy_is_conserved),
 )

@@ -1,8 +1,9 @@
 /*
  * test_interiors.c - what Bitterli's interiors need of the loader: files of scene version
  * < 2.0.0 upgraded as Mitsuba 3 upgrades them, the mask BSDF (an alpha test, also from a
- * PNG's alpha channel), the thin dielectric, the disk shape, meshes with no usable triangle skipped with a
- * warning, and the two shipped interiors loading as they were distributed.
+ * PNG's alpha channel), the thin and the rough dielectric, the disk shape, meshes with no
+ * usable triangle skipped with a warning, and the two shipped interiors loading as they
+ * were distributed.
  */
 #include <math.h>
 #include <setjmp.h>
@@ -206,6 +207,38 @@ static void test_thin_dielectric(void **state)
                  "a twosided dielectric makes no sense", NULL);
 }
 
+/* ---- The rough dielectric -------------------------------------------------------------------------- */
+
+/* roughdielectric loads with Mitsuba 3's defaults (Beckmann, alpha 0.1, int_ior 1.5046 over
+ * ext_ior 1.000277), transmits, is guided (it has a non-delta part), and takes the
+ * roughness parameters of the other rough materials; test_bsdf.c checks its sampling. */
+static void test_rough_dielectric(void **state)
+{
+    (void)state;
+    scene s;
+    load("<scene version=\"3.0.0\">" SENSOR
+         "<shape type=\"rectangle\"><bsdf type=\"roughdielectric\"/></shape>"
+         "<shape type=\"rectangle\"><bsdf type=\"roughdielectric\">"
+         "<string name=\"distribution\" value=\"ggx\"/><float name=\"alpha\" value=\"0.3\"/>"
+         "<float name=\"int_ior\" value=\"1.33\"/></bsdf></shape></scene>",
+         &s);
+    const bsdf *a = &s.bsdfs[s.shapes[0].bsdf], *b = &s.bsdfs[s.shapes[1].bsdf];
+    assert_int_equal(a->type, BSDF_ROUGHDIELECTRIC);
+    assert_int_equal(a->distribution, MF_BECKMANN);
+    assert_float_equal(a->alpha, 0.1f, 0.0f);
+    assert_float_equal(a->ior, 1.5046f / 1.000277f, 1e-6f);
+    assert_true(bsdf_transmits(a) && bsdf_has_smooth_part(a));
+    assert_int_equal(b->distribution, MF_GGX);
+    assert_float_equal(b->alpha, 0.3f, 0.0f);
+    assert_float_equal(b->ior, 1.33f / 1.000277f, 1e-6f);
+    scene_free(&s);
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"roughdielectric\">"
+                 "<float name=\"alpha_u\" value=\"0.1\"/><float name=\"alpha_v\" value=\"0.2\"/>"
+                 "</bsdf></shape></scene>",
+                 "anisotropic roughness", NULL);
+}
+
 /* ---- The disk ------------------------------------------------------------------------------------- */
 
 static void test_disk(void **state)
@@ -302,6 +335,7 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_mask_constant_opacity),
     cmocka_unit_test(test_mask_from_png_alpha),
     cmocka_unit_test(test_thin_dielectric),
+    cmocka_unit_test(test_rough_dielectric),
     cmocka_unit_test(test_disk),
     cmocka_unit_test(test_mesh_without_area_is_skipped),
     cmocka_unit_test(test_living_room),
