@@ -122,6 +122,11 @@ NF_API nf_status nf_table_pdf(const nf_model *m, const nf_direction_table *table
  * table is kept until the model changes: a find with another model, or after the parameters
  * changed, forgets every table first (O(1): a new epoch) and reuses their memory.
  *
+ * Cost per thread: caches share nothing, so each render thread's builds the cells that thread
+ * visits. T threads hold T x capacity x 2,192 bytes (8.6 MiB each at the default: 550 MiB for
+ * 64 threads) and build up to T times one thread's tables, each about one nf_table_build;
+ * both are bounded by capacity, which the renderer sets from the cells a render visits.
+ *
  * Thread-safety: a cache belongs to one thread at a time (one per render thread); its calls
  * never overlap. The models it is asked about may be shared (const). */
 typedef struct nf_table_cache nf_table_cache;
