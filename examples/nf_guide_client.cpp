@@ -186,9 +186,9 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
             nf_path_add(&ps, uint32_t(depth - 1), beta * kLe * w, beta * kLe * w_plain); // nf
             if (depth > 1) {
                 nf_path_vertex &prev = out.v[out.vertices - 1];
-                // guide: the flow learns the emission as the pixel weighs it (integration.md)
-                prev.emitted[0] = prev.emitted[1] = prev.emitted[2] = kLe * w;
-                prev.emitted_mis = 1.0f;
+                // guide: the emission unweighted, with the MIS weight the pixel gave it
+                prev.emitted[0] = prev.emitted[1] = prev.emitted[2] = kLe;
+                prev.emitted_mis = w;
             }
         }
         if (h.light != 0 || depth > kMaxDepth)

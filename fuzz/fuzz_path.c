@@ -107,7 +107,7 @@ static double reference_weight(const nf_path_vertex *v, size_t n, size_t j)
 {
     double w = 0.0;
     for (int c = 0; c < 3; ++c) {
-        double li = v[j].emitted[c], carry = 1.0;
+        double li = (double)v[j].emitted_mis * v[j].emitted[c], carry = 1.0;
         for (size_t k = j + 1; k < n; ++k) {
             li += carry *
                   (v[k].direct[c] + (double)v[k].beta[c] * v[k].emitted_mis * v[k].emitted[c]);

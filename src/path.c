@@ -87,7 +87,7 @@ static size_t walk(size_t n, const nf_path_vertex *v, size_t total, nf_context *
             double w = 0.0;
             for (int c = 0; c < 3; ++c)
                 if (x->f_over_p[c] != 0.0f) /* 0 even where L_i overflowed */
-                    w += (double)x->f_over_p[c] * ((double)x->emitted[c] + s[c]);
+                    w += (double)x->f_over_p[c] * ((double)x->emitted_mis * x->emitted[c] + s[c]);
             w /= 3.0;
             /* The float conversion is only defined in range. */
             float wf = w > 0.0 && w <= (double)FLT_MAX ? (float)w : 0.0f;

@@ -15,19 +15,22 @@
  *
  *     S = 0
  *     for j = last .. 0:
- *         L_i(w_j) = emitted_j + S
+ *         L_i(w_j) = emitted_mis_j * emitted_j + S
  *         if learn_j:  f_j = mean(f_over_p_j * L_i(w_j))    (a sample if 0 < f_j <= FLT_MAX)
- *         S = direct_j + beta_j * (emitted_mis_j * emitted_j + S)
+ *         S = direct_j + beta_j * L_i(w_j)
  *
- * Written forwards, L_i(w_j) = E_j + sum over k > j of (prod_{j<m<k} beta_m) (D_k + beta_k H_k
- * E_k), with D = direct, E = emitted, H = emitted_mis: an unbiased estimate of the radiance
- * along w_j, whatever the later vertices did (next-event estimation, MIS, delta bounces,
- * Russian roulette).
+ * Written forwards, L_i(w_j) = H_j E_j + sum over k > j of (prod_{j<m<k} beta_m) (D_k +
+ * beta_k H_k E_k), with D = direct, E = emitted, H = emitted_mis: the radiance along w_j as
+ * the pixel estimate counts it, whatever the later vertices did (next-event estimation, MIS,
+ * delta bounces, Russian roulette).
  *
- * Emission. emitted_j enters L_i(w_j) unweighted: the MIS weight H_j splits that emission
- * between the two techniques *at* vertex j (light sampling and scattering), but the sample
- * asks for the radiance along w_j itself. Upstream (in S) it counts with its weight H_j, next
- * to direct_j, exactly as in the pixel estimate.
+ * Emission: record it unweighted (emitted) with the MIS weight the pixel estimate gives it
+ * (emitted_mis); the walk weighs it, at vertex j's own sample as upstream. The flow then
+ * learns what scattering has to find: emission that next-event estimation already samples
+ * carries its share of light sampling's weight, not all of it (on veach-ajar, the rule that
+ * left it unweighted at its own vertex measured 1.5x the relMSE at equal time:
+ * docs/equal-time.md, the ablation's all-emission row). A renderer that wants the flow to
+ * learn all the emission found sets emitted_mis = 1.
  *
  * Russian roulette: beta_j carries 1/q_j of the vertex's own roulette, f_over_p_j does not.
  * The roulette at vertex j is decided before w_j is drawn (with a probability q_j that
@@ -86,7 +89,7 @@ NF_EXTERN_C_BEGIN
  *                the surface it hit (towards this vertex), or the environment's if it
  *                escaped; unweighted (no MIS weight, no throughput). 0 if none.
  *   emitted_mis  the MIS weight in [0, 1] the renderer gave `emitted` in its pixel estimate
- *                (1 after a delta bounce or without light sampling).
+ *                (1 after a delta bounce or without light sampling); the walk applies it.
  *
  * Sample fields (read only where learn != 0: a vertex that learns nothing, such as a
  * specular one, may leave them zero):

@@ -78,7 +78,7 @@ static double reference_weight(const nf_path_vertex *v, size_t n, size_t j)
 {
     double w = 0.0;
     for (int c = 0; c < 3; ++c) {
-        double li = v[j].emitted[c];
+        double li = (double)v[j].emitted_mis * v[j].emitted[c];
         for (size_t k = j + 1; k < n; ++k) {
             double carry = 1.0;
             for (size_t m = j + 1; m < k; ++m)
@@ -185,7 +185,7 @@ static void test_hand_made_gray(void **state)
     assert_int_equal(r.vertex[0], 0);
     assert_int_equal(r.vertex[1], 2);
     assert_rel_close(r.weight[0], 0.68);
-    assert_rel_close(r.weight[1], 0.5);
+    assert_rel_close(r.weight[1], 0.25);
     check_against_reference(v, 3, &r);
 }
 
@@ -211,18 +211,19 @@ static void test_hand_made_colour(void **state)
     assert_int_equal(run(v, 2, MAX_V, &r), NF_OK);
     assert_int_equal(r.count, 1);
     assert_int_equal(r.vertex[0], 0);
-    assert_rel_close(r.weight[0], 1.0 / 6.0);
+    assert_rel_close(r.weight[0], 1.0 / 24.0);
     check_against_reference(v, 2, &r);
 }
 
-/* Emission found at several depths, each MIS-weighted upstream and unweighted at its own
- * vertex. Four learned vertices, gray, f_over_p = beta = 0.5, H = 0.5 everywhere, emission
- * E_j = j + 1 found by each ray, no direct light.
+/* Emission found at several depths, MIS-weighted at its own vertex as upstream (the rule
+ * that weighed it only upstream would give 1.0625, 1.625, 2, 2). Four learned vertices,
+ * gray, f_over_p = beta = 0.5, H = 0.5 everywhere, emission E_j = j + 1 found by each ray, no
+ * direct light.
  *   S_4 = 0
- *   j = 3: L_i = 4,            weight 2;     S = 0.5 (0.5 * 4) = 1
- *   j = 2: L_i = 3 + 1 = 4,    weight 2;     S = 0.5 (1.5 + 1) = 1.25
- *   j = 1: L_i = 2 + 1.25,     weight 1.625; S = 0.5 (1 + 1.25) = 1.125
- *   j = 0: L_i = 1 + 1.125,    weight 1.0625 */
+ *   j = 3: L_i = 0.5 * 4 = 2,          weight 1;      S = 0.5 * 2 = 1
+ *   j = 2: L_i = 0.5 * 3 + 1 = 2.5,    weight 1.25;   S = 1.25
+ *   j = 1: L_i = 0.5 * 2 + 1.25,       weight 1.125;  S = 1.125
+ *   j = 0: L_i = 0.5 * 1 + 1.125,      weight 0.8125 */
 static void test_emission_at_several_depths(void **state)
 {
     (void)state;
@@ -235,7 +236,7 @@ static void test_emission_at_several_depths(void **state)
     result r;
     assert_int_equal(run(v, 4, MAX_V, &r), NF_OK);
     assert_int_equal(r.count, 4);
-    const double want[4] = {1.0625, 1.625, 2.0, 2.0};
+    const double want[4] = {0.8125, 1.125, 1.25, 1.0};
     for (int j = 0; j < 4; ++j) {
         assert_int_equal(r.vertex[j], j);
         assert_rel_close(r.weight[j], want[j]);
@@ -419,6 +420,7 @@ static void test_overflow_and_underflow(void **state)
     set_gray(u[0].emitted, 1e-30f);
     set_gray(u[1].f_over_p, 1e-20f);
     set_gray(u[1].emitted, 1e-20f);
+    u[0].emitted_mis = u[1].emitted_mis = 1.0f; /* the emission counts whole */
     assert_int_equal(run(u, 2, MAX_V, &r), NF_OK);
     assert_int_equal(r.count, 1);
     assert_int_equal(r.vertex[0], 1);

@@ -56,12 +56,9 @@ static int record_path(const tracer *t, nf_path_vertex *pv, const vertex_extra *
     nf_context ctx[MAX_RECORDED_VERTICES];
     float dir[3 * MAX_RECORDED_VERTICES], weight[MAX_RECORDED_VERTICES];
     size_t from[MAX_RECORDED_VERTICES], n = 0;
-    if (t->mis_training) /* L_i counts the emission found with its MIS weight (options.h) */
-        for (int j = 0; j < nv; ++j) {
-            for (int c = 0; c < 3; ++c)
-                pv[j].emitted[c] *= pv[j].emitted_mis;
+    if (!t->mis_training) /* --variant all-emission: L_i counts all the emission found */
+        for (int j = 0; j < nv; ++j)
             pv[j].emitted_mis = 1.0f;
-        }
     if (nf_path_training_samples((size_t)nv, pv, (size_t)nv, ctx, dir, weight, from, &n) != NF_OK)
         return 0;
     for (size_t i = 0; i < n; ++i) {
