@@ -279,16 +279,17 @@ NF_API nf_status nf_schedule_next(nf_schedule *s, double elapsed, const nf_reduc
 
 /* Adds the pass that `plan` (the latest from nf_schedule_next) asked for: rgb[3 x plan.paths]
  * and moments[NF_GUIDE_DEPTHS x plan.paths] in path order (as above; NULL only for a plain
- * pass), seconds its wall-clock time
- * (for a training pass, the rendering only, not the steps), cpu_seconds its CPU time summed
- * over the threads that rendered it (the choice weighs kinds by it; the first pass of the job,
- * and passes before training ended, pay for cold caches and do not decide it). A path with a
- * value not finite or a moment negative is left out and counted, not refused. Errors:
+ * pass), seconds its wall-clock time (for a training pass, the rendering only, not the
+ * steps), cpu_seconds its tracing's CPU time summed over the threads that rendered it, not
+ * their help with training steps nor table builds: time each thread's tracing alone where
+ * they help (the choice weighs kinds by it; the first pass of the job, and passes before
+ * training ended, pay for cold caches and do not decide it). A path with a value not finite
+ * or a moment negative is left out and counted, not refused. Errors:
  * NF_ERROR_INVALID_ARGUMENT (NULL, a plan not the latest or added twice, times negative or
  * not finite): the schedule is then unchanged and the plan still waits; a reduce hook's
- * status: the pass's
- * times did not reach the other processes (the pass is not added), or its measures did not
- * (the pass is added, the measures are the previous ones): make every process fail. */
+ * status: the pass's times did not reach the other processes (the pass is not added), or its
+ * measures did not (the pass is added, the measures are the previous ones): make every
+ * process fail. */
 NF_API nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const float *rgb,
                                       const float *moments, double seconds, double cpu_seconds,
                                       const nf_reduce *red);
