@@ -1,5 +1,5 @@
 /*
- * guide_choice.c - guided or plain passes (nisflow/guide.h): the relative variance of a
+ * guide_choice.c - guided or plain passes (nisflow/schedule.h): the relative variance of a
  * kind of pass from per-pixel sums, the reference without lone peaks that ranks the guided
  * depths, and the choice of the next pass from what each kind costs and buys.
  * docs/integration.md has the recipe, docs/equal-time.md the measurements.

@@ -39,7 +39,7 @@ static void report_budget(const options *o, int guided, const budget_report *br)
     uint64_t paths = br->stats.paths ? br->stats.paths : 1;
     printf("paths      %.2f rays and %.2f guided vertices per path\n",
            (double)br->stats.rays / (double)paths, (double)br->stats.guided_vertices / (double)paths);
-    /* The choice between guided and plain render passes (nisflow/guide.h), and its figures. */
+    /* The choice between guided and plain render passes (nisflow/schedule.h), and its figures. */
     const char *kind_name[2] = {"guided", "plain"};
     double cpu_all = sr->kind_cpu_seconds[0] + sr->kind_cpu_seconds[1];
     for (int k = 0; k < 2; ++k)

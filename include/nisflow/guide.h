@@ -295,8 +295,4 @@ NF_API size_t nf_guide_pending(const nf_guide *g);
 
 NF_EXTERN_C_END
 
-/* The choice of passes moved to schedule.h in 0.8; including guide.h still declares it (until
- * 0.9): include schedule.h for it. */
-#include "schedule.h"
-
 #endif /* NISFLOW_GUIDE_H */

@@ -1,5 +1,5 @@
 /*
- * test_guide_choice.c - guided or plain passes (nisflow/guide.h): the relative variance of a
+ * test_guide_choice.c - guided or plain passes (nisflow/schedule.h): the relative variance of a
  * kind of pass about a reference, exactly and in expectation, and the choice of the next
  * pass: warm-up order, the cost rule, exploration, the fixed policy and bad input; and the
  * choice of how deep guided passes guide.

@@ -1,9 +1,9 @@
 /*
- * test_guide_peaks.c - the reference without lone peaks (nf_guide_lower_peaks, nisflow/guide.h):
- * a lone peak takes its brightest neighbour's value anywhere in the image (corners and borders
- * have fewer neighbours); a peak two pixels share, dark pixels and an image of one pixel stay;
- * random images match the definition computed the slow way; bad input is refused with out
- * untouched.
+ * test_guide_peaks.c - the reference without lone peaks (nf_guide_lower_peaks,
+ * nisflow/schedule.h): a lone peak takes its brightest neighbour's value anywhere in the image
+ * (corners and borders have fewer neighbours); a peak two pixels share, dark pixels and an
+ * image of one pixel stay; random images match the definition computed the slow way; bad
+ * input is refused with out untouched.
  */
 #include <math.h>
 #include <setjmp.h>

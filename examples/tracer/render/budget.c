@@ -21,10 +21,10 @@
 /* Budget passes use their own random streams, apart from render_image's passes. */
 #define PASS_STREAM_BASE 0x100000u
 
-/* ---- A training pass's samples, tile by tile -------------------------------------------- */
+/* ---- A training pass's samples, chunk by chunk ------------------------------------------ */
 
-/* One render thread's share of a training pass's intake: its arrays, reused from tile to
- * tile, and its first failure. */
+/* One render thread's share of a training pass's intake: its arrays, reused from chunk to
+ * chunk, and its first failure. */
 typedef struct intake_thread {
     record_arrays arrays;
     int failed;

@@ -6,7 +6,7 @@
  * training passes whose records go to the guide (which trains after each), then render
  * passes guided (to a depth) or plain, until the budget ends; it combines them into the
  * image. This file is the tracer's loop around it: it renders the passes (render_pass), whose
- * render threads hand each tile's training samples to the guide as soon as it is traced, trains
+ * render threads hand each chunk's training samples to the guide as soon as it is traced, trains
  * and publishes, and keeps the ranks in step.
  * Without a guide every pass is a plain render pass.
  */
