@@ -434,8 +434,6 @@ nf_status nf_schedule_add_pass(nf_schedule *s, const nf_pass_plan *plan, const f
         }
     }
     /* The image takes the pass even when a reduce failed: it is this process's own. */
-    dropped += nf_image_add(s, s->acc[acc], w, plan, rgb, moments);
-    s->dropped += dropped;
-    s->rep.dropped = s->dropped;
+    s->rep.dropped += dropped + nf_image_add(s, s->acc[acc], w, plan, rgb, moments);
     return st;
 }

@@ -67,7 +67,6 @@ struct nf_schedule {
     float *acc[NF_ACCS];  /* every pixel: 4 floats, RGB and weight                         */
     double train_unit;    /* the first training pass's spread: the unit of their weights */
     double train_wmax;    /* the largest training pass weight                             */
-    uint64_t dropped;     /* paths left out: not finite, or a negative moment             */
 
     nf_pass_measure measured[NF_KINDS];     /* every kind against ref               */
     nf_pass_measure depth[NF_GUIDE_DEPTHS]; /* the guided kinds against peakless    */
