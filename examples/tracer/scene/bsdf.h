@@ -1,7 +1,8 @@
 /*
  * bsdf.h - the materials of the scene format: diffuse, conductor, roughconductor,
  * dielectric, thindielectric, roughdielectric, plastic and roughplastic, each optionally
- * two-sided and optionally masked (an opacity texture, applied when rays are traced).
+ * two-sided, optionally masked (an opacity texture, applied when rays are traced) and
+ * optionally bump-mapped (a height texture, applied to the shading normal).
  *
  * All directions are local to the shading frame (normal = +z) and point away from the
  * surface: wo towards the previous path vertex (the camera side), wi towards the light.
@@ -57,6 +58,10 @@ typedef struct bsdf {
                                   * texture_eval_opacity); elsewhere a ray passes through
                                   * as if nothing were there (scene.c's alpha test). NULL:
                                   * opaque. Everything below sees only the opaque part  */
+    const texture *bump;         /* bumpmap: a height field whose gradient tilts the shading
+                                  * normal (scene_surface); NULL: none. Everything below
+                                  * sees the tilted frame                               */
+    float bump_scale;            /* bumpmap: the gradient's multiplier (Mitsuba's scale) */
 } bsdf;
 
 /* Fills the derived fields (fdr_int, specular_weight) once the parameters are set. */

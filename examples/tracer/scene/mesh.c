@@ -260,3 +260,24 @@ void mesh_uv_at(const mesh *m, uint32_t tri, float b1, float b2, float *u, float
     *u = b0 * m->uv[2 * id[0]] + b1 * m->uv[2 * id[1]] + b2 * m->uv[2 * id[2]];
     *v = b0 * m->uv[2 * id[0] + 1] + b1 * m->uv[2 * id[1] + 1] + b2 * m->uv[2 * id[2] + 1];
 }
+
+void mesh_uv_tangents(const mesh *m, uint32_t tri, vec3 *dp_du, vec3 *dp_dv)
+{
+    const uint32_t *id = m->idx + 3 * tri;
+    vec3 dp0 = v3_sub(m->p[id[1]], m->p[id[0]]), dp1 = v3_sub(m->p[id[2]], m->p[id[0]]);
+    if (!m->uv) {
+        *dp_du = dp0;
+        *dp_dv = dp1;
+        return;
+    }
+    const float *t0 = m->uv + 2 * id[0], *t1 = m->uv + 2 * id[1], *t2 = m->uv + 2 * id[2];
+    float du0 = t1[0] - t0[0], dv0 = t1[1] - t0[1], du1 = t2[0] - t0[0], dv1 = t2[1] - t0[1];
+    float det = du0 * dv1 - dv0 * du1;
+    if (det == 0.0f || !isfinite(1.0f / det)) {
+        *dp_du = *dp_dv = v3(0.0f, 0.0f, 0.0f);
+        return;
+    }
+    float inv = 1.0f / det;
+    *dp_du = v3_scale(v3_sub(v3_scale(dp0, dv1), v3_scale(dp1, dv0)), inv);
+    *dp_dv = v3_scale(v3_sub(v3_scale(dp1, du0), v3_scale(dp0, du1)), inv);
+}

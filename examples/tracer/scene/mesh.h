@@ -56,6 +56,11 @@ int mesh_finish(mesh *m, int face_normals, int flip, tr_error *err);
 /* Texture coordinates at barycentrics (b1, b2) of triangle `tri`; without any in the file,
  * (b1, b2) themselves, as Mitsuba does. */
 void mesh_uv_at(const mesh *m, uint32_t tri, float b1, float b2, float *u, float *v);
+/* The surface's derivatives dp/du and dp/dv on triangle `tri` (world units per texture
+ * unit), as Mitsuba computes them: from the texture coordinates where they span the
+ * triangle; without any in the file, the edges p1 - p0 and p2 - p0 (u, v are then the
+ * barycentrics); where they are degenerate, 0 (the caller picks a frame). */
+void mesh_uv_tangents(const mesh *m, uint32_t tri, vec3 *dp_du, vec3 *dp_dv);
 
 void mesh_free(mesh *m);
 

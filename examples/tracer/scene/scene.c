@@ -379,6 +379,31 @@ int scene_occluded(const scene *s, const ray *r)
     return ry.tfar < 0.0f; /* Embree sets tfar to -inf when something is in the way */
 }
 
+/* Mitsuba 3's bumpmap: the height's gradient g moves each tangent along the normal,
+ * dp/du + n (g_u - n . dp/du) and likewise for v, and the tilted normal is their cross
+ * product, turned to the geometric normal's side. A tilt that cannot be formed (degenerate
+ * tangents, non-finite heights) keeps the normal it had. */
+static vec3 bumped_normal(const bsdf *b, const mesh *m, uint32_t tri, const surface *sf)
+{
+    float g[2];
+    texture_eval_gradient(b->bump, sf->u, sf->v, g);
+    vec3 dp_du, dp_dv, n = sf->ns;
+    mesh_uv_tangents(m, tri, &dp_du, &dp_dv);
+    if (v3_dot(dp_du, dp_du) == 0.0f || v3_dot(dp_dv, dp_dv) == 0.0f) {
+        frame f = frame_from_normal(n); /* Mitsuba's fallback: any frame around n */
+        dp_du = f.s;
+        dp_dv = f.t;
+    }
+    dp_du = v3_add(dp_du, v3_scale(n, b->bump_scale * g[0] - v3_dot(n, dp_du)));
+    dp_dv = v3_add(dp_dv, v3_scale(n, b->bump_scale * g[1] - v3_dot(n, dp_dv)));
+    vec3 c = v3_cross(dp_du, dp_dv);
+    float len2 = v3_dot(c, c);
+    if (!(len2 > 0.0f) || !isfinite(len2))
+        return n;
+    c = v3_normalize(c);
+    return v3_dot(c, sf->ng) < 0.0f ? v3_neg(c) : c;
+}
+
 void scene_surface(const scene *s, const hit *h, const ray *r, surface *out)
 {
     const mesh *m = &s->shapes[h->shape].m;
@@ -401,6 +426,9 @@ void scene_surface(const scene *s, const hit *h, const ray *r, surface *out)
         out->ns = out->ng;
     }
     mesh_uv_at(m, h->prim, h->b1, h->b2, &out->u, &out->v);
+    const int bi = s->shapes[h->shape].bsdf;
+    if (bi >= 0 && s->bsdfs[bi].bump)
+        out->ns = bumped_normal(&s->bsdfs[bi], m, h->prim, out);
 }
 
 /* ---- Environment ---------------------------------------------------------------------------- */

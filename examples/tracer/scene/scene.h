@@ -203,7 +203,8 @@ int scene_medium_after(const scene *s, int shape, vec3 ng, vec3 d, int med);
 typedef struct surface {
     vec3 p;
     vec3 ng;                    /* unit geometric normal (the triangle's winding)          */
-    vec3 ns;                    /* unit shading normal, on ng's side                       */
+    vec3 ns;                    /* unit shading normal, on ng's side; tilted by the
+                                 * material's bump map where it has one                    */
     float u, v;                 /* texture coordinates                                     */
 } surface;
 

@@ -1,6 +1,6 @@
 /*
  * scene_materials.c - textures (bitmap, checkerboard) and BSDFs (diffuse, twosided, mask,
- * conductor, roughconductor, dielectric, thindielectric, roughdielectric, plastic,
+ * bumpmap, conductor, roughconductor, dielectric, thindielectric, roughdielectric, plastic,
  * roughplastic) from their XML elements, with Mitsuba 3's parameter names and defaults.
  */
 #include <math.h>
@@ -242,8 +242,9 @@ int nested_bsdf(loader *L, xml_node *c, int *index)
     return 1;
 }
 
-/* The one material inside a twosided or a mask. Other children (the mask's opacity) are
- * left for the caller. */
+/* The one material inside a twosided, a mask or a bumpmap. Other children (the mask's
+ * opacity) are left for the caller; children already used (the bumpmap's height) are
+ * skipped. */
 static int wrapped_bsdf(loader *L, xml_node *n, const char *type, int *inner)
 {
     *inner = -1;
@@ -251,8 +252,8 @@ static int wrapped_bsdf(loader *L, xml_node *n, const char *type, int *inner)
         xml_node *c = n->children[i];
         const char *role = xml_attr(c, "name");
         const int opacity_ref = !strcmp(c->name, "ref") && role && !strcmp(role, "opacity");
-        if (strcmp(c->name, "bsdf") && (strcmp(c->name, "ref") || opacity_ref))
-            continue;
+        if (c->used || (strcmp(c->name, "bsdf") && (strcmp(c->name, "ref") || opacity_ref)))
+            continue; /* used: the bumpmap's height texture */
         if (*inner >= 0)
             return fail_at(L, c, "%s takes one material%s", type,
                            type[0] == 't' ? " (two sides that differ are not supported)" : "");
@@ -260,6 +261,35 @@ static int wrapped_bsdf(loader *L, xml_node *n, const char *type, int *inner)
             return 0;
     }
     return *inner >= 0 || fail_at(L, n, "%s needs a nested <bsdf> or <ref>", type);
+}
+
+/* The bumpmap's one height texture: a nested <texture> (any name) or a <ref> to one. */
+static int bump_height(loader *L, xml_node *n, const texture **out)
+{
+    *out = NULL;
+    for (int i = 0; i < n->nchildren; ++i) {
+        xml_node *c = n->children[i];
+        const named_object *o = NULL;
+        if (!strcmp(c->name, "ref")) {
+            const char *id = xml_attr(c, "id");
+            o = id ? find_object(L, id) : NULL;
+            if (!o || o->kind != OBJ_TEXTURE)
+                continue; /* a material's ref, or an error wrapped_bsdf reports */
+        } else if (strcmp(c->name, "texture")) {
+            continue;
+        }
+        if (*out)
+            return fail_at(L, c, "bumpmap takes one texture");
+        if (o) {
+            if (!resolve_ref(L, c, OBJ_TEXTURE, "texture"))
+                return 0;
+            c->used = 1;
+            *out = L->s->textures[o->index];
+        } else if (!(*out = parse_texture(L, c))) {
+            return 0;
+        }
+    }
+    return *out != NULL || fail_at(L, n, "bumpmap needs a nested <texture> or a <ref> to one");
 }
 
 int parse_bsdf(loader *L, xml_node *n, int *index)
@@ -290,6 +320,22 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
         if (b.type == BSDF_NULL)
             return fail_at(L, n, "a mask over the null material is the null material");
         b.opacity = opacity;
+    } else if (!strcmp(type, "bumpmap")) {
+        int inner;
+        const texture *height;
+        if (!bump_height(L, n, &height) || !wrapped_bsdf(L, n, type, &inner) ||
+            !get_float(L, n, "scale", 1.0f, &b.bump_scale))
+            return 0;
+        float scale = b.bump_scale;
+        b = L->s->bsdfs[inner];
+        if (b.type == BSDF_NULL)
+            return fail_at(L, n, "a bumpmap over the null material has no surface to tilt");
+        if (b.bump)
+            return fail_at(L, n, "a bumpmap inside a bumpmap is not supported");
+        if (!isfinite(scale))
+            return fail_at(L, n, "'scale' must be finite");
+        b.bump = height;
+        b.bump_scale = scale;
     } else if (!strcmp(type, "diffuse")) {
         b.type = BSDF_DIFFUSE;
         ok = get_texture(L, n, "reflectance", rgb_gray(0.5f), &b.diffuse);
@@ -326,7 +372,7 @@ int parse_bsdf(loader *L, xml_node *n, int *index)
     } else if (!strcmp(type, "null")) {
         b.type = BSDF_NULL; /* the invisible boundary of a medium (render/vertex.c) */
     } else {
-        return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, mask, "
+        return fail_at(L, n, "unsupported BSDF type '%s' (diffuse, twosided, mask, bumpmap, "
                        "conductor, roughconductor, dielectric, thindielectric, "
                        "roughdielectric, plastic, roughplastic, null)", type);
     }

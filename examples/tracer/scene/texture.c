@@ -91,6 +91,38 @@ float texture_eval_opacity(const texture *t, float u, float v)
     return a > 0.0f ? (a < 1.0f ? a : 1.0f) : 0.0f; /* NaN: transparent */
 }
 
+void texture_eval_gradient(const texture *t, float u0, float v0, float grad[2])
+{
+    grad[0] = grad[1] = 0.0f;
+    if (t->kind != TEX_BITMAP || t->nearest)
+        return;
+    const image *b = &t->bitmap;
+    float u = t->uv[0][0] * u0 + t->uv[0][1] * v0 + t->uv[0][2];
+    float v = t->uv[1][0] * u0 + t->uv[1][1] * v0 + t->uv[1][2];
+    if (!isfinite(u) || !isfinite(v))
+        return;
+    if (!t->clamp) {
+        u -= floorf(u);
+        v -= floorf(v);
+    }
+    /* The same cell and weights as eval_image's bilinear lookup. */
+    float x = u * (float)b->width - 0.5f, y = v * (float)b->height - 0.5f;
+    x = fminf(fmaxf(x, -2.0f), (float)b->width + 1.0f);
+    y = fminf(fmaxf(y, -2.0f), (float)b->height + 1.0f);
+    float fx = floorf(x), fy = floorf(y);
+    int ix = (int)fx, iy = (int)fy;
+    float ax = x - fx, ay = y - fy;
+    float f00 = rgb_luminance(texel(t, b, ix, iy)), f10 = rgb_luminance(texel(t, b, ix + 1, iy));
+    float f01 = rgb_luminance(texel(t, b, ix, iy + 1));
+    float f11 = rgb_luminance(texel(t, b, ix + 1, iy + 1));
+    /* d/dx and d/dy of the lookup in texels, then to the transformed (u, v) by the
+     * resolution and back through to_uv by its transpose. */
+    float gx = ((1.0f - ay) * (f10 - f00) + ay * (f11 - f01)) * (float)b->width;
+    float gy = ((1.0f - ax) * (f01 - f00) + ax * (f11 - f10)) * (float)b->height;
+    grad[0] = t->uv[0][0] * gx + t->uv[1][0] * gy;
+    grad[1] = t->uv[0][1] * gx + t->uv[1][1] * gy;
+}
+
 void texture_free(texture *t)
 {
     if (t->kind == TEX_BITMAP) {

@@ -32,6 +32,11 @@ rgb texture_eval(const texture *t, float u, float v);
 /* A value in [0, 1] for the mask BSDF's opacity: a bitmap's alpha channel where its file has
  * one, else the luminance of texture_eval, clamped. */
 float texture_eval_opacity(const texture *t, float u, float v);
+/* The gradient of the texture's luminance with respect to the surface's (u, v), the
+ * to_uv transform included, as a bump map needs it (Mitsuba 3's eval_1_grad): the
+ * derivative of the bilinear lookup; zero for constants, checkerboards and nearest
+ * lookups, which are piecewise constant. */
+void texture_eval_gradient(const texture *t, float u, float v, float grad[2]);
 void texture_free(texture *t);
 
 #endif /* TRACER_TEXTURE_H */

@@ -1,7 +1,7 @@
 /*
  * test_interiors.c - what Bitterli's interiors need of the loader: files of scene version
  * < 2.0.0 upgraded as Mitsuba 3 upgrades them, the mask BSDF (an alpha test, also from a
- * PNG's alpha channel), the thin and the rough dielectric, the disk shape, meshes with no
+ * PNG's alpha channel), the thin and the rough dielectric, the bumpmap, the disk shape, meshes with no
  * usable triangle skipped with a warning, and the two shipped interiors loading as they
  * were distributed.
  */
@@ -293,6 +293,118 @@ static void test_mesh_without_area_is_skipped(void **state)
     scene_free(&s);
 }
 
+/* ---- The bumpmap ---------------------------------------------------------------------------------- */
+
+/* The gradient a bump map uses is the derivative of the texture's own bilinear lookup: central
+ * differences of texture_eval's luminance agree with it, through a rotating to_uv too. */
+static void test_bump_gradient_is_the_lookups_derivative(void **state)
+{
+    (void)state;
+    char png[1024];
+    unsigned char texels[5 * 4 * 3];
+    for (int i = 0; i < 5 * 4 * 3; ++i)
+        texels[i] = (unsigned char)((i * 73 + 19) % 251);
+    snprintf(png, sizeof png, "%s/bumps.png", TRACER_TEST_TMP_DIR);
+    assert_true(stbi_write_png(png, 5, 4, 3, texels, 15));
+    scene s;
+    load("<scene version=\"3.0.0\">" SENSOR
+         "<shape type=\"rectangle\"><bsdf type=\"bumpmap\"><texture type=\"bitmap\">"
+         "<string name=\"filename\" value=\"bumps.png\"/><boolean name=\"raw\" value=\"true\"/>"
+         "<transform name=\"to_uv\"><rotate value=\"0, 0, 1\" angle=\"30\"/>"
+         "<scale x=\"2\" y=\"3\"/></transform></texture><bsdf type=\"diffuse\"/></bsdf></shape></scene>",
+         &s);
+    const texture *t = s.bsdfs[s.shapes[0].bsdf].bump;
+    assert_non_null(t);
+    int checked = 0;
+    for (int k = 0; k < 40; ++k) {
+        float u = 0.013f + 0.0247f * (float)k, v = 0.91f - 0.0211f * (float)k, g[2];
+        texture_eval_gradient(t, u, v, g);
+        /* h = 1e-4 in (u, v) is at most 0.0036 texels after to_uv: a difference rarely
+         * straddles a texel centre, where the bilinear lookup kinks; such points are
+         * skipped by asking the two one-sided differences to agree first. Away from kinks
+         * they differ by h times the lookup's curvature (~0.007 here) plus rounding. */
+        const float h = 1e-4f;
+        for (int a = 0; a < 2; ++a) {
+            float du = a == 0 ? h : 0.0f, dv = a == 1 ? h : 0.0f;
+            float f0 = rgb_luminance(texture_eval(t, u, v));
+            float fp = rgb_luminance(texture_eval(t, u + du, v + dv));
+            float fm = rgb_luminance(texture_eval(t, u - du, v - dv));
+            float fwd = (fp - f0) / h, bwd = (f0 - fm) / h;
+            if (fabsf(fwd - bwd) > 2e-2f * (1.0f + fabsf(fwd)))
+                continue;
+            /* Float rounding of values below 1 over h = 1e-4 is about 1e-3 of slope. */
+            assert_true(fabsf(g[a] - 0.5f * (fwd + bwd)) <= 1e-2f * (1.0f + fabsf(g[a])));
+            ++checked;
+        }
+    }
+    assert_true(checked >= 60);
+    scene_free(&s);
+}
+
+/* A height ramp along u tilts the rectangle's normal towards -u by atan(scale g / |dp/du|),
+ * Mitsuba 3's bumpmap, and only where the material has one. */
+static void test_bumpmap_tilts_the_normal(void **state)
+{
+    (void)state;
+    char png[1024];
+    unsigned char ramp[256];
+    for (int i = 0; i < 256; ++i)
+        ramp[i] = (unsigned char)i;
+    snprintf(png, sizeof png, "%s/ramp.png", TRACER_TEST_TMP_DIR);
+    assert_true(stbi_write_png(png, 256, 1, 1, ramp, 256));
+    for (int use_ref = 0; use_ref < 2; ++use_ref) {
+        scene s;
+        char xml[4096];
+        snprintf(xml, sizeof xml,
+                 "<scene version=\"3.0.0\">" SENSOR "%s"
+                 "<shape type=\"rectangle\"><bsdf type=\"twosided\"><bsdf type=\"bumpmap\">%s"
+                 "<float name=\"scale\" value=\"2\"/><bsdf type=\"diffuse\"/></bsdf></bsdf></shape>"
+                 "<shape type=\"rectangle\"><transform name=\"to_world\"><translate z=\"-1\"/>"
+                 "</transform></shape></scene>",
+                 use_ref ? "<texture type=\"bitmap\" id=\"h\"><string name=\"filename\" "
+                           "value=\"ramp.png\"/><boolean name=\"raw\" value=\"true\"/></texture>"
+                         : "",
+                 use_ref ? "<ref id=\"h\"/>"
+                         : "<texture type=\"bitmap\" name=\"height\"><string name=\"filename\" "
+                           "value=\"ramp.png\"/><boolean name=\"raw\" value=\"true\"/></texture>");
+        load(xml, &s);
+        for (int shape = 0; shape < 2; ++shape) {
+            hit h = {1.0f, shape, 0, 0.3f, 0.2f};
+            ray r = {v3(0.0f, 0.0f, 1.0f), v3(0.0f, 0.0f, -1.0f), INFINITY};
+            surface sf;
+            scene_surface(&s, &h, &r, &sf);
+            assert_true(sf.u > 0.1f && sf.u < 0.9f); /* away from the ramp's wrap-around */
+            if (shape == 1) { /* no bump map: the interpolated normal */
+                assert_float_equal(sf.ns.x, 0.0f, 0.0f);
+                assert_float_equal(sf.ns.z, 1.0f, 1e-6f);
+                continue;
+            }
+            /* dp/du = (2, 0, 0); the ramp rises 1/255 a texel, 256/255 per unit of u. */
+            const float a = 2.0f * 256.0f / 255.0f;
+            assert_float_equal(sf.ns.x, -a / sqrtf(a * a + 4.0f), 1e-5f);
+            assert_float_equal(sf.ns.y, 0.0f, 1e-6f);
+            assert_float_equal(sf.ns.z, 2.0f / sqrtf(a * a + 4.0f), 1e-5f);
+        }
+        scene_free(&s);
+    }
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"bumpmap\"><bsdf type=\"diffuse\"/></bsdf>"
+                 "</shape></scene>",
+                 "bumpmap needs a nested <texture> or a <ref> to one", NULL);
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"bumpmap\"><texture type=\"checkerboard\"/>"
+                 "<texture type=\"checkerboard\"/><bsdf type=\"diffuse\"/></bsdf></shape></scene>",
+                 "bumpmap takes one texture", NULL);
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"bumpmap\"><texture type=\"checkerboard\"/>"
+                 "<bsdf type=\"null\"/></bsdf></shape></scene>",
+                 "a bumpmap over the null material", NULL);
+    expect_error("<scene version=\"3.0.0\">" SENSOR
+                 "<shape type=\"rectangle\"><bsdf type=\"bumpmap\"><texture type=\"checkerboard\"/>"
+                 "</bsdf></shape></scene>",
+                 "bumpmap needs a nested <bsdf> or <ref>", NULL);
+}
+
 /* ---- The shipped interiors, as Bitterli distributes them ------------------------------------------ */
 
 
@@ -338,6 +450,8 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_rough_dielectric),
     cmocka_unit_test(test_disk),
     cmocka_unit_test(test_mesh_without_area_is_skipped),
+    cmocka_unit_test(test_bump_gradient_is_the_lookups_derivative),
+    cmocka_unit_test(test_bumpmap_tilts_the_normal),
     cmocka_unit_test(test_living_room),
     cmocka_unit_test(test_modern_hall),
 )
