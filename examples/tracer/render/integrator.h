@@ -60,7 +60,7 @@ int record_buffer_append(record_buffer *dst, const record_buffer *src);
 
 /* Counters for throughput figures; each thread keeps its own and they are summed. Every field
  * is a uint64_t counter: the MPI ranks sum them as an array (nf_tracer.c, budget.c). */
-/* The second moments a path estimates (path_state.moments). */
+/* The second moments a path estimates (path_state.guide.moments). */
 #define PATH_MOMENTS ((int)NF_GUIDE_DEPTHS)
 
 typedef struct path_stats {
@@ -81,19 +81,12 @@ typedef struct path_state {
     float prev_pdf;    /* density of the last scattered direction (0: delta or camera)    */
     float prev_p_bsdf; /* its BSDF density, which plain path tracing's MIS weighs with     */
     int depth;         /* segments traced so far                                          */
-    float boost;       /* product over the guided vertices so far of p_bsdf / p_mix (1 / (1 - g)
-                        * for a delta lobe, nf_guide_boost): how much the mixture has raised
-                        * the throughput over BSDF sampling's, read by the policy's boost cap
-                        * and roulette (nf_guide_mixture_prob, nf_guide_roulette_survival)  */
     int guided;        /* the tracer has a model: the path may be guided                  */
     int medium;        /* the medium the ray ry travels in (scene.media); -1: vacuum      */
-    /* What a guided path says of the second moments of the policies that guide less than
-     * it does (nisflow/guide.h, nf_depth_moment), which budget.h's choices of passes read:
-     * [0] plain path tracing's (depth 0, nf_plain_moment's), [c] for c >= 1 that of the
-     * guide's depth candidate c (which guides up to depth c; 0: every one). */
-    nf_depth_moment moments[PATH_MOMENTS];
-    int nmoments; /* the first nmoments are estimated: those of policies that guide less deep
-                   * than the path; the others are the path's own, or not its to measure    */
+    nf_path_state guide; /* the library's per-path state (nisflow/policy.h), started on every
+                          * path: the mixture's boost, which the boost cap and roulette read,
+                          * and the second moments the schedule reads ([0] plain path
+                          * tracing's, [k] the kind that guides up to depth k)              */
 } path_state;
 
 /* Traces the path through film position (px, py) and returns its radiance estimate.
@@ -103,10 +96,10 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
                path_stats *stats);
 
 /* trace_path, and with moment != NULL moment[0..PATH_MOMENTS) receive the path's estimates
- * of the second moments of the pixel's luminance under the policies of path_state.moments:
- * plain path tracing's, then the guide's depth candidates'. A path estimates a depth's only
- * when it guides at least that deep (t->guide_depth 0 or larger); the others hold its own
- * squared luminance, which budget.c does not read. */
+ * of the second moments of the pixel's luminance under the policies of
+ * path_state.guide.moments: plain path tracing's, then the guide's depth candidates' (an
+ * unguided path: its squared luminance). The schedule reads only those of kinds that guide
+ * less deep than the pass. */
 rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer *records,
                       path_stats *stats, float *moment);
 

@@ -16,15 +16,17 @@
  *     (1 - g) times its own, so its weight is divided by (1 - g);
  *   - next-event estimation weighs the light sample against p_mix, and an emitter hit by the
  *     scattered ray weighs p_mix against the light density (power heuristic);
- *   - the guide's path policy (nisflow/guide.h) decides the rest: g itself, lowered so that
- *     the path's boost stays within the cap (nf_guide_mixture_prob); Russian roulette on the
- *     larger of the throughput and the throughput divided by the boost
- *     (nf_guide_roulette_survival); light-sampling MIS by p_mix only at the first vertices
+ *   - the library's path state (nisflow/policy.h, path_state.guide) decides the rest, as in
+ *     docs/integration.md's recipe: g itself, lowered so that the path's boost stays within
+ *     the cap and 0 deeper than the pass guides (nf_path_mixture_prob); Russian roulette on
+ *     the larger of the throughput and the throughput divided by the boost
+ *     (nf_path_survival); light-sampling MIS by p_mix only at the first vertices
  *     (nf_guide_light_mis_uses_flow), by p_bsdf on both sides deeper down, where the light
- *     sample then asks the flow nothing.
+ *     sample then asks the flow nothing. The path records its scatters and contributions
+ *     there too (nf_path_scatter, nf_path_survived, nf_path_add): the schedule's moments.
  * Which vertices are guided: non-delta ones, not rough conductors smoother than the policy's
  * min_roughness (their lobe is sharper than the flow learns). The ablation switches of
-* the tracer struct (integrator.h: guide_depth, light_mis_bsdf) restrict that further.
+ * the tracer struct (integrator.h: guide_depth, light_mis_bsdf) restrict that further.
  *
  * A vertex runs in three steps: vertex_plan_next traces the segment to it and draws every
  * random number the vertex needs (light sample, roulette, technique, BSDF direction), stating
@@ -228,8 +230,7 @@ static void moments_add(path_state *ps, int vertex_depth, rgb c, float w, float 
     if (!ps->guided) /* a plain path's moments are its square (path_moments) */
         return;
     float l = (c.r + c.g + c.b) / 3.0f;
-    nf_depth_moment_add(ps->moments, (size_t)ps->nmoments, (uint32_t)vertex_depth, w * l,
-                        w_plain * l);
+    nf_path_add(&ps->guide, (uint32_t)vertex_depth, w * l, w_plain * l);
 }
 
 /* Adds radiance `value` found with MIS weight w (w_plain: plain path tracing's) after the
@@ -240,13 +241,13 @@ static void path_add(path_state *ps, rgb value, float w, float w_plain)
     moments_add(ps, ps->depth - 1, rgb_mul(ps->throughput, value), w, w_plain);
 }
 
-/* What the path says of each policy's second moment (path_state.moments): a guided path's
- * estimates, a plain path's squared luminance. */
+/* What the path says of each policy's second moment (path_state.guide.moments): a guided
+ * path's estimates, a plain path's squared luminance. */
 void path_moments(const path_state *ps, float *out)
 {
     float l = (ps->L.r + ps->L.g + ps->L.b) / 3.0f;
     for (int k = 0; k < PATH_MOMENTS; ++k)
-        out[k] = k < ps->nmoments ? ps->moments[k].moment : l * l;
+        out[k] = ps->guided ? ps->guide.moments[k].moment : l * l;
 }
 
 /* The MIS weights of emission found after a scattered direction whose light-sampling density
@@ -276,12 +277,12 @@ static int plan_light_and_scatter(const tracer *t, path_state *ps, rng *r, path_
      * all (a recorded direction always gets its radiance). */
     vp->rr = 1.0f;
     if (depth >= s->rr_depth) {
-        float q = nf_guide_roulette_survival(&t->policy, rgb_max(ps->throughput), ps->boost);
+        float q = nf_path_survival(&ps->guide, &t->policy, rgb_max(ps->throughput));
         if (!(rng_next(r) < q))
             return 1; /* scatters = 0: the light sample still counts */
         vp->rr = 1.0f / q;
-        nf_depth_moment_roulette(ps->moments, (size_t)ps->nmoments, &t->policy, (uint32_t)depth,
-                                 rgb_max(ps->throughput), q);
+        if (ps->guided)
+            nf_path_survived(&ps->guide, &t->policy, (uint32_t)depth, rgb_max(ps->throughput), q);
     }
     vp->scatters = scatter_plan(vp, r);
     if (!vp->scatters)
@@ -332,10 +333,9 @@ static int volume_plan(const tracer *t, path_state *ps, rng *r, path_stats *st, 
     memset(&vp->gp.bp, 0, sizeof vp->gp.bp); /* no material: the phase function */
     memset(&vp->sh.bp, 0, sizeof vp->sh.bp);
     const float g = t->model ? t->policy.mixture_prob : 0.0f;
-    const int guided = g > 0.0f &&
-                       (t->guide_depth == 0 || depth <= t->guide_depth);
-    if (guided) {
-        vp->g = nf_guide_mixture_prob(&t->policy, ps->boost);
+    if (g > 0.0f) {
+        vp->g = nf_path_mixture_prob(&ps->guide, &t->policy, (uint32_t)depth,
+                                     (uint32_t)t->guide_depth);
         st->guided_vertices += vp->g > 0.0f;
     }
     return plan_light_and_scatter(t, ps, r, st, vp, 1, depth);
@@ -439,7 +439,9 @@ int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats *st,
     const bsdf *b = vp->sh.bp.b;
     const int smooth = bsdf_has_smooth_part(b);
     const float g = t->model ? t->policy.mixture_prob : 0.0f;
-    const int guided = smooth && g > 0.0f && (t->guide_depth == 0 || depth <= t->guide_depth) &&
+    /* Lobes sharper than the policy's min_roughness are left to the BSDF; the pass's depth
+     * rule is nf_path_mixture_prob's. */
+    const int guided = smooth && g > 0.0f &&
                        !((b->type == BSDF_ROUGHCONDUCTOR || b->type == BSDF_ROUGHDIELECTRIC) &&
                          b->alpha < t->policy.min_roughness);
     vp->p = sf.p;
@@ -457,7 +459,8 @@ int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats *st,
     ctx->phase_g = 0.0f;
     vp->gp.bp = vp->sh.bp;
     if (guided) {
-        vp->g = nf_guide_mixture_prob(&t->policy, ps->boost);
+        vp->g = nf_path_mixture_prob(&ps->guide, &t->policy, (uint32_t)depth,
+                                     (uint32_t)t->guide_depth);
         st->guided_vertices += vp->g > 0.0f;
     }
 
@@ -537,9 +540,7 @@ int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
     if (vp->delta) {
         weight = vp->delta_weight;
         if (g > 0.0f) { /* the BSDF technique ran with probability 1 - g */
-            ps->boost = nf_guide_boost(ps->boost, 0.0f, 0.0f, g);
-            nf_depth_moment_scatter(ps->moments, (size_t)ps->nmoments, (uint32_t)ps->depth, 0.0f,
-                                    0.0f, g);
+    nf_path_scatter(&ps->guide, (uint32_t)ps->depth, 0.0f, 0.0f, g);
         }
     } else {
         if (vp->flow_chosen)
@@ -552,9 +553,7 @@ int vertex_finish(const tracer *t, path_state *ps, const vertex_plan *vp,
             return 0;
         weight = rgb_scale(f, 1.0f / p_weight);
         if (g > 0.0f) {
-            ps->boost = nf_guide_boost(ps->boost, p_bsdf, p_weight, g);
-            nf_depth_moment_scatter(ps->moments, (size_t)ps->nmoments, (uint32_t)ps->depth,
-                                    p_bsdf, p_weight, g);
+            nf_path_scatter(&ps->guide, (uint32_t)ps->depth, p_bsdf, p_weight, g);
         }
     }
     if (!rgb_is_finite(weight) || rgb_is_black(weight))
@@ -606,18 +605,7 @@ void path_start(const tracer *t, float px, float py, path_state *ps)
     ps->prev_pdf = 0.0f; /* density of the last scattered direction (0: delta or camera) */
     ps->prev_p_bsdf = 0.0f;
     ps->depth = 0;
-    ps->boost = 1.0f;
     ps->medium = s->camera_medium;
-    /* Each moment costs its steps at every vertex: a path estimates only the policies that
-     * guide less deep than it does (plain path tracing's whenever it is guided). Their depths
-     * grow with k, so those are the first nmoments. */
-    ps->nmoments = 0;
-    for (int k = 0; ps->guided && k < PATH_MOMENTS; ++k) {
-        uint32_t d = (uint32_t)k; /* kind k guides up to depth k; 0 every depth */
-        if (d && t->guide_depth && (int)d >= t->guide_depth)
-            break;
-        nf_depth_moment_start(&ps->moments[k], d);
-        ps->nmoments = k + 1;
-    }
+    nf_path_start(&ps->guide);
 }
 
