@@ -74,6 +74,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "gradient.h"
+#include "point_batch.h"
 
 /* ---- The timed work ---------------------------------------------------------------------- */
 

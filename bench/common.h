@@ -21,6 +21,7 @@
 #include <stddef.h>
 
 #include <nisflow/nisflow.h>
+#include "point_batch.h"
 
 #define NFB_STREAM 256u /* n = 1 calls per unit of work at batch 1 */
 

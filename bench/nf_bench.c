@@ -21,6 +21,7 @@
 #include "common.h"
 #include "report.h"
 #include "setup.h"
+#include "point_batch.h"
 
 #define NFB_POOL 65536u     /* distinct inputs (a multiple of every batch size) */
 #define NFB_MAX_RESULTS 256 /* room for every case of a run: 2 presets x 32 at most */

@@ -17,6 +17,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "gradient.h"
+#include "point_batch.h"
 
 #define NFB_PARAM_NOISE 0.1f /* half-width of the uniform noise added to parameters */
 

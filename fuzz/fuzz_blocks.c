@@ -17,6 +17,7 @@
 #include <float.h>
 
 #include "fuzz_common.h"
+#include "blocks.h"
 
 enum { MAX_RAW = 3 * NF_MAX_SPLINE_BINS + 1 };
 

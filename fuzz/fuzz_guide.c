@@ -26,6 +26,9 @@
 #include <string.h>
 
 #include "fuzz_common.h"
+#include "guide_internal.h"
+#include "policy_atoms.h"
+#include "schedule_atoms.h"
 
 #define MAX_SAMPLES 48
 #define MAX_PARAMS 8192

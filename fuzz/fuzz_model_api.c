@@ -22,6 +22,8 @@
 #include <float.h>
 
 #include "fuzz_common.h"
+#include "gradient.h"
+#include "point_batch.h"
 
 enum { N = 24 };
 

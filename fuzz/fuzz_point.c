@@ -39,6 +39,9 @@
 #include <stddef.h>
 
 #include "fuzz_common.h"
+#include "gradient.h"
+#include "internal.h"
+#include "point_batch.h"
 
 enum { SLOTS = 4, MAX_N = 20, MAX_OPS = 32, MAX_TRAININGS = 1, MAX_WRITES = 1, MAX_EDITS = 3 };
 

@@ -23,6 +23,7 @@
 #include <stddef.h>
 
 #include "fuzz_common.h"
+#include "point_batch.h"
 
 enum { SLOTS = 4, MAX_OPS = 48 };
 

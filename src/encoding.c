@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "internal.h"
+#include "blocks.h"
 #include "kernels/encoding.h"
 
 void nf_encode_oneblob(float v, uint32_t bins, float *out)

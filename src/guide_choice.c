@@ -8,6 +8,7 @@
 #include <stdint.h>
 
 #include "guide_internal.h"
+#include "schedule_atoms.h"
 
 /* Each kind's first passes before any comparison: one pass has no spread to measure. */
 #define NF_PASS_WARMUP 2u
@@ -157,11 +158,6 @@ nf_status nf_guide_choose_pass(const nf_guide *g, const nf_pass_measure measured
         out->exploring = 1;
     }
     return NF_OK;
-}
-
-uint32_t nf_guide_depth_of(uint32_t candidate)
-{
-    return candidate < NF_GUIDE_DEPTHS ? candidate : 0u;
 }
 
 nf_status nf_guide_choose_depth(const nf_guide *g, const nf_pass_measure measured[NF_GUIDE_DEPTHS],

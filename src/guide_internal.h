@@ -104,4 +104,19 @@ int nf_guide_training_pays(const nf_guide *g);
 /* Marks a guide config as initialized. */
 #define NF_GUIDE_CONFIG_MAGIC 0x4e464743u /* "NFGC" */
 
+/* ---- What the schedule asks of the guide ---------------------------------------------- */
+
+/* Whether training still pays: 0 once `elapsed` reaches train_fraction of `budget` (both in
+ * the caller's unit, seconds say; budget <= 0: no budget), the held-out loss has not
+ * improved by 1 % for `patience` passes, or the reported training ratios say it buys too
+ * little (nf_guide_report_training_ratio). Every process gets the same answer for the same
+ * arguments. Thread-safe on a guide no training call changes meanwhile. */
+int nf_guide_keep_training(const nf_guide *g, double elapsed, double budget);
+
+/* The samples added since the last training pass began, which the next pass will train on
+ * (at most store_capacity; the rest are dropped), adds still running included: a trainer on
+ * its own thread can wait for enough of them before it trains. 0 for NULL. Thread-safe with
+ * every call but nf_guide_destroy; lock-free. */
+size_t nf_guide_pending(const nf_guide *g);
+
 #endif /* NISFLOW_GUIDE_INTERNAL_H */

@@ -8,6 +8,7 @@
 #include <math.h>
 
 #include "internal.h"
+#include "policy_atoms.h"
 
 void nf_guide_policy_init(nf_guide_policy *p)
 {

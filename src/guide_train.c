@@ -15,6 +15,7 @@
 #include <math.h>
 #include <stdio.h>
 
+#include "gradient.h"
 #include "guide_internal.h"
 
 #define NF_FIXED_BITS 62

@@ -315,4 +315,13 @@ static inline uint32_t nf_point_hash(const nf_shading_point *p)
     return (uint32_t)(h ^ (h >> 32));
 }
 
+/* Makes dst equal to src without allocating: parameters, optimizer state (moments, step
+ * count) and the optimizer's settings (learning rate, weight decay). Both must share their
+ * architecture, prior (with its epsilon), phi map and bounds (NF_ERROR_INVALID_ARGUMENT
+ * otherwise, dst unchanged); dst keeps its own allocator, callbacks and instruction set.
+ * Every point prepared on dst becomes stale. For resetting a model to a saved state, or
+ * publishing one model's training into another that render threads sample between passes.
+ * Not thread-safe for dst (no other call may use it meanwhile); src is only read. */
+nf_status nf_model_copy(nf_model *dst, const nf_model *src);
+
 #endif /* NISFLOW_INTERNAL_H */

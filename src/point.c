@@ -3,6 +3,7 @@
  * then the kernels (point.h, through kernel.c) of the model's instruction set.
  */
 #include "internal.h"
+#include "point_batch.h"
 #include "kernels/kernels.h"
 
 #if UINTPTR_MAX == UINT64_MAX

@@ -75,9 +75,3 @@ nf_status nf_model_prior_pdf(const nf_model *m, const nf_context *ctx, const flo
     *pdf = q;
     return NF_OK;
 }
-
-float nf_prior_pdf(const nf_model *m, const nf_context *ctx, const float dir[3])
-{
-    float q;
-    return nf_model_prior_pdf(m, ctx, dir, &q) == NF_OK ? q : -1.0f;
-}

@@ -7,6 +7,7 @@
 #define NISFLOW_SCHEDULE_INTERNAL_H
 
 #include "nisflow/schedule.h"
+#include "schedule_atoms.h"
 
 #include "internal.h"
 

@@ -2,6 +2,7 @@
  * sphere.c - the public map between directions and the unit square (docs/theory.md section 1), over
  * the one definition in sphere.h.
  */
+#include "blocks.h"
 #include "kernels/sphere.h"
 
 void nf_direction_to_square(const float dir[3], float s[2]) { nf_to_square(dir, s); }

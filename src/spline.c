@@ -4,6 +4,7 @@
  */
 #include <math.h>
 
+#include "blocks.h"
 #include "kernels/spline.h"
 
 static nf_status nf_spline_check(const char *fn, uint32_t bins, const float *raw, float v,

@@ -6,6 +6,7 @@
 #include <float.h>
 
 #include "internal.h"
+#include "point_batch.h"
 #include "kernels/fastmath.h"
 #include "kernels/kernels.h"
 #include "kernels/prior.h"

@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "internal.h"
+#include "gradient.h"
 #include "kernels/kernels.h"
 
 /* Validates a training batch and returns the sum of its weights in *total. */

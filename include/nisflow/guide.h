@@ -111,7 +111,7 @@ typedef struct nf_guide_config {
                               * [1, 256]; default 16. The groups are fixed by the step's
                               * samples alone, so the bits do not depend on the threads   */
     uint32_t patience;       /* training passes without a 1 % better held-out loss before
-                              * nf_guide_keep_training says stop; 0 never; default 6      */
+                              * the schedule stops training; 0 never; default 6         */
     float clamp_quantile;    /* training weights clamped at a running quantile of each
                               * pass's weights, (0, 1), or 0 for none; default 0: a
                               * clamp hides the rare bright paths the flow must learn
@@ -119,10 +119,10 @@ typedef struct nf_guide_config {
     float train_fraction;    /* share of a time budget to train, [0, 1]; default 0.15     */
     float learning_rate;     /* AdamW rate set on the model; default 5e-3                  */
     uint64_t seed;           /* the draws from the store; default 1                        */
-    uint32_t pass_choice;    /* 1: nf_guide_choose_pass picks guided or plain render passes
-                              * and nf_guide_choose_depth how deep they guide, from what
-                              * each costs and buys (default); 0: every render pass guided
-                              * at every depth (a fixed policy)                            */
+    uint32_t pass_choice;    /* 1: the schedule picks guided or plain render passes and how
+                              * deep they guide, from what each costs and buys (default);
+                              * 0: every render pass guided at every depth (a fixed
+                              * policy)                                                    */
     float explore_share;     /* the least share of render passes that stay guided when
                               * plain ones measure better, so that guiding's estimate goes
                               * on improving, [0, 0.5]; default 0.05. Plain passes keep a
@@ -198,7 +198,9 @@ typedef struct nf_guide_pass_report {
     float held_out_loss;  /* the loss of the pass's new samples before the first step;
                            * NaN when no process had new samples                         */
     float clamp;          /* the running clamp of the weights after this pass (0: none)  */
-    int keep_training;    /* nf_guide_keep_training after this pass                      */
+    int keep_training;    /* whether training still pays after this pass: 0 once the
+                           * budget's train_fraction is spent, the held-out loss has lost
+                           * its patience or training buys too little over plain passes */
 } nf_guide_pass_report;
 
 /* Trains after a training pass: the pass's samples join the store (sorted by key; the oldest
@@ -245,14 +247,7 @@ NF_API nf_parallel nf_guide_helpers(nf_guide *g);
  * 16 groups). NULL is a no-op. Thread-safe with every call but nf_guide_destroy; lock-free. */
 NF_API size_t nf_guide_help(nf_guide *g);
 
-/* Whether training still pays: 0 once `elapsed` reaches train_fraction of `budget` (both in
- * the caller's unit, seconds say; budget <= 0: no budget), the held-out loss has not
- * improved by 1 % for `patience` passes, or the reported training ratios say it buys too
- * little (nf_guide_report_training_ratio). Every process gets the same answer for the same
- * arguments. Thread-safe on a guide no training call changes meanwhile. */
-NF_API int nf_guide_keep_training(const nf_guide *g, double elapsed, double budget);
-
-/* Copies the training model (parameters and optimizer state, nf_model_copy) into the
+/* Copies the training model (parameters and optimizer state) into the
  * published model that is not the newest and that no thread holds, and makes it the newest:
  * acquire hands it out from now on. There are three, so publication needs one of the two
  * copies older than the newest free: threads that hold the newest and one older generation
@@ -286,12 +281,6 @@ typedef struct nf_guide_stats {
 /* Fills *out. NF_ERROR_INVALID_ARGUMENT for NULL. Thread-safe on a guide no training call
  * changes meanwhile. */
 NF_API nf_status nf_guide_get_stats(const nf_guide *g, nf_guide_stats *out);
-
-/* The samples added since the last training pass began, which the next pass will train on
- * (at most store_capacity; the rest are dropped), adds still running included: a trainer on
- * its own thread can wait for enough of them before it trains. 0 for NULL. Thread-safe with
- * every call but nf_guide_destroy; lock-free. */
-NF_API size_t nf_guide_pending(const nf_guide *g);
 
 NF_EXTERN_C_END
 

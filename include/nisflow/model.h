@@ -126,8 +126,8 @@ typedef enum nf_phi_map {
  *         returns for the directions it draws: nf_sample reports the sample callback's value,
  *         nf_pdf and training the pdf callback's.
  * ctx:    the caller's own context, never a copy the library made: for nf_sample, nf_pdf,
- *         nf_loss_gradient and nf_train_step it is &ctx[i] of the array the caller passed, for
- *         sample i (every batch size, every instruction set), and for nf_prior_pdf the
+ *         and nf_train_step it is &ctx[i] of the array the caller passed, for
+ *         sample i (every batch size, every instruction set), and for nf_model_prior_pdf the
  *         pointer passed; normal and wo are as the caller gave them (not normalized).
  *         `ctx - base` is therefore the sample's index, through which a renderer can reach
  *         per-sample data such as the shading point's BSDF. Through the shading-point API
@@ -224,15 +224,6 @@ NF_API void nf_model_destroy(nf_model *model);
  * Thread-safe with respect to other const calls on `model`. */
 NF_API nf_status nf_model_clone(const nf_model *model, nf_model **out);
 
-/* Makes dst equal to src without allocating: parameters, optimizer state (moments, step
- * count) and the optimizer's settings (learning rate, weight decay). Both must share their
- * architecture, prior (with its epsilon), phi map and bounds (NF_ERROR_INVALID_ARGUMENT
- * otherwise, dst unchanged); dst keeps its own allocator, callbacks and instruction set.
- * Every point prepared on dst becomes stale. For resetting a model to a saved state, or
- * publishing one model's training into another that render threads sample between passes.
- * Not thread-safe for dst (no other call may use it meanwhile); src is only read. */
-NF_API nf_status nf_model_copy(nf_model *dst, const nf_model *src);
-
 /* Copies the model's configuration (including its allocator and custom prior callbacks) to
  * *out. Thread-safe. */
 NF_API nf_status nf_model_get_config(const nf_model *model, nf_config *out);
@@ -309,15 +300,6 @@ NF_API nf_status nf_model_set_isa(nf_model *m, nf_isa isa);
 /* The smallest value of sin(theta) the library divides by when it converts a density on the
  * (theta, phi) square to a solid-angle density. */
 #define NF_SIN_THETA_MIN 1e-6f
-
-/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
-
-/* nf_model_prior_pdf's density, or -1 on any error. */
-NF_API NF_DEPRECATED("nf_model_prior_pdf") float nf_prior_pdf(const nf_model *m,
-                                                              const nf_context *ctx,
-                                                              const float dir[3]);
-NF_API NF_DEPRECATED("nf_model_get_config") nf_status
-    nf_model_config(const nf_model *model, nf_config *out);
 
 NF_EXTERN_C_END
 

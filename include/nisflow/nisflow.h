@@ -6,13 +6,13 @@
  *   status.h   nf_status codes and error messages
  *   model.h    configuration, model life cycle, nf_sample / nf_pdf
  *   point.h    shading points: prepare a context once, sample and evaluate many directions
- *   train.h    loss, gradients, AdamW steps, parameter access
+ *   table.h    a render thread's tables of the flow by cells of the scene
+ *   train.h    training steps, parameter access
  *   path.h     training samples from a traced path (the backward radiance walk)
- *   policy.h   the path policy at a guided vertex, and the moments a path measures
- *   guide.h    the guide: sample store, training, sharded steps, published models
+ *   policy.h   the path policy and nf_path_state, one camera path's guiding state
+ *   guide.h    the guide: sample store, training, published models
  *   schedule.h the schedule: train, guided or plain passes in a time budget, the image
  *   io.h       save / load / serialize
- *   blocks.h   spline, encodings and direction <-> square maps
  */
 #ifndef NISFLOW_NISFLOW_H
 #define NISFLOW_NISFLOW_H
@@ -28,6 +28,5 @@
 #include "guide.h"
 #include "schedule.h"
 #include "io.h"
-#include "blocks.h"
 
 #endif /* NISFLOW_NISFLOW_H */

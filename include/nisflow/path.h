@@ -1,7 +1,7 @@
 /*
  * nisflow/path.h - training samples from a traced path: the renderer records what happened
  * at each vertex, the library walks the path backwards and returns the (context, direction,
- * weight) samples that nf_train_step and nf_loss_gradient take.
+ * weight) samples that nf_train_step takes.
  *
  * A training sample at vertex j is (ctx_j, w_j, f_j) with
  *

@@ -39,7 +39,7 @@
  *
  * Validity: a prepared point belongs to the model it was prepared on and to that model's
  * current parameters. Any change of the parameters (a training step, nf_model_set_params,
- * nf_apply_gradient) makes every point prepared before or during it stale: using it then
+ * a publication into it) makes every point prepared before or during it stale: using it then
  * returns NF_ERROR_STALE and writes nothing; prepare it again. A sample or pdf call that
  * overlaps such a change on another thread (misuse: see below) returns NF_ERROR_STALE with its
  * outputs unspecified; a point prepared while a change runs is never accepted. A point used with
@@ -146,24 +146,6 @@ NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, 
 NF_API nf_status nf_point_sample_and_pdf(const nf_model *m, const nf_shading_point *point,
                                          const float u[2], float dir[3], float *pdf,
                                          const float eval_dir[3], float *eval_pdf);
-
-/* Batch forms for wavefront renderers: one direction per point. points[i] is prepared (each
- * with its own context); u, dir and pdf as in nf_sample. Every point and input is checked
- * before anything is written; NF_ERROR_NUMERIC from a custom prior may come mid-batch, after
- * earlier entries were written. Thread-safe on a const model; never allocates. */
-NF_API nf_status nf_point_sample_batch(const nf_model *m, size_t n, const nf_shading_point *points,
-                                       const float *u, float *dir, float *pdf);
-NF_API nf_status nf_point_pdf_batch(const nf_model *m, size_t n, const nf_shading_point *points,
-                                    const float *dir, float *pdf);
-
-/* ---- Names kept until 0.10 (CHANGELOG.md, 0.8.1) ------------------------------------------ */
-
-NF_API NF_DEPRECATED("nf_point_sample_batch") nf_status
-    nf_points_sample(const nf_model *m, size_t n, const nf_shading_point *points, const float *u,
-                     float *dir, float *pdf);
-NF_API NF_DEPRECATED("nf_point_pdf_batch") nf_status
-    nf_points_pdf(const nf_model *m, size_t n, const nf_shading_point *points, const float *dir,
-                  float *pdf);
 
 NF_EXTERN_C_END
 

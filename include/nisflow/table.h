@@ -27,7 +27,7 @@
  *
  * Validity: a table belongs to the model its point was prepared on and to that model's
  * parameters when it was built; after a change of the parameters (a training step,
- * nf_model_set_params, nf_apply_gradient) using it returns NF_ERROR_STALE, as a point does.
+ * nf_model_set_params) using it returns NF_ERROR_STALE, as a point does.
  * A table whose contents were overwritten gives wrong results but never reads outside itself.
  *
  * Results: the build asks the flow through nf_point_pdf, so a table holds the bits of that
@@ -72,15 +72,6 @@ typedef struct nf_direction_table {
                                                 * cumulative shares, 0 and 1 aside       */
 } nf_direction_table;
 
-/* Builds `table` from the prepared `point`: asks the flow the density of each of the
- * NF_TABLE_CELLS cells' centres (one nf_point_pdf call of that many directions) and keeps
- * the normalized masses. Costs about NF_TABLE_CELLS point densities (docs/performance.md).
- * Errors (nothing written): NF_ERROR_INVALID_ARGUMENT (NULL, an unprepared point, a point of
- * another model), NF_ERROR_STALE (as nf_point_pdf), NF_ERROR_NUMERIC (a custom prior returned
- * an invalid value). Thread-safe on a const model and point; writes only *table. */
-NF_API nf_status nf_table_build(const nf_model *m, const nf_shading_point *point,
-                                nf_direction_table *table);
-
 /* Draws a direction from the table: u[0], u[1] in [0, 1) (values outside are clamped; NaN is
  * refused) give dir, a unit vector, and, if pdf is not NULL, *pdf, its density per steradian
  * (as nf_table_pdf of dir, within rounding), clamped to [FLT_MIN, FLT_MAX].
@@ -124,8 +115,8 @@ NF_API nf_status nf_table_pdf(const nf_model *m, const nf_direction_table *table
  *
  * Cost per thread: caches share nothing, so each render thread's builds the cells that thread
  * visits. T threads hold T x capacity x 2,192 bytes (8.6 MiB each at the default: 550 MiB for
- * 64 threads) and build up to T times one thread's tables, each about one nf_table_build;
- * both are bounded by capacity, which the renderer sets from the cells a render visits.
+ * 64 threads) and build up to T times one thread's tables, each about NF_TABLE_CELLS point
+ * densities; both are bounded by capacity, which the renderer sets from the cells a render visits.
  *
  * Thread-safety: a cache belongs to one thread at a time (one per render thread); its calls
  * never overlap. The models it is asked about may be shared (const). */
@@ -154,7 +145,7 @@ NF_API void nf_table_cache_destroy(nf_table_cache *c);
 /* The table of ctx's cell for model m (ctx: a finite position and a finite normal of squared
  * length above 1e-30; wo and phase_g are not read).
  * build = 0: *table is the cell's table, or NULL when the cache holds none. build = 1: a
- * missing table is built first (about one nf_table_build; renderers that time their passes
+ * missing table is built first (NF_TABLE_CELLS point densities; renderers that time their passes
  * can time this call alone and leave one-time builds out), or *table is NULL when the cell's
  * bucket is full. *table is valid until a find with another model or new parameters, or the
  * cache's destruction. A find that hits starts the loads of its table's cache lines (a

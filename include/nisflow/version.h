@@ -47,7 +47,7 @@
 #endif
 
 #define NF_VERSION_MAJOR 0
-#define NF_VERSION_MINOR 9
+#define NF_VERSION_MINOR 10
 #define NF_VERSION_PATCH 0
 
 NF_EXTERN_C_BEGIN

@@ -17,6 +17,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "blocks.h"
 
 #define SH_MAX (NF_MAX_SH_BANDS * NF_MAX_SH_BANDS)
 

@@ -23,6 +23,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
 
 #define BATCH 16
 

@@ -17,6 +17,9 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "guide_internal.h"
+#include "internal.h"
+#include "policy_atoms.h"
 
 /* ---- Helpers ------------------------------------------------------------------------------ */
 

@@ -15,6 +15,9 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "guide_internal.h"
+#include "policy_atoms.h"
+#include "schedule_atoms.h"
 
 static nf_guide *make_guide(const nf_guide_config *gc)
 {

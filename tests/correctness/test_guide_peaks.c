@@ -16,6 +16,7 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "schedule_atoms.h"
 
 enum { W = 5, H = 4 };
 

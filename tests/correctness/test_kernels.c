@@ -16,6 +16,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
 
 enum { N = 512 };
 

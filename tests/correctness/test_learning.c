@@ -24,6 +24,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
 
 /* ---- targets, in double ------------------------------------------------------------------------ */
 

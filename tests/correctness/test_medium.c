@@ -28,6 +28,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
 
 /* Asymmetries from strongly backward to strongly forward, the range a renderer's media use. */
 static const float all_g[] = {-0.9f, -0.5f, 0.0f, 0.5f, 0.9f};

@@ -13,6 +13,7 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "policy_atoms.h"
 
 /* A path of random events, followed once through nf_path_state and once through the calls. */
 static void test_same_bits_as_the_calls(void **state)

@@ -40,6 +40,8 @@
 
 #include "nf_test_points.h"
 #include "nf_test_support.h"
+#include "gradient.h"
+#include "point_batch.h"
 
 /* Directions per context, and points per batch: 64 is four tiles of 16, so nf_sample and
  * nf_pdf take their tiled path (kernel.c runs calls of 3 or more samples on tiles). */

@@ -15,6 +15,8 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
+#include "point_batch.h"
 
 /* Every pointer a callback received since the last reset: inside [lo, hi) and on an element
  * boundary of `stride` bytes, or counted as outside. */

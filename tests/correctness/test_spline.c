@@ -18,6 +18,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "blocks.h"
 
 #define MAX_RAW (3u * NF_MAX_SPLINE_BINS + 1u)
 

@@ -41,6 +41,7 @@
 #include <sys/types.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include "point_batch.h"
 #define HAVE_RLIMIT_INJECTION 1
 #else
 #define HAVE_RLIMIT_INJECTION 0

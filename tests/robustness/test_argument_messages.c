@@ -12,6 +12,7 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "point_batch.h"
 
 static void assert_refused_naming(nf_status got, nf_status want, const char *text)
 {

@@ -21,6 +21,8 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "blocks.h"
+#include "gradient.h"
 
 /* ---- checking that a call wrote its own error message ------------------------------------- */
 

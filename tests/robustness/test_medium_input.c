@@ -22,6 +22,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
 
 enum { N = 24 }; /* above the tiled threshold: the tile and the per-sample paths both validate */
 

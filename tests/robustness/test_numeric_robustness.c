@@ -32,6 +32,8 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "blocks.h"
+#include "gradient.h"
 
 /* nf_square_to_direction builds (sin t cos p, sin t sin p, cos t) from the fast sin/cos of
  * src/kernels/fastmath.h, each within 3e-7 absolutely (asserted by test_fastmath), plus one float

@@ -17,6 +17,7 @@
 
 #include "nf_test_main.h"
 #include "nf_test_support.h"
+#include "point_batch.h"
 
 static void test_table_refusals(void **state)
 {

@@ -26,6 +26,8 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
+#include "point_batch.h"
 
 #define THREADS 4
 #define BATCH 1024 /* per round, split into THREADS slices of different sizes */

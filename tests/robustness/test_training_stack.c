@@ -25,6 +25,7 @@
 #include <string.h>
 
 #include "nf_test_support.h"
+#include "gradient.h"
 
 #if NFT_STACK_CHECK
 enum { STACK_BYTES = 512 * 1024, N = 37 };

@@ -15,6 +15,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_support.h"
+#include "point_batch.h"
 
 /* Randomized parameters: uniform in [-RANDOM_SCALE, RANDOM_SCALE], as in test_normalization
  * and test_sampling, whose tolerances were measured at this scale. */

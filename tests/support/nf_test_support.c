@@ -8,6 +8,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "point_batch.h"
 
 /* ---- PCG32 -------------------------------------------------------------------------------- */
 

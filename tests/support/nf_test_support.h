@@ -21,6 +21,7 @@
 #include <nisflow/nisflow.h>
 
 #include "nf_test_main.h"
+#include "blocks.h"
 
 #define NFT_PI 3.14159265358979323846
 
