@@ -76,6 +76,7 @@
 #include <string.h>
 #include "gradient.h"
 #include "point_batch.h"
+#include "direction_table.h"
 
 /* ---- The timed work ---------------------------------------------------------------------- */
 

@@ -22,6 +22,7 @@
 
 #include <nisflow/nisflow.h>
 #include "point_batch.h"
+#include "direction_table.h"
 
 #define NFB_STREAM 256u /* n = 1 calls per unit of work at batch 1 */
 

@@ -19,6 +19,7 @@
 #include <string.h>
 #include "gradient.h"
 #include "point_batch.h"
+#include "direction_table.h"
 
 #define NFB_PARAM_NOISE 0.1f /* half-width of the uniform noise added to parameters */
 

@@ -11,6 +11,7 @@
 
 #include "harness.h"
 #include "common.h"
+#include "direction_table.h"
 
 /* ---- The inputs -------------------------------------------------------------------------- */
 

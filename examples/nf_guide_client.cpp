@@ -12,10 +12,10 @@
 // The library decides what each pass is (nisflow/schedule.h): training passes, whose samples
 // go to the guide while its previous pass trains on a third thread (the render threads help
 // with those steps between rows: nf_guide_help), then guided or plain passes, and the image.
-// Training passes ask the flow at a shading point per vertex (nisflow/point.h); guided render
-// passes, whose model no longer changes, answer each vertex from a table of the flow built
-// once per cell of the walls (nisflow/table.h): a draw and a density there cost a few lookups
-// instead of a walk through the flow each.
+// Each render thread asks the flow through one vertex object (nisflow/vertex.h): at a shading
+// point in training passes, and in guided render passes, whose model no longer changes, from a
+// table of the flow built once per cell of the walls: a draw and a density there cost a few
+// lookups instead of a walk through the flow each.
 //
 //   nf_guide_client [--seconds S] [--seed N] [--plain] [--out FILE] [--reference FILE]
 //   nf_guide_client --check        what ctest runs (50 s): see check() below
@@ -129,27 +129,13 @@ double thread_cpu_seconds()
     return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
-// ---- The flow by cells ------------------------------------------------------------------------
+// ---- The flow at a vertex ---------------------------------------------------------------------
 
-// One render thread's tables of the flow (nisflow/table.h): the library's cache of cells, 16
-// per side of the box and the walls' own normals, each table built on first use from a point
-// prepared at the cell's centre and kept while the model is. A build is timed apart: it is
-// done once for the model's life, not by the pass that happens to need it first.
-struct Tables {
-    nf_table_cache *cache = nullptr; // guide
-    double build_cpu = 0.0;          // guide: the builds' CPU seconds
-
-    // The table of ctx's cell; NULL where the cache has no room for it (or the flow refused).
-    const nf_direction_table *of(const nf_model *m, const nf_context &ctx)
-    {
-        const nf_direction_table *t = nullptr;
-        if (nf_table_cache_find(cache, m, &ctx, 0, &t) == NF_OK && !t) { // nf
-            double c0 = thread_cpu_seconds();
-            nf_table_cache_find(cache, m, &ctx, 1, &t); // nf
-            build_cpu += thread_cpu_seconds() - c0;
-        }
-        return t;
-    }
+// One render thread's vertex object, and the CPU its tables' builds took: a build is done once
+// for the model's whole life, not by the pass that happens to need it first.
+struct Flow {
+    nf_vertex *v = nullptr; // guide
+    double build_cpu = 0.0; // guide
 };
 
 // ---- One path -------------------------------------------------------------------------------
@@ -163,10 +149,10 @@ struct PathOut {
 };
 
 // One camera path through pixel (px, py). m: the model of a guided pass (NULL: plain); its
-// vertices up to `guide_depth` deep (0: every one) are guided, from the cells' tables when
-// `tables` is not NULL, else at a shading point of their own.
+// vertices up to `guide_depth` deep (0: every one) are guided through the vertex object v, by
+// `route` (a cell's table, or a shading point).
 void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, int px, int py,
-           std::mt19937 &rng, PathOut &out, Tables *tables)
+           std::mt19937 &rng, PathOut &out, nf_vertex *v, nf_vertex_route route)
 {
     std::uniform_real_distribution<float> uni(0.0f, 1.0f);
     Vec o{0.5f, 0.02f, 0.5f};
@@ -211,11 +197,7 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         // The flow answers only what the vertex uses: the scattered direction if the path goes
         // on, the light sample's density if that sample contributes.
         bool ask_dir = go_on && g > 0.0f, ask_light = flow_mis && lit;
-        nf_shading_point sp;
-        const nf_direction_table *tab = nullptr;
-        if ((ask_dir || ask_light) && tables) // guide: NULL if the cell has no table
-            tab = tables->of(m, ctx);
-        if ((ask_dir || ask_light) && !tab && nf_point_prepare(m, &ctx, nullptr, &sp) != NF_OK) { // nf
+        if ((ask_dir || ask_light) && nf_vertex_set(v, m, &ctx, nullptr, route) != NF_OK) { // nf
             g = 0.0f; // unguided: the BSDF's direction, still unbiased
             from_flow = flow_mis = ask_dir = ask_light = false;
         }
@@ -223,25 +205,13 @@ void trace(const nf_model *m, const nf_guide_policy *pol, uint32_t guide_depth, 
         if (go_on && !from_flow)
             dir = sample_cosine(n, u[0], u[1]);
         nf_status st = NF_OK;
-        if (tab) { // the cell's table: a draw or the density of the BSDF's direction, the light's
-            if (from_flow)
-                st = nf_table_sample(m, tab, u, wi, &p_flow); // nf
-            else if (ask_dir) {
-                const float d3[3] = {dir.x, dir.y, dir.z};
-                st = nf_table_pdf(m, tab, d3, &p_flow); // nf
-            }
-            if (st == NF_OK && ask_light)
-                st = nf_table_pdf(m, tab, wl3, &p_flow_l); // nf
-            if (from_flow)
-                dir = Vec{wi[0], wi[1], wi[2]};
-        } else if (from_flow) { // the flow's direction, and the light sample's density with it
-            st = ask_light ? nf_point_sample_and_pdf(m, &sp, u, wi, &p_flow, wl3, &p_flow_l) // nf
-                           : nf_point_sample(m, &sp, 1, u, wi, &p_flow);                  // nf
+        if (from_flow) { // the flow's direction, and the light sample's density with it
+            st = nf_vertex_sample(v, u, wi, &p_flow, ask_light ? 1 : 0, wl3, &p_flow_l); // nf
             dir = Vec{wi[0], wi[1], wi[2]};
         } else if (ask_dir || ask_light) { // the flow's density of the BSDF's direction, light's
             float dirs[6] = {dir.x, dir.y, dir.z, wl.x, wl.y, wl.z}, p[2];
             size_t k = ask_dir && ask_light ? 2 : 1;
-            st = nf_point_pdf(m, &sp, k, ask_dir ? dirs : dirs + 3, p); // nf
+            st = nf_vertex_pdf(v, k, ask_dir ? dirs : dirs + 3, p); // nf
             p_flow = ask_dir ? p[0] : 0.0f;
             p_flow_l = ask_light ? p[k - 1] : 0.0f;
         }
@@ -304,7 +274,7 @@ struct PassCost {
 // the threads; a training pass adds its samples to the guide chunk by chunk.
 PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guide,
                      const nf_guide_policy *pol, uint64_t seed, std::vector<float> &rgb,
-                     std::vector<float> &moments, std::vector<Tables> &tables)
+                     std::vector<float> &moments, std::vector<Flow> &flows)
 {
     std::atomic<int> next_chunk{0}; // of a row's length
     std::atomic<double> cpu{0.0};
@@ -317,13 +287,14 @@ PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guid
         double spent = 0.0;
         uint64_t n_shaded = 0, n_guided = 0;
         for (uint32_t c; (c = uint32_t(next_chunk++)) * kWidth < plan.paths;) {
-            double c0 = thread_cpu_seconds(), b0 = tables[size_t(t)].build_cpu;
+            double c0 = thread_cpu_seconds();
+            Flow &flow = flows[size_t(t)];
             std::mt19937 rng(uint32_t(seed * 1000003u + plan.pass * 7919u + c));
             size_t n = 0;
             for (uint32_t j = c * kWidth; j < (c + 1) * kWidth && j < plan.paths; ++j) {
                 int i = int(nf_pass_pixel(&plan, j)); // nf: the pixel of the pass's path j
-                trace(m, pol, plan.depth, i % kWidth, i / kWidth, rng, path,
-                      plan.todo == NF_TODO_GUIDED ? &tables[size_t(t)] : nullptr); // guide
+                trace(m, pol, plan.depth, i % kWidth, i / kWidth, rng, path, flow.v, // guide
+                      plan.todo == NF_TODO_GUIDED ? NF_VERTEX_TABLE : NF_VERTEX_POINT); // nf
                 n_shaded += uint64_t(path.shaded);
                 n_guided += uint64_t(path.guided);
                 rgb[3 * j] = rgb[3 * j + 1] = rgb[3 * j + 2] = path.radiance;
@@ -342,7 +313,10 @@ PassCost render_pass(const nf_pass_plan &plan, const nf_model *m, nf_guide *guid
                                      nullptr);                                             // nf
             // A table is built once for the model's whole life: its cost is not the pass's, whose
             // cost the schedule weighs against plain passes (tables_cpu reports it).
-            spent += thread_cpu_seconds() - c0 - (tables[size_t(t)].build_cpu - b0);
+            double b0 = thread_cpu_seconds();
+            spent += b0 - c0;
+            nf_vertex_build(flow.v); // nf: the tables of the cells this chunk found without one
+            flow.build_cpu += thread_cpu_seconds() - b0;
             nf_guide_help(guide); // nf: a share of the training step in progress, if any
         }
         for (double c = cpu; !cpu.compare_exchange_weak(c, c + spent);)
@@ -365,7 +339,8 @@ struct Result {
     nf_schedule_report report;
     std::vector<double> pass_means; // each pass's image mean (the spread of the estimate)
     PassCost kind_cost[2];          // the render passes' cost by kind (nf_pass_kind)
-    uint64_t lookups = 0, tables = 0; // tables asked for, built, and the builds' CPU seconds
+    uint64_t lookups = 0, tables = 0; // vertices asked, tables built, and the builds' CPU seconds
+    uint64_t from_tables = 0;
     double tables_cpu = 0.0;
     bool ok = false;
 };
@@ -393,12 +368,10 @@ Result render(double seconds, uint64_t seed, bool plain)
     }
     nf_model_destroy(model); // nf: the guide keeps its own copies
     std::vector<float> rgb, moments; // a pass's paths: RGB, and NF_GUIDE_DEPTHS moments each
-    std::vector<Tables> tables(kThreads); // guide: each render thread's
-    nf_table_cache_config tc;             // nf
-    nf_table_cache_config_init(&tc);      // nf
-    bool made = true;                     // otherwise the error is reported below
-    for (Tables &t : tables)
-        made = made && nf_table_cache_create(&tc, &t.cache) == NF_OK; // nf
+    std::vector<Flow> flows(kThreads); // guide: each render thread's
+    bool made = true;                  // otherwise the error is reported below
+    for (Flow &f : flows)
+        made = made && nf_vertex_create(nullptr, &f.v) == NF_OK; // nf
     std::thread trainer;     // guide: trains the previous pass while the next one renders
     nf_status trained = NF_OK;
     const double start = wall_seconds();
@@ -424,7 +397,7 @@ Result render(double seconds, uint64_t seed, bool plain)
             rgb.resize(3 * size_t(plan.paths));
             moments.resize(NF_GUIDE_DEPTHS * size_t(plan.paths));
             double t0 = wall_seconds();
-            PassCost cost = render_pass(plan, m, guide, &gc.policy, seed, rgb, moments, tables);
+            PassCost cost = render_pass(plan, m, guide, &gc.policy, seed, rgb, moments, flows);
             if (plan.todo != NF_TODO_TRAIN) {
                 PassCost &k = r.kind_cost[plan.todo == NF_TODO_PLAIN ? NF_PASS_PLAIN : NF_PASS_GUIDED];
                 k.cpu += cost.cpu, k.shaded += cost.shaded, k.guided += cost.guided;
@@ -450,12 +423,12 @@ Result render(double seconds, uint64_t seed, bool plain)
         std::fprintf(stderr, "nf_guide_client: %s\n", nf_last_error_message()); // nf
         r.ok = false;
     }
-    for (Tables &t : tables) {
-        nf_table_cache_stats st;                              // nf
-        if (nf_table_cache_get_stats(t.cache, &st) == NF_OK)  // nf
-            r.lookups += st.finds, r.tables += st.builds;
-        r.tables_cpu += t.build_cpu;
-        nf_table_cache_destroy(t.cache); // nf
+    for (Flow &f : flows) {
+        nf_vertex_stats st;                            // nf
+        if (nf_vertex_get_stats(f.v, &st) == NF_OK)    // nf
+            r.lookups += st.points + st.tables, r.tables += st.builds, r.from_tables += st.tables;
+        r.tables_cpu += f.build_cpu;
+        nf_vertex_destroy(f.v); // nf
     }
     nf_schedule_destroy(sched); // nf
     nf_guide_destroy(guide);    // nf
@@ -537,10 +510,10 @@ void print(const char *name, const Result &r)
     double f = g.shaded ? double(g.guided) / double(g.shaded) : 0.0;
     std::printf("cost: %.1f CPU ns per vertex in guided passes (%.3f of them asked the flow), "
                 "%.1f in plain ones; a guided vertex %.2fx a plain one; %llu tables built in "
-                "%.2f CPU s, %.5f of %llu lookups found theirs built\n",
+                "%.2f CPU s, %.5f of %llu guided vertices answered from one\n",
                 ns_g, f, ns_p, ns_p > 0.0 && f > 0.0 ? 1.0 + (ns_g / ns_p - 1.0) / f : 0.0,
                 (unsigned long long)r.tables, r.tables_cpu,
-                r.lookups ? 1.0 - double(r.tables) / double(r.lookups) : 0.0,
+                r.lookups ? double(r.from_tables) / double(r.lookups) : 0.0,
                 (unsigned long long)r.lookups);
 }
 

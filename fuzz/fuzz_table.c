@@ -24,6 +24,7 @@
 
 #include "fuzz_common.h"
 #include "point_batch.h"
+#include "direction_table.h"
 
 enum { SLOTS = 4, MAX_OPS = 48 };
 

@@ -10,7 +10,7 @@
 #include <stddef.h>
 
 #include "nisflow/point.h"
-#include "nisflow/table.h"
+#include "direction_table.h"
 
 /* Batch forms for wavefront renderers: one direction per point. points[i] is prepared (each
  * with its own context); u, dir and pdf as in nf_sample. Every point and input is checked

@@ -6,6 +6,7 @@
 #include <float.h>
 
 #include "internal.h"
+#include "direction_table.h"
 #include "point_batch.h"
 #include "kernels/fastmath.h"
 #include "kernels/kernels.h"

@@ -4,6 +4,7 @@
  * first use from a point prepared at the cell's centre.
  */
 #include "internal.h"
+#include "direction_table.h"
 #include "point_batch.h"
 
 #define NF_TABLE_CACHE_MAGIC 0x4e465443u /* "NFTC" */

@@ -6,7 +6,7 @@
  *   status.h   nf_status codes and error messages
  *   model.h    configuration, model life cycle, nf_sample / nf_pdf
  *   point.h    shading points: prepare a context once, sample and evaluate many directions
- *   table.h    a render thread's tables of the flow by cells of the scene
+ *   vertex.h   one render thread's answers at path vertices: a point, or a cell's table
  *   train.h    training steps, parameter access
  *   path.h     training samples from a traced path (the backward radiance walk)
  *   policy.h   the path policy and nf_path_state, one camera path's guiding state
@@ -21,7 +21,7 @@
 #include "status.h"
 #include "model.h"
 #include "point.h"
-#include "table.h"
+#include "vertex.h"
 #include "train.h"
 #include "path.h"
 #include "policy.h"

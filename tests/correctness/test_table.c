@@ -17,6 +17,7 @@
 #include "nf_test_main.h"
 #include "nf_test_support.h"
 #include "point_batch.h"
+#include "direction_table.h"
 
 /* The chi-square's callbacks over one table. */
 typedef struct table_fn {

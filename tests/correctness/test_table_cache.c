@@ -18,6 +18,7 @@
 
 #include "nf_test_main.h"
 #include "nf_test_support.h"
+#include "direction_table.h"
 
 static nf_table_cache *make_cache(uint32_t capacity, uint32_t position_cells, uint32_t normal_cells)
 {

@@ -18,6 +18,7 @@
 #include "nf_test_main.h"
 #include "nf_test_support.h"
 #include "point_batch.h"
+#include "direction_table.h"
 
 static void test_table_refusals(void **state)
 {

@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "point_batch.h"
+#include "direction_table.h"
 
 /* ---- PCG32 -------------------------------------------------------------------------------- */
 

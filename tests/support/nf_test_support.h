@@ -22,6 +22,7 @@
 
 #include "nf_test_main.h"
 #include "blocks.h"
+#include "direction_table.h"
 
 #define NFT_PI 3.14159265358979323846
 

@@ -1,6 +1,8 @@
 /*
- * nisflow/table.h - a shading point's flow tabulated on a fixed grid of directions, for
- * renderers that ask about many vertices in one small region of the scene.
+ * direction_table.h - a shading point's flow tabulated on a fixed grid of directions, and a
+ * render thread's tables by cells of the scene. Internal (not installed): renderers reach
+ * tables through the vertex object (nisflow/vertex.h), which keeps one cache; the tests,
+ * fuzzers and the benchmark call these directly.
  *
  * A guided vertex through a shading point (point.h) walks the flow once per question. A
  * renderer that keys cells of its scene (a grid of positions, the normal's direction) can
@@ -41,21 +43,17 @@
  * Stack: a build uses at most 8 KiB (its table, a row of directions and the flow's share), a
  * draw or a density 256 bytes; tests/correctness/test_table.c measures both.
  */
-#ifndef NISFLOW_TABLE_H
-#define NISFLOW_TABLE_H
+#ifndef NISFLOW_SRC_DIRECTION_TABLE_H
+#define NISFLOW_SRC_DIRECTION_TABLE_H
 
 #include <stdint.h>
 
-#include "model.h"
-#include "point.h"
-#include "status.h"
-#include "version.h"
+#include "nisflow/model.h"
+#include "nisflow/point.h"
+#include "nisflow/status.h"
+#include "nisflow/vertex.h"
 
-NF_EXTERN_C_BEGIN
-
-#define NF_TABLE_ROWS 16u                              /* polar rows                  */
-#define NF_TABLE_COLS 32u                              /* azimuthal columns           */
-#define NF_TABLE_CELLS (NF_TABLE_ROWS * NF_TABLE_COLS) /* 512 directions asked a build */
+/* NF_TABLE_ROWS, NF_TABLE_COLS, NF_TABLE_CELLS: nisflow/vertex.h. */
 
 /* A tabulated point. Its layout is private: the names exist only to size it. A draw reads the
  * first 128 bytes and one row of 128, a density one line of the first and one or two of a row:
@@ -77,15 +75,15 @@ typedef struct nf_direction_table {
  * (as nf_table_pdf of dir, within rounding), clamped to [FLT_MIN, FLT_MAX].
  * Errors (nothing written): NF_ERROR_INVALID_ARGUMENT (NULL, a table never built, a table of
  * another model, NaN in u), NF_ERROR_STALE. Thread-safe; never allocates. */
-NF_API nf_status nf_table_sample(const nf_model *m, const nf_direction_table *table,
-                                 const float u[2], float dir[3], float *pdf);
+nf_status nf_table_sample(const nf_model *m, const nf_direction_table *table, const float u[2],
+                          float dir[3], float *pdf);
 
 /* The table's density of dir (any finite direction with squared length above 1e-30; the
  * library normalizes it), per steradian: 0 at and below a surface table's horizon, positive
  * above it. Errors as nf_table_sample (a bad direction is NF_ERROR_INVALID_ARGUMENT).
  * Thread-safe; never allocates. */
-NF_API nf_status nf_table_pdf(const nf_model *m, const nf_direction_table *table,
-                              const float dir[3], float *pdf);
+nf_status nf_table_pdf(const nf_model *m, const nf_direction_table *table, const float dir[3],
+                       float *pdf);
 
 /* ---- A render thread's tables, by cells of the scene ----------------------------------------- */
 
@@ -132,15 +130,15 @@ typedef struct nf_table_cache_config {
 } nf_table_cache_config;
 
 /* The defaults above. NULL is ignored. Thread-safe. */
-NF_API void nf_table_cache_config_init(nf_table_cache_config *cfg);
+void nf_table_cache_config_init(nf_table_cache_config *cfg);
 
 /* Creates a cache. Errors: NF_ERROR_INVALID_ARGUMENT (NULL, a config not initialized by
  * nf_table_cache_config_init, a field out of its range; the message names it),
  * NF_ERROR_OUT_OF_MEMORY. *out is NULL on error. Thread-safe. */
-NF_API nf_status nf_table_cache_create(const nf_table_cache_config *cfg, nf_table_cache **out);
+nf_status nf_table_cache_create(const nf_table_cache_config *cfg, nf_table_cache **out);
 
 /* Frees the cache and its tables. NULL is a no-op. */
-NF_API void nf_table_cache_destroy(nf_table_cache *c);
+void nf_table_cache_destroy(nf_table_cache *c);
 
 /* The table of ctx's cell for model m (ctx: a finite position and a finite normal of squared
  * length above 1e-30; wo and phase_g are not read).
@@ -154,8 +152,8 @@ NF_API void nf_table_cache_destroy(nf_table_cache *c);
  * not used pays for those loads. Errors (*table NULL): NF_ERROR_INVALID_ARGUMENT (NULL, a bad
  * context, a medium context), NF_ERROR_STALE or NF_ERROR_NUMERIC from the build. Never
  * allocates. */
-NF_API nf_status nf_table_cache_find(nf_table_cache *c, const nf_model *m, const nf_context *ctx,
-                                     int build, const nf_direction_table **table);
+nf_status nf_table_cache_find(nf_table_cache *c, const nf_model *m, const nf_context *ctx,
+                              int build, const nf_direction_table **table);
 
 /* What a cache has done since its creation: finds, the tables it built, and the finds with
  * build = 1 that found their cell's bucket full. */
@@ -166,8 +164,6 @@ typedef struct nf_table_cache_stats {
 } nf_table_cache_stats;
 
 /* *stats of cache c. Errors: NF_ERROR_INVALID_ARGUMENT (NULL). */
-NF_API nf_status nf_table_cache_get_stats(const nf_table_cache *c, nf_table_cache_stats *stats);
+nf_status nf_table_cache_get_stats(const nf_table_cache *c, nf_table_cache_stats *stats);
 
-NF_EXTERN_C_END
-
-#endif /* NISFLOW_TABLE_H */
+#endif /* NISFLOW_SRC_DIRECTION_TABLE_H */
