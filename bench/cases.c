@@ -77,6 +77,7 @@
 #include "gradient.h"
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 /* ---- The timed work ---------------------------------------------------------------------- */
 

@@ -23,6 +23,7 @@
 #include <nisflow/nisflow.h>
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 #define NFB_STREAM 256u /* n = 1 calls per unit of work at batch 1 */
 

@@ -23,6 +23,7 @@
 #include "setup.h"
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 #define NFB_POOL 65536u     /* distinct inputs (a multiple of every batch size) */
 #define NFB_MAX_RESULTS 256 /* room for every case of a run: 2 presets x 32 at most */

@@ -8,6 +8,7 @@
 #include "report.h"
 
 #include <stdio.h>
+#include "shading_point.h"
 
 /* s as a JSON string: quotes, backslashes and control characters escaped (a label or a CPU
  * name can hold any of them). */

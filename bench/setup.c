@@ -20,6 +20,7 @@
 #include "gradient.h"
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 #define NFB_PARAM_NOISE 0.1f /* half-width of the uniform noise added to parameters */
 

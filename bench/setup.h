@@ -12,6 +12,7 @@
 #include "harness.h"
 #include "common.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 /* ---- The inputs -------------------------------------------------------------------------- */
 

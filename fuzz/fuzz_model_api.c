@@ -24,6 +24,7 @@
 #include "fuzz_common.h"
 #include "gradient.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 enum { N = 24 };
 

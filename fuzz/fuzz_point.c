@@ -42,6 +42,7 @@
 #include "gradient.h"
 #include "internal.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 enum { SLOTS = 4, MAX_N = 20, MAX_OPS = 32, MAX_TRAININGS = 1, MAX_WRITES = 1, MAX_EDITS = 3 };
 

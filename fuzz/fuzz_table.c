@@ -25,6 +25,7 @@
 #include "fuzz_common.h"
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 enum { SLOTS = 4, MAX_OPS = 48 };
 

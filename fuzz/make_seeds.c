@@ -21,6 +21,7 @@
 #include <string.h>
 
 #include "fuzz_common.h"
+#include "shading_point.h"
 
 static const char *dir_name;
 

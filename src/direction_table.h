@@ -49,7 +49,7 @@
 #include <stdint.h>
 
 #include "nisflow/model.h"
-#include "nisflow/point.h"
+#include "shading_point.h"
 #include "nisflow/status.h"
 #include "nisflow/vertex.h"
 

@@ -18,6 +18,7 @@
 #include <string.h>
 
 #include "nisflow/nisflow.h"
+#include "shading_point.h"
 
 #define NF_PI 3.14159265358979323846f
 #define NF_TWO_PI 6.28318530717958647692f

@@ -9,7 +9,7 @@
 
 #include <stddef.h>
 
-#include "nisflow/point.h"
+#include "shading_point.h"
 #include "direction_table.h"
 
 /* Batch forms for wavefront renderers: one direction per point. points[i] is prepared (each

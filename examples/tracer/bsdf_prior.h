@@ -3,7 +3,7 @@
  * flow's prior, through libnisflow's nf_prior_callbacks, and how its callbacks find the
  * material of a context.
  *
- * While rendering, each guided vertex prepares an nf_shading_point with callbacks bound to
+ * While rendering, each guided vertex sets the thread's vertex object with callbacks bound to
  * its own material (bsdf_prior_at_point): they need no lookup.
  *
  * While training, the model's callbacks receive an nf_context and one model-wide user
@@ -64,7 +64,7 @@ unsigned long long prior_lookup_failures(const nf_model *m);
  * (may be NULL: every surface context then gets a cosine lobe, uncounted). */
 nf_prior_callbacks bsdf_prior_callbacks(prior_lookup *lookup);
 
-/* The same prior bound to one shading point, for nf_point_prepare: its callbacks read `p`
+/* The same prior bound to one vertex, for nf_vertex_set: its callbacks read `p`
  * (which must outlive the prepared point's use) and no lookup. */
 nf_prior_callbacks bsdf_prior_at_point(const prior_point *p);
 

@@ -130,10 +130,9 @@ typedef enum nf_phi_map {
  *         sample i (every batch size, every instruction set), and for nf_model_prior_pdf the
  *         pointer passed; normal and wo are as the caller gave them (not normalized).
  *         `ctx - base` is therefore the sample's index, through which a renderer can reach
- *         per-sample data such as the shading point's BSDF. Through the shading-point API
- *         (point.h) it points to the copy of the context inside the caller's
- *         nf_shading_point (for nf_points_* inside points[i]), which nf_point_prepare made;
- *         per-point data travel there in the point's own callbacks' `user`.
+ *         per-sample data such as the shading point's BSDF. Through a vertex object
+ *         (vertex.h) it points to the object's copy of the vertex's context; per-vertex
+ *         data travel there in the vertex's own callbacks' `user`.
  *         tests/correctness/test_prior_context.c checks every entry point.
  * user:   passed back unchanged; the library never dereferences or frees it.
  * Both callbacks are called from whichever threads call nf_sample / nf_pdf / training, and

@@ -5,7 +5,6 @@
  *   version.h  version macros and nf_version_string
  *   status.h   nf_status codes and error messages
  *   model.h    configuration, model life cycle, nf_sample / nf_pdf
- *   point.h    shading points: prepare a context once, sample and evaluate many directions
  *   vertex.h   one render thread's answers at path vertices: a point, or a cell's table
  *   train.h    training steps, parameter access
  *   path.h     training samples from a traced path (the backward radiance walk)
@@ -20,7 +19,6 @@
 #include "version.h"
 #include "status.h"
 #include "model.h"
-#include "point.h"
 #include "vertex.h"
 #include "train.h"
 #include "path.h"

@@ -20,8 +20,8 @@ typedef enum nf_status {
     NF_ERROR_IO = 3,               /* a file could not be opened, read or written            */
     NF_ERROR_FORMAT = 4,           /* a model file or buffer is truncated, corrupt or foreign */
     NF_ERROR_NUMERIC = 5,          /* a result would be non-finite (the call was refused)    */
-    NF_ERROR_STALE = 6,            /* a shading point predates a change of the model's
-                                      parameters: prepare it again (nisflow/point.h)       */
+    NF_ERROR_STALE = 6,            /* a vertex was set before a change of the model's
+                                      parameters: set it again (nisflow/vertex.h)          */
     NF_ERROR_CAPACITY = 7,         /* an output buffer is too small; nothing was written and
                                       the call says how much it needs (nisflow/path.h)     */
     NF_ERROR_BUSY = 8              /* the guide is in use by a call that may not overlap this

@@ -20,6 +20,7 @@
 #include "guide_internal.h"
 #include "internal.h"
 #include "policy_atoms.h"
+#include "shading_point.h"
 
 /* ---- Helpers ------------------------------------------------------------------------------ */
 

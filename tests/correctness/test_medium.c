@@ -29,6 +29,7 @@
 
 #include "nf_test_support.h"
 #include "gradient.h"
+#include "shading_point.h"
 
 /* Asymmetries from strongly backward to strongly forward, the range a renderer's media use. */
 static const float all_g[] = {-0.9f, -0.5f, 0.0f, 0.5f, 0.9f};

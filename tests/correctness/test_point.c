@@ -42,6 +42,7 @@
 #include "nf_test_support.h"
 #include "gradient.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 /* Directions per context, and points per batch: 64 is four tiles of 16, so nf_sample and
  * nf_pdf take their tiled path (kernel.c runs calls of 3 or more samples on tiles). */

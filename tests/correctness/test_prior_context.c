@@ -17,6 +17,7 @@
 #include "nf_test_support.h"
 #include "gradient.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 /* Every pointer a callback received since the last reset: inside [lo, hi) and on an element
  * boundary of `stride` bytes, or counted as outside. */

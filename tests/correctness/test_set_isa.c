@@ -14,6 +14,7 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "shading_point.h"
 
 #define N 53u    /* three tiles, the last partial                        */
 #define STEPS 6u /* enough for AdamW's moments to matter in every weight */

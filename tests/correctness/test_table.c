@@ -18,6 +18,7 @@
 #include "nf_test_support.h"
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 /* The chi-square's callbacks over one table. */
 typedef struct table_fn {

@@ -19,6 +19,7 @@
 #include "nf_test_main.h"
 #include "nf_test_support.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 static nf_vertex *make_vertex(int tables)
 {

@@ -42,6 +42,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 #include "point_batch.h"
+#include "shading_point.h"
 #define HAVE_RLIMIT_INJECTION 1
 #else
 #define HAVE_RLIMIT_INJECTION 0

@@ -13,6 +13,7 @@
 
 #include "nf_test_support.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 static void assert_refused_naming(nf_status got, nf_status want, const char *text)
 {

@@ -31,6 +31,7 @@
 #include <cmocka.h>
 
 #include "nf_test_support.h"
+#include "shading_point.h"
 
 #if defined(__SANITIZE_THREAD__)
 #define NF_UNDER_TSAN 1

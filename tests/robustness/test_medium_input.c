@@ -23,6 +23,7 @@
 
 #include "nf_test_support.h"
 #include "gradient.h"
+#include "shading_point.h"
 
 enum { N = 24 }; /* above the tiled threshold: the tile and the per-sample paths both validate */
 

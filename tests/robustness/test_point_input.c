@@ -26,6 +26,7 @@
 #include "nf_test_points.h"
 #include "nf_test_support.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 static const nf_prior_kind all_priors[4] = {NF_PRIOR_UNIFORM_DIRECTION, NF_PRIOR_UNIFORM_ANGLE,
                                             NF_PRIOR_COSINE, NF_PRIOR_CUSTOM};

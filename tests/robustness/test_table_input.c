@@ -19,6 +19,7 @@
 #include "nf_test_support.h"
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 static void test_table_refusals(void **state)
 {

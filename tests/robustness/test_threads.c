@@ -28,6 +28,7 @@
 #include "nf_test_support.h"
 #include "gradient.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 #define THREADS 4
 #define BATCH 1024 /* per round, split into THREADS slices of different sizes */

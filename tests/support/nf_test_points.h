@@ -16,6 +16,7 @@
 
 #include "nf_test_support.h"
 #include "point_batch.h"
+#include "shading_point.h"
 
 /* Randomized parameters: uniform in [-RANDOM_SCALE, RANDOM_SCALE], as in test_normalization
  * and test_sampling, whose tolerances were measured at this scale. */

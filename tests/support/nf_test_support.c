@@ -10,6 +10,7 @@
 #include <string.h>
 #include "point_batch.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 /* ---- PCG32 -------------------------------------------------------------------------------- */
 

@@ -23,6 +23,7 @@
 #include "nf_test_main.h"
 #include "blocks.h"
 #include "direction_table.h"
+#include "shading_point.h"
 
 #define NFT_PI 3.14159265358979323846
 

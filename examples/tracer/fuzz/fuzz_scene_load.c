@@ -73,17 +73,19 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         if (s.max_depth < 0 || s.max_depth > 8)
             s.max_depth = 8;
         tracer t = {.s = &s};
+        trace_scratch sc = {0};
         path_stats st;
         memset(&st, 0, sizeof st);
         rng r = rng_seed(1, RNG_TEST, 0, (uint64_t)size);
         for (int k = 0; k < 4; ++k) {
             float fx = rng_next(&r) * (float)s.width;
             float fy = rng_next(&r) * (float)s.height;
-            (void)trace_path(&t, &r, fx, fy, NULL, &st);
+            (void)trace_path(&t, &r, fx, fy, NULL, &sc, &st);
         }
         CHECK(st.paths == 4 && st.invalid_rays == 0,
               "%llu paths formed %llu rays that Embree cannot take",
               (unsigned long long)st.paths, (unsigned long long)st.invalid_rays);
+        trace_scratch_free(&sc);
         scene_free(&s);
     } else {
         CHECK(err.msg[0] != '\0', "a refused scene without a message");

@@ -1,6 +1,7 @@
 /*
  * integrator.c - the path tracer's two loops over a path's vertices (integrator.h): one path
- * at a time, each vertex answered at its own shading point (trace_path), or a batch of paths
+ * at a time, each vertex answered at its own shading point through the thread's vertex object
+ * (trace_path), or a batch of paths
  * advancing together, each round's flow questions answered in one batched nf_sample and
  * nf_pdf (trace_paths). The vertex itself, and the estimator, are vertex.c's.
  */
@@ -20,13 +21,14 @@ void path_stats_add(path_stats *a, const path_stats *b)
     a->invalid_rays += b->invalid_rays;
 }
 
-rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records, path_stats *st)
+rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
+               trace_scratch *sc, path_stats *st)
 {
-    return trace_path_moment(t, r, px, py, records, st, NULL);
+    return trace_path_moment(t, r, px, py, records, sc, st, NULL);
 }
 
 rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer *records,
-                      path_stats *st, float *moment)
+                      trace_scratch *sc, path_stats *st, float *moment)
 {
     nf_path_vertex pv[MAX_RECORDED_VERTICES]; /* the library's record of the path */
     vertex_extra ex[MAX_RECORDED_VERTICES];
@@ -42,7 +44,7 @@ rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer
         if (!vertex_plan_next(t, &ps, r, st, prev, &vp))
             break;
         recorder_open(pr, &v, &vx);
-        answer_at_point(t, &vp, st);
+        answer_at_point(t, &sc->flow, &vp, st);
         if (!vertex_finish(t, &ps, &vp, v, vx))
             break;
     }
@@ -57,7 +59,8 @@ rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer
  * and one nf_pdf call for every density (light samples' and BSDF directions'), which run
  * the library's 16-lane kernels. A refused batch (which valid contexts never cause) is asked
  * again one vertex at a time, so that only the vertex the library refuses fails. */
-static void answer_batch(const tracer *t, vertex_plan *const *vps, size_t n, path_stats *st)
+static void answer_batch(const tracer *t, vertex_plan *const *vps, size_t n, trace_scratch *sc,
+                         path_stats *st)
 {
     nf_context sctx[TRACE_BATCH], pctx[2 * TRACE_BATCH];
     float su[2 * TRACE_BATCH], sdir[3 * TRACE_BATCH], spdf[TRACE_BATCH];
@@ -86,7 +89,7 @@ static void answer_batch(const tracer *t, vertex_plan *const *vps, size_t n, pat
     if ((ns && nf_sample(t->model, ns, sctx, su, sdir, spdf) != NF_OK) ||
         (np && nf_pdf(t->model, np, pctx, pdir, ppdf) != NF_OK)) {
         for (size_t i = 0; i < n; ++i)
-            answer_at_point(t, vps[i], st);
+            answer_at_point(t, &sc->flow, vps[i], st);
         return;
     }
     for (size_t i = 0; i < ns; ++i) {
@@ -123,11 +126,18 @@ static int advance_to_question(const tracer *t, path_state *ps, rng *r, path_sta
     }
 }
 
-void trace_scratch_free(trace_scratch *sc)
+static void scratch_free_records(trace_scratch *sc)
 {
     free(sc->mem);
     sc->mem = NULL;
     sc->bytes = 0;
+}
+
+void trace_scratch_free(trace_scratch *sc)
+{
+    scratch_free_records(sc);
+    nf_vertex_destroy(sc->flow);
+    sc->flow = NULL;
 }
 
 /* The records of n paths in sc (grown if it is too small); NULL when out of memory. */
@@ -142,7 +152,7 @@ static path_recorder *recorders_in(const scene *s, size_t n, trace_scratch *sc)
     size_t bytes = n * (sizeof(path_recorder) +
                         (size_t)cap * (sizeof(vertex_extra) + sizeof(nf_path_vertex)));
     if (sc->bytes < bytes) {
-        trace_scratch_free(sc);
+        scratch_free_records(sc);
         if (!(sc->mem = malloc(bytes)))
             return NULL;
         sc->bytes = bytes;
@@ -173,7 +183,7 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
     if (!trace_paths_pay(t) || (records && !pr)) { /* the same bits, one path at a time */
         for (size_t i = 0; i < n; ++i)
             out[i] =
-                trace_path_moment(t, &r[i], px[i], py[i], records, st,
+                trace_path_moment(t, &r[i], px[i], py[i], records, scratch, st,
                                   moment ? &moment[PATH_MOMENTS * i] : NULL);
         return;
     }
@@ -194,7 +204,7 @@ void trace_paths(const tracer *t, size_t n, rng *r, const float *px, const float
                 asking[nask++] = &vp[i];
             }
         }
-        answer_batch(t, asking, nask, st);
+        answer_batch(t, asking, nask, scratch, st);
         nlive = 0;
         for (size_t k = 0; k < nask; ++k) {
             size_t i = live[k];

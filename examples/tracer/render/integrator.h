@@ -89,11 +89,23 @@ typedef struct path_state {
                           * tracing's, [k] the kind that guides up to depth k)              */
 } path_state;
 
+/* What a render thread keeps from path to path: the memory trace_paths reuses for its paths'
+ * records, and the thread's vertex object, through which its vertices are asked at a shading
+ * point (nisflow/vertex.h; made on first use). One per thread, zero-initialized ({0}),
+ * released with trace_scratch_free. */
+typedef struct trace_scratch {
+    void *mem;
+    size_t bytes;
+    nf_vertex *flow;
+} trace_scratch;
+
+void trace_scratch_free(trace_scratch *scratch);
+
 /* Traces the path through film position (px, py) and returns its radiance estimate.
  * With records != NULL, appends a record for every guided vertex whose weight is positive
  * (zero-weight samples carry no information for the loss). */
 rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *records,
-               path_stats *stats);
+               trace_scratch *scratch, path_stats *stats);
 
 /* trace_path, and with moment != NULL moment[0..PATH_MOMENTS) receive the path's estimates
  * of the second moments of the pixel's luminance under the policies of
@@ -101,22 +113,13 @@ rgb trace_path(const tracer *t, rng *r, float px, float py, record_buffer *recor
  * unguided path: its squared luminance). The schedule reads only those of kinds that guide
  * less deep than the pass. */
 rgb trace_path_moment(const tracer *t, rng *r, float px, float py, record_buffer *records,
-                      path_stats *stats, float *moment);
+                      trace_scratch *scratch, path_stats *stats, float *moment);
 
 /* How many paths trace_paths takes at once: a whole 16 x 16 tile of pixels, so that even
  * the later rounds, when most paths have ended, and scenes where guided vertices are rare
  * still fill several of the library's 16-lane tiles (it cost 5-7% less CPU per render pass in
  * Veach Ajar than 64 paths). */
 #define TRACE_BATCH 256
-
-/* Memory that trace_paths reuses from call to call for its paths' records: one per thread,
- * zero-initialized ({0}), released with trace_scratch_free. */
-typedef struct trace_scratch {
-    void *mem;
-    size_t bytes;
-} trace_scratch;
-
-void trace_scratch_free(trace_scratch *scratch);
 
 /* Traces the paths through film positions (px[i], py[i]), i < n <= TRACE_BATCH, with path i
  * drawing from r[i], and writes their radiance estimates to out[i]: the same bits as n calls

@@ -168,7 +168,7 @@ static void render_tile(void *user, size_t k, int thread)
             for (int i = 0; i < job->spp; ++i) {
                 float jx = rng_next(&r), jy = rng_next(&r);
                 rgb c = trace_path(job->c.t, &r, (float)x + jx, (float)y + jy, NULL,
-                                   &job->c.stats[thread].s);
+                                   &job->c.mem->scratch[thread], &job->c.stats[thread].s);
                 /* One bad sample (a NaN from a numerical corner case) must not poison the
                  * pixel; such samples are dropped and would show up as darkening. */
                 if (rgb_is_finite(c))
@@ -278,7 +278,7 @@ static void pass_chunk(void *user, size_t k, int thread)
         if (!batched) {
             float m[PATH_MOMENTS] = {0.0f};
             rgb c = trace_path_moment(job->c.t, &pr, (float)x + jx, (float)y + jy, out,
-                                      &job->c.stats[thread].s, m);
+                                      &job->c.mem->scratch[thread], &job->c.stats[thread].s, m);
             pass_path_out(job, j, c, m);
             continue;
         }
@@ -326,7 +326,8 @@ static void train_chunk(void *user, size_t item, int thread)
     for (size_t j = item * TRAIN_CHUNK; j < (item + 1) * TRAIN_CHUNK && j < job->paths; ++j) {
         rng r = rng_seed(job->seed, RNG_TRAIN, job->iteration, job->first + j);
         float px = rng_next(&r) * (float)s->width, py = rng_next(&r) * (float)s->height;
-        trace_path(job->c.t, &r, px, py, out, &job->c.stats[thread].s);
+        trace_path(job->c.t, &r, px, py, out, &job->c.mem->scratch[thread],
+                   &job->c.stats[thread].s);
         if (job->path_end)
             job->path_end[j] = out->count; /* the chunk's count; joined_chunk adds the rest */
     }

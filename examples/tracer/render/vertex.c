@@ -467,26 +467,32 @@ int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats *st,
     return plan_light_and_scatter(t, ps, r, st, vp, smooth, depth);
 }
 
-/* The recipe of docs/integration.md: one shading point per guided vertex, asked for the
- * light sample's density and for the scattered direction or the BSDF direction's density,
- * both in one call. */
-void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st)
+/* The recipe of docs/integration.md: the thread's vertex object (made on first use) moved to
+ * the vertex, asked for the light sample's density and for the scattered direction or the
+ * BSDF direction's density, both in one call. At a shading point: the tracer's cells would
+ * blur light that changes within them (docs/studies/cost-of-a-direction.md). */
+void answer_at_point(const tracer *t, nf_vertex **flow, vertex_plan *vp, path_stats *st)
 {
     flow_questions *q = &vp->q;
     if (!flow_asks(q))
         return;
-    nf_shading_point sp;
+    if (!*flow) {
+        nf_vertex_config cfg;
+        nf_vertex_config_init(&cfg);
+        cfg.tables = 0;
+        if (nf_vertex_create(&cfg, flow) != NF_OK)
+            *flow = NULL;
+    }
     nf_prior_callbacks bsdf_prior = bsdf_prior_at_point(&vp->gp);
-    int ok = nf_point_prepare(t->model, &q->ctx, t->bsdf_prior ? &bsdf_prior : NULL, &sp) == NF_OK;
+    int ok = *flow && nf_vertex_set(*flow, t->model, &q->ctx, t->bsdf_prior ? &bsdf_prior : NULL,
+                                    NF_VERTEX_POINT) == NF_OK;
     /* Two questions go in one call, whose walks through the flow interleave. */
     float d[3], dirs[6], p[2];
-    if (ok && q->sample && q->light) {
-        put_vec3(dirs, q->light_wi);
-        ok = nf_point_sample_and_pdf(t->model, &sp, q->u, d, &q->p_flow, dirs,
-                                     &q->light_p_flow) == NF_OK;
-        q->wi = v3(d[0], d[1], d[2]);
-    } else if (ok && q->sample) {
-        ok = nf_point_sample(t->model, &sp, 1, q->u, d, &q->p_flow) == NF_OK;
+    if (ok && q->sample) {
+        if (q->light)
+            put_vec3(dirs, q->light_wi);
+        ok = nf_vertex_sample(*flow, q->u, d, &q->p_flow, q->light ? 1 : 0, dirs,
+                              &q->light_p_flow) == NF_OK;
         q->wi = v3(d[0], d[1], d[2]);
     } else if (ok && (q->pdf || q->light)) {
         size_t n = 0;
@@ -494,7 +500,7 @@ void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st)
             put_vec3(dirs + 3 * n++, q->wi);
         if (q->light)
             put_vec3(dirs + 3 * n++, q->light_wi);
-        ok = nf_point_pdf(t->model, &sp, n, dirs, p) == NF_OK;
+        ok = nf_vertex_pdf(*flow, n, dirs, p) == NF_OK;
         q->p_flow = q->pdf ? p[0] : q->p_flow;
         q->light_p_flow = q->light ? p[n - 1] : q->light_p_flow;
     }

@@ -77,7 +77,7 @@ int vertex_plan_next(const tracer *t, path_state *ps, rng *r, path_stats *st,
                      nf_path_vertex *prev, vertex_plan *vp);
 
 /* The recipe of docs/integration.md: the flow's questions answered at one shading point. */
-void answer_at_point(const tracer *t, vertex_plan *vp, path_stats *st);
+void answer_at_point(const tracer *t, nf_vertex **flow, vertex_plan *vp, path_stats *st);
 
 /* Finishes a planned vertex with the flow's answers: the light sample's contribution with its
  * MIS weight, then the scattered direction's weight and the next ray; v and vx, when not

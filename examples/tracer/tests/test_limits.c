@@ -159,16 +159,18 @@ static void test_invalid_ray_never_reaches_embree(void **state)
     /* The integrator checks the rays it forms before it asks: a camera moved out of range
      * behind the loader's back ends every path at once, counted, in any build. */
     tracer t = {.s = &s};
+    trace_scratch sc = {0};
     path_stats st = {0};
     rng r = rng_seed(5, RNG_TEST, 0, 0);
     s.cam.origin = v3(328.0f, 4e18f, 245.0f);
     for (int k = 0; k < 10; ++k) {
-        rgb L = trace_path(&t, &r, 4.0f, 4.0f, NULL, &st);
+        rgb L = trace_path(&t, &r, 4.0f, 4.0f, NULL, &sc, &st);
         assert_true(rgb_is_black(L));
     }
     assert_int_equal(st.paths, 10);
     assert_int_equal(st.invalid_rays, 10);
     assert_int_equal(st.rays, 0);
+    trace_scratch_free(&sc);
     scene_free(&s);
 }
 

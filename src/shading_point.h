@@ -1,6 +1,8 @@
 /*
- * nisflow/point.h - the shading-point API: prepare a shading point once, then draw and
- * evaluate any number of directions at it.
+ * shading_point.h - shading points: prepare a context once, then draw and evaluate any number
+ * of directions at it. Internal (not installed): renderers reach points through the vertex
+ * object (nisflow/vertex.h, NF_VERTEX_POINT), which keeps one; the tests, fuzzers and the
+ * benchmark call these directly.
  *
  * A path tracer asks the guide several questions about one shading context: a direction drawn
  * from the flow, the flow's density of the direction the BSDF drew, the flow's density of the
@@ -62,17 +64,15 @@
  * tests/correctness/test_point.c measures every call against that bound (with GCC and clang)
  * and prints what each used.
  */
-#ifndef NISFLOW_POINT_H
-#define NISFLOW_POINT_H
+#ifndef NISFLOW_SRC_SHADING_POINT_H
+#define NISFLOW_SRC_SHADING_POINT_H
 
 #include <stddef.h>
 #include <stdint.h>
 
-#include "model.h"
-#include "status.h"
-#include "version.h"
-
-NF_EXTERN_C_BEGIN
+#include "nisflow/model.h"
+#include "nisflow/status.h"
+#include "nisflow/version.h"
 
 /* The floats a point keeps of the first layers' context sums: coupling_layers times the
  * hidden width rounded up to 16. Both presets fit (small 32, large 64); a model above it
@@ -109,8 +109,8 @@ typedef struct nf_shading_point {
  * point is not written, so a point that was valid stays valid. Its cost is in
  * docs/performance.md.
  * Thread-safe on a const model; writes only *point; never allocates. */
-NF_API nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
-                                  const nf_prior_callbacks *prior, nf_shading_point *point);
+nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
+                           const nf_prior_callbacks *prior, nf_shading_point *point);
 
 /* Draws n directions at the prepared point: u[2i], u[2i+1] in [0,1) (values outside are
  * clamped, as in nf_sample) give dir[3i..3i+2], a unit vector, and, if pdf is not NULL,
@@ -120,8 +120,8 @@ NF_API nf_status nf_point_prepare(const nf_model *m, const nf_context *ctx,
  * another model, NaN or Inf in u) and NF_ERROR_STALE write nothing; NF_ERROR_NUMERIC (a
  * custom prior callback returned an invalid value) may come after earlier directions were
  * written. Thread-safe on a const model and point; never allocates. */
-NF_API nf_status nf_point_sample(const nf_model *m, const nf_shading_point *point, size_t n,
-                                 const float *u, float *dir, float *pdf);
+nf_status nf_point_sample(const nf_model *m, const nf_shading_point *point, size_t n,
+                          const float *u, float *dir, float *pdf);
 
 /* The solid-angle densities of n directions at the prepared point: pdf[i] for dir[3i..3i+2],
  * which must be finite and non-zero (squared length above 1e-30) and is normalized by the
@@ -131,8 +131,8 @@ NF_API nf_status nf_point_sample(const nf_model *m, const nf_shading_point *poin
  * less than two calls of n = 1.
  * Errors as nf_point_sample (a bad direction is NF_ERROR_INVALID_ARGUMENT, nothing written).
  * Thread-safe on a const model and point; never allocates. */
-NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n,
-                              const float *dir, float *pdf);
+nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, size_t n, const float *dir,
+                       float *pdf);
 
 /* A guided vertex's two questions of the flow in one call: draws a direction for u (as
  * nf_point_sample with n = 1: dir, and pdf if not NULL) and returns the density of another
@@ -143,10 +143,8 @@ NF_API nf_status nf_point_pdf(const nf_model *m, const nf_shading_point *point, 
  * Errors: as the two calls; every input is checked before anything is written, and
  * NF_ERROR_NUMERIC (a custom prior callback returned an invalid value) writes nothing either.
  * Thread-safe on a const model and point; never allocates. */
-NF_API nf_status nf_point_sample_and_pdf(const nf_model *m, const nf_shading_point *point,
-                                         const float u[2], float dir[3], float *pdf,
-                                         const float eval_dir[3], float *eval_pdf);
+nf_status nf_point_sample_and_pdf(const nf_model *m, const nf_shading_point *point,
+                                  const float u[2], float dir[3], float *pdf,
+                                  const float eval_dir[3], float *eval_pdf);
 
-NF_EXTERN_C_END
-
-#endif /* NISFLOW_POINT_H */
+#endif /* NISFLOW_SRC_SHADING_POINT_H */
