@@ -17,6 +17,7 @@ NF_DEB_PACKAGES=(
     clang           # second compiler in CI
     clang-format    # CI checks that include/ and src/ keep .clang-format's style
     libclang-rt-14-dev # clang's sanitizer and libFuzzer runtimes (.ci/robustness)
+    abigail-tools   # abidw, abidiff: CI checks the ABI against the last release's
     # The example path tracer (examples/tracer/); without them it is skipped at configure time.
     libembree-dev   # Embree 3: ray intersection
     libopenexr-dev  # OpenEXR 3: the OpenEXRCore C API for HDR images
