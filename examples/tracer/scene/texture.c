@@ -46,32 +46,50 @@ static rgb texel(const texture *t, const image *b, int x, int y)
     return rgb_make(p[0], p[1], p[2]);
 }
 
-static rgb eval_image(const texture *t, const image *b, float u0, float v0)
+/* The surface's (u, v) through to_uv; a non-finite result reads as (0, 0). */
+static void apply_to_uv(const texture *t, float u0, float v0, float *u, float *v)
 {
-    if (t->kind == TEX_CONSTANT)
-        return t->value;
-    float u = t->uv[0][0] * u0 + t->uv[0][1] * v0 + t->uv[0][2];
-    float v = t->uv[1][0] * u0 + t->uv[1][1] * v0 + t->uv[1][2];
-    if (!isfinite(u) || !isfinite(v))
-        u = v = 0.0f;
-    if (t->kind == TEX_CHECKERBOARD) {
-        int mu = u - floorf(u) > 0.5f, mv = v - floorf(v) > 0.5f;
-        return mu == mv ? t->color0 : t->color1;
-    }
-    /* Texel centres sit at half-integer positions. Keep u, v in a sane range first so that
-     * the float-to-int conversion below cannot overflow. */
+    *u = t->uv[0][0] * u0 + t->uv[0][1] * v0 + t->uv[0][2];
+    *v = t->uv[1][0] * u0 + t->uv[1][1] * v0 + t->uv[1][2];
+    if (!isfinite(*u) || !isfinite(*v))
+        *u = *v = 0.0f;
+}
+
+/* A bitmap's lookup position in texels (texel centres sit at half-integers) for transformed
+ * (u, v), wrapped or clamped: the lower texel (ix, iy) of the bilinear cell and the weights
+ * (ax, ay) of the next ones; (x, y) itself for the nearest lookup. */
+static void texel_cell(const texture *t, const image *b, float u, float v, float *x, float *y,
+                       int *ix, int *iy, float *ax, float *ay)
+{
+    /* Keep u, v in a sane range first so that the float-to-int conversion cannot overflow. */
     if (!t->clamp) {
         u -= floorf(u);
         v -= floorf(v);
     }
-    float x = u * (float)b->width - 0.5f, y = v * (float)b->height - 0.5f;
-    x = fminf(fmaxf(x, -2.0f), (float)b->width + 1.0f);
-    y = fminf(fmaxf(y, -2.0f), (float)b->height + 1.0f);
-    float fx = floorf(x), fy = floorf(y);
-    int ix = (int)fx, iy = (int)fy;
+    *x = fminf(fmaxf(u * (float)b->width - 0.5f, -2.0f), (float)b->width + 1.0f);
+    *y = fminf(fmaxf(v * (float)b->height - 0.5f, -2.0f), (float)b->height + 1.0f);
+    float fx = floorf(*x), fy = floorf(*y);
+    *ix = (int)fx;
+    *iy = (int)fy;
+    *ax = *x - fx;
+    *ay = *y - fy;
+}
+
+static rgb eval_image(const texture *t, const image *b, float u0, float v0)
+{
+    if (t->kind == TEX_CONSTANT)
+        return t->value;
+    float u, v;
+    apply_to_uv(t, u0, v0, &u, &v);
+    if (t->kind == TEX_CHECKERBOARD) {
+        int mu = u - floorf(u) > 0.5f, mv = v - floorf(v) > 0.5f;
+        return mu == mv ? t->color0 : t->color1;
+    }
+    float x, y, ax, ay;
+    int ix, iy;
+    texel_cell(t, b, u, v, &x, &y, &ix, &iy, &ax, &ay);
     if (t->nearest)
         return texel(t, b, (int)floorf(x + 0.5f), (int)floorf(y + 0.5f));
-    float ax = x - fx, ay = y - fy;
     rgb c00 = texel(t, b, ix, iy), c10 = texel(t, b, ix + 1, iy);
     rgb c01 = texel(t, b, ix, iy + 1), c11 = texel(t, b, ix + 1, iy + 1);
     rgb top = rgb_add(rgb_scale(c00, 1.0f - ax), rgb_scale(c10, ax));
@@ -97,21 +115,10 @@ void texture_eval_gradient(const texture *t, float u0, float v0, float grad[2])
     if (t->kind != TEX_BITMAP || t->nearest)
         return;
     const image *b = &t->bitmap;
-    float u = t->uv[0][0] * u0 + t->uv[0][1] * v0 + t->uv[0][2];
-    float v = t->uv[1][0] * u0 + t->uv[1][1] * v0 + t->uv[1][2];
-    if (!isfinite(u) || !isfinite(v))
-        return;
-    if (!t->clamp) {
-        u -= floorf(u);
-        v -= floorf(v);
-    }
-    /* The same cell and weights as eval_image's bilinear lookup. */
-    float x = u * (float)b->width - 0.5f, y = v * (float)b->height - 0.5f;
-    x = fminf(fmaxf(x, -2.0f), (float)b->width + 1.0f);
-    y = fminf(fmaxf(y, -2.0f), (float)b->height + 1.0f);
-    float fx = floorf(x), fy = floorf(y);
-    int ix = (int)fx, iy = (int)fy;
-    float ax = x - fx, ay = y - fy;
+    float u, v, x, y, ax, ay;
+    int ix, iy;
+    apply_to_uv(t, u0, v0, &u, &v);
+    texel_cell(t, b, u, v, &x, &y, &ix, &iy, &ax, &ay);
     float f00 = rgb_luminance(texel(t, b, ix, iy)), f10 = rgb_luminance(texel(t, b, ix + 1, iy));
     float f01 = rgb_luminance(texel(t, b, ix, iy + 1));
     float f11 = rgb_luminance(texel(t, b, ix + 1, iy + 1));
