@@ -74,6 +74,14 @@ NF_API int nf_guide_light_mis_uses_flow(const nf_guide_policy *p, uint32_t depth
  * probability 0, no question to the flow, light samples weighed against the BSDF's density. */
 #define NF_GUIDE_DEPTHS 3u
 
+/* The two zeros of depths, named. A pass's depth (nf_pass_plan.depth, nf_path_mixture_prob's
+ * pass_depth) of NF_EVERY_DEPTH guides every vertex; the moment of index NF_MOMENT_PLAIN
+ * (nf_path_state.moments[NF_MOMENT_PLAIN], the schedule's moments[NF_MOMENT_PLAIN x paths + j])
+ * is plain path tracing's, which guides no vertex. Moments 1 and 2 are the kinds that guide
+ * up to depths 1 and 2. */
+#define NF_EVERY_DEPTH 0u
+#define NF_MOMENT_PLAIN 0u
+
 /* The second moment of the policy that guides up to depth D (D = 0: plain path tracing),
  * measured on a path guided at least as deep. A kind's own passes would miss the rare bright
  * paths that rule its variance (light that only guiding finds, deeper than D), and the choice
@@ -115,14 +123,15 @@ typedef struct nf_depth_moment {
  * (the functions that return a value return 0). Stack: a few dozen bytes. */
 typedef struct nf_path_state {
     float boost;                              /* the mixture's boost so far, from 1       */
-    nf_depth_moment moments[NF_GUIDE_DEPTHS]; /* 0: plain path tracing's; k: up to depth k */
+    nf_depth_moment moments[NF_GUIDE_DEPTHS]; /* NF_MOMENT_PLAIN: plain path tracing's;
+                                               * k >= 1: the kind guiding up to depth k   */
 } nf_path_state;
 
 /* A path at the camera: boost 1, moments[k] started for depth k (0: plain path tracing). */
 NF_API void nf_path_start(nf_path_state *ps);
 
 /* The probability of sampling the flow at the vertex `depth` deep in a pass that guides up to
- * pass_depth (0: every depth; a training pass guides every depth): the policy's
+ * pass_depth (NF_EVERY_DEPTH: every depth; a training pass guides every depth): the policy's
  * mixture_prob, lowered to 1 - boost / max_boost so that the path's boost stays within its
  * cap, 0 below 0.05 (a vertex guided that little pays the flow for nothing) and 0 deeper than
  * pass_depth. It depends only on the path so far: the estimator stays unbiased. */

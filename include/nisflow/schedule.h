@@ -133,10 +133,10 @@ NF_API void nf_schedule_destroy(nf_schedule *s);
 
 /* What to render next. */
 typedef enum nf_pass_todo {
-    NF_TODO_TRAIN = 0,  /* a training pass: guided up to `depth` (0: every depth) by the
+    NF_TODO_TRAIN = 0,  /* a training pass: guided up to `depth` (NF_EVERY_DEPTH) by the
                          * guide's published model, its samples added to the guide; after
                          * nf_schedule_add_pass, train (nf_guide_train_pass) and publish    */
-    NF_TODO_GUIDED = 1, /* a render pass guided up to `depth` (0: every depth); no samples   */
+    NF_TODO_GUIDED = 1, /* a render pass guided up to `depth` (NF_EVERY_DEPTH: all); no samples */
     NF_TODO_PLAIN = 2,  /* a render pass without the flow (BSDF sampling and next-event
                          * estimation: the renderer's own path tracer)                      */
     NF_TODO_STOP = 3    /* the next pass would overrun the budget: call nf_schedule_combine */
@@ -146,7 +146,7 @@ typedef enum nf_pass_todo {
 typedef struct nf_pass_plan {
     nf_pass_todo todo;
     uint32_t depth; /* TRAIN and GUIDED: the deepest vertex guided, in segments from the
-                     * camera (the first vertex is 1), 0 for every depth                  */
+                     * camera (the first vertex is 1); NF_EVERY_DEPTH (0): every depth   */
     uint32_t pass;  /* the pass's index from 0: a random stream per pass, say             */
     uint32_t paths; /* the pass's paths, one through each of its pixels (nf_pass_pixel);
                      * at most pass_paths + pass_paths / 16 + 1                          */

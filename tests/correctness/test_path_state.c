@@ -76,6 +76,16 @@ static void test_pass_depth(void **state)
     assert_true(nf_path_mixture_prob(&ps, &pol, 1, 1) == pol.mixture_prob);
     assert_true(nf_path_mixture_prob(&ps, &pol, 2, 1) == 0.0f);
     assert_true(nf_path_mixture_prob(&ps, &pol, 9, 0) == pol.mixture_prob);
+    /* The named zeros: a pass of NF_EVERY_DEPTH guides a deep vertex; the moment at
+     * NF_MOMENT_PLAIN measures the policy that guides none (a guided scatter at depth 1
+     * moves its ratio, not its boost: p_bsdf / p_mix = 1/4, exact in float). */
+    assert_true(nf_path_mixture_prob(&ps, &pol, 50, NF_EVERY_DEPTH) == pol.mixture_prob);
+    assert_int_equal(ps.moments[NF_MOMENT_PLAIN].depth, 0);
+    nf_path_scatter(&ps, 1, 0.2f, 0.8f, pol.mixture_prob);
+    assert_true(ps.moments[NF_MOMENT_PLAIN].ratio == 0.25f);
+    assert_true(ps.moments[NF_MOMENT_PLAIN].boost == 1.0f);
+    assert_true(ps.moments[1].ratio == 1.0f && ps.moments[1].boost == 0.25f);
+    assert_true(ps.boost == 0.25f);
 }
 
 /* NULL states are no-ops, and the calls that answer answer 0. */
