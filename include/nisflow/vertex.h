@@ -34,7 +34,7 @@
  * renderer can run the builds between chunks of paths and time them apart from tracing (a
  * build is a one-time cost of the model, about NF_TABLE_CELLS densities at a point).
  *
- * Memory: nf_vertex_create allocates everything, from the config's allocator: about 1.5 KiB,
+ * Memory: nf_vertex_create allocates everything, from the config's allocator: about 4 KiB,
  * plus capacity x 2,192 bytes of tables when tables is 1 (8.6 MiB at the default). Nothing
  * is allocated afterwards.
  *
