@@ -97,10 +97,11 @@ typedef enum nf_vertex_route {
 
 /* Moves the object to a vertex: model m (const; acquired for the pass), context ctx (as
  * nf_sample takes it: finite position, normal zero in a medium or of squared length above
- * 1e-30, wo likewise), `prior` NULL or callbacks that replace a custom prior's for this vertex
- * (per-vertex data such as its BSDF in prior->user; they receive a pointer to the object's
- * copy of ctx and run on this thread; a non-NULL prior on a model with another prior kind is
- * refused). The questions that follow are answered for this vertex until the next set.
+ * 1e-30, wo likewise; a vertex answered from its cell's table reads position and normal
+ * only), `prior` NULL or callbacks that replace a custom prior's for this vertex (per-vertex
+ * data such as its BSDF in prior->user; they receive a pointer to the object's copy of ctx
+ * and run on this thread; a non-NULL prior on a model with another prior kind is refused).
+ * The questions that follow are answered for this vertex until the next set.
  * Errors (the object then answers nothing until a set succeeds):
  * NF_ERROR_INVALID_ARGUMENT (NULL, a bad context or prior, a route not of nf_vertex_route),
  * NF_ERROR_STALE (m changed during the call). Never allocates, never builds a table. */
