@@ -97,7 +97,7 @@ NF_EXTERN_C_BEGIN
  *                mixture of flow and BSDF drew). 0: it gives none (delta bounce, no guiding,
  *                the path ended here), yet its radiance fields above still carry the light
  *                it passes back to the vertices before it.
- *   ctx          the vertex's context, as passed to nf_point_prepare / nf_sample: finite,
+ *   ctx          the vertex's context, as passed to nf_vertex_set / nf_sample: finite,
  *                normal and wo of squared length > 1e-30, or a normal exactly (0, 0, 0) at
  *                a vertex in a medium, whose phase_g is then within +-NF_PHASE_G_MAX.
  *   dir          the sampled direction w_j, finite with squared length > 1e-30 (any length).
