@@ -3,9 +3,9 @@
  * thread: a direction drawn from the flow, and the flow's density of other directions (the
  * BSDF's, a light sample's), for a renderer that traces one path at a time.
  *
- * A vertex object answers each vertex one of two ways, and says which it took:
- *   - at a shading point of the vertex's context (point.h's route: the flow itself, walked
- *     once per question after the context's share of the work is done once), or
+ * A vertex object answers each vertex one of two ways (nf_vertex_get_stats counts which):
+ *   - at a shading point of the vertex's context: the flow itself, walked once per question
+ *     after the context's share of the work is done once, or
  *   - from the table of the vertex's cell: the flow tabulated once per cell of the scene on a
  *     grid of directions, after which a draw is two searches in cumulative sums and a density
  *     one lookup, a fraction of the flow's cost (docs/performance.md, "Tables"). A table is a
