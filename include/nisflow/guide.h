@@ -100,7 +100,10 @@ typedef struct nf_guide nf_guide;
 typedef struct nf_guide_config {
     uint32_t magic_;         /* set by nf_guide_config_init                                */
     size_t store_capacity;   /* training samples kept, newest first, and the most one pass
-                              * can add; [1, 2^26]; default 131072                        */
+                              * can add; [1, 2^26]; default 131072. Size it to a training
+                              * pass's samples: at most one per guided vertex, so paths a
+                              * pass (nf_schedule_config.pass_paths) x the guided vertices
+                              * a path records; nf_guide_stats.dropped says if it did not  */
     size_t payload_bytes;    /* caller bytes kept with each sample (a material for a BSDF
                               * prior, say), [0, 4096]; default 0                          */
     uint32_t step_samples;   /* samples per step on this process, [1, 2^20]; default 2048  */
@@ -173,7 +176,8 @@ NF_API nf_status nf_guide_release(nf_guide *g, const nf_model *m);
 /* Adds n training samples (train.h: context, unit-length-or-not direction, weight f >= 0 as
  * in nf_train_step). key[i] orders the samples: the store sorts a pass's samples by key (and
  * equal keys by their bytes) before training, so that training is the same bits however the
- * threads interleaved their calls; give distinct keys (a pixel and vertex index, say).
+ * threads interleaved their calls, as long as nothing is dropped (below: which samples drop
+ * depends on that order); give distinct keys (a pixel and vertex index, say).
  * key NULL: keys 0 (the bytes decide). payload: n x payload_bytes bytes, or NULL (zeros).
  * Samples with weight 0 are skipped (they carry nothing for the loss). Validated as
  * nf_train_step; a refused call adds nothing. n = 0 is a no-op whatever the pointers.
