@@ -8,10 +8,10 @@
  *   - what always goes to a point: media, a vertex with its own prior, a config without tables;
  *   - a vertex set before the model trained answers NF_ERROR_STALE, never stale numbers;
  *   - refusals name the vertex functions: no vertex set, a bad route, NaN in u, a zero
- *     direction, an uninitialized or out-of-range config, an allocator that fails.
+ *     direction, an uninitialized or out-of-range config (allocation failures:
+ *     test_alloc_failure).
  */
 #include <math.h>
-#include <stdlib.h>
 #include <string.h>
 
 #include <nisflow/nisflow.h>
@@ -208,42 +208,6 @@ static void test_a_trained_model_is_stale(void **state)
     nf_model_destroy(m);
 }
 
-/* An allocator that fails from its `left`-th call on. */
-typedef struct budget_alloc {
-    int left;
-} budget_alloc;
-
-static void *budget_alloc_fn(void *user, size_t size)
-{
-    budget_alloc *b = (budget_alloc *)user;
-    return b->left-- > 0 ? malloc(size) : NULL;
-}
-
-static void budget_free_fn(void *user, void *ptr)
-{
-    (void)user;
-    free(ptr);
-}
-
-/* Out of memory at the tables or at the object itself: NF_ERROR_OUT_OF_MEMORY, *out NULL,
- * nothing leaked (the sanitizers' runs check that). */
-static void test_out_of_memory(void **state)
-{
-    (void)state;
-    for (int left = 0; left < 2; ++left) {
-        budget_alloc b = {left};
-        nf_vertex_config cfg;
-        nf_vertex_config_init(&cfg);
-        cfg.allocator.alloc = budget_alloc_fn;
-        cfg.allocator.free = budget_free_fn;
-        cfg.allocator.user = &b;
-        nf_vertex *v = (nf_vertex *)&b;
-        assert_int_equal(nf_vertex_create(&cfg, &v), NF_ERROR_OUT_OF_MEMORY);
-        assert_null(v);
-        assert_non_null(strstr(nf_last_error_message(), "nf_vertex_create"));
-    }
-}
-
 static void test_refusals(void **state)
 {
     (void)state;
@@ -295,4 +259,4 @@ NFT_TEST_MAIN(cmocka_unit_test(test_at_a_point_the_bits_of_a_shading_point),
               cmocka_unit_test(test_by_table_after_the_cell_is_built),
               cmocka_unit_test(test_what_goes_to_a_point),
               cmocka_unit_test(test_a_trained_model_is_stale),
-              cmocka_unit_test(test_out_of_memory), cmocka_unit_test(test_refusals))
+              cmocka_unit_test(test_refusals))

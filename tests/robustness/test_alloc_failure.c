@@ -16,7 +16,9 @@
  * address space) that part is skipped.
  * The shading-point API never allocates (point.h): with the allocator armed to fail, no call
  * of nf_point_prepare / nf_point_sample / nf_point_pdf / nf_points_* reaches it, whether the
- * call succeeds, is refused or finds its point stale.
+ * call succeeds, is refused or finds its point stale. A vertex object (vertex.h) allocates in
+ * nf_vertex_create only: each of its allocations fails cleanly there, and its other calls,
+ * table builds included, never reach the allocator.
  */
 #define _POSIX_C_SOURCE 200809L /* fork, waitpid, getpid, setrlimit */
 
@@ -606,6 +608,59 @@ static void test_shading_points_never_allocate(void **state)
     }
 }
 
+/* nf_vertex_create fails cleanly at each of its allocations (its table cache, itself), and
+ * once made the object's sets, draws, densities and builds allocate nothing. */
+static void test_vertex(void **state)
+{
+    (void)state;
+    failing f;
+    memset(&f, 0, sizeof f);
+    nf_vertex_config vc;
+    nf_vertex_config_init(&vc);
+    vc.capacity = 64;
+    vc.allocator.alloc = failing_alloc;
+    vc.allocator.free = failing_free;
+    vc.allocator.user = &f;
+    nf_vertex *v = NULL;
+    unsigned long k = 0;
+    for (;; ++k) {
+        fail_in(&f, k);
+        v = (nf_vertex *)&f;
+        nf_status st = nf_vertex_create(&vc, &v);
+        if (st == NF_OK)
+            break;
+        assert_int_equal(st, NF_ERROR_OUT_OF_MEMORY);
+        assert_null(v);
+        assert_true(message_mentions_memory());
+        assert_non_null(strstr(nf_last_error_message(), "nf_vertex_create"));
+        assert_int_equal(f.live, 0);
+    }
+    assert_true(k >= 2); /* the cache and the object: both failures were seen */
+    nf_model *m = nft_random_model();
+    const unsigned long calls = f.calls, failed = f.failed;
+    assert_int_equal(failed, k); /* one failure per attempt before the one that succeeded */
+    fail_in(&f, 0);
+    nf_context ctx = nft_context(0.30f, 0.60f, 0.26f, 0.0f, 0.0f, 1.0f, 0.3f, 0.2f, 0.9f);
+    const float u[2] = {0.4f, 0.6f}, light[3] = {0.1f, 0.2f, 0.9f};
+    float d[3], p, pl;
+    for (int round = 0; round < 2; ++round) { /* a point and a build, then the table */
+        assert_int_equal(nf_vertex_set(v, m, &ctx, NULL, NF_VERTEX_TABLE), NF_OK);
+        assert_int_equal(nf_vertex_sample(v, u, d, &p, 1, light, &pl), NF_OK);
+        assert_int_equal(nf_vertex_pdf(v, 1, light, &pl), NF_OK);
+        assert_int_equal(nf_vertex_build(v), NF_OK);
+    }
+    nf_vertex_stats vs;
+    assert_int_equal(nf_vertex_get_stats(v, &vs), NF_OK);
+    assert_true(vs.points == 1 && vs.tables == 1 && vs.builds == 1);
+    assert_int_equal(f.calls, calls);
+    assert_int_equal(f.failed, failed);
+    never_fail(&f);
+    nf_vertex_destroy(v);
+    nf_model_destroy(m);
+    assert_int_equal(f.live, 0);
+    assert_int_equal(f.bad_free, 0);
+}
+
 NFT_TEST_MAIN(
     cmocka_unit_test(test_create),
     cmocka_unit_test(test_clone),
@@ -613,4 +668,5 @@ NFT_TEST_MAIN(
     cmocka_unit_test(test_scenario),
     cmocka_unit_test(test_load_and_deserialize),
     cmocka_unit_test(test_shading_points_never_allocate),
+    cmocka_unit_test(test_vertex),
 )
